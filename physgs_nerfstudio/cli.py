@@ -1,0 +1,38 @@
+"""The `physgs` command: one tyro subcommand per pipeline stage.
+
+Each subcommand is a dataclass with a ``main()`` method that lives next to the code it drives; heavy
+imports (nerfstudio, torch models) happen inside ``main()`` so ``physgs --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+# name -> (module, dataclass). Order is the order of the pipeline, as shown by `physgs --help`.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "materials": ("physgs_nerfstudio.info", "MaterialsCommand"),
+    "info": ("physgs_nerfstudio.info", "InfoCommand"),
+}
+
+
+def _load(name: str):
+    module, cls = COMMANDS[name]
+    return getattr(importlib.import_module(module), cls)
+
+
+def entrypoint() -> None:
+    import tyro
+
+    from typing import Annotated, Union
+
+    options = tuple(Annotated[_load(name), tyro.conf.subcommand(name)] for name in COMMANDS)
+    config = tyro.cli(
+        Union[options],  # type: ignore[valid-type]
+        prog="physgs",
+        description="PhysGS for nerfstudio: physical properties with uncertainty on Gaussian splats.",
+    )
+    config.main()
+
+
+if __name__ == "__main__":
+    entrypoint()
