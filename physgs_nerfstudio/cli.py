@@ -10,6 +10,7 @@ import importlib
 
 # name -> (module, dataclass). Order is the order of the pipeline, as shown by `physgs --help`.
 COMMANDS: dict[str, tuple[str, str]] = {
+    "synth": ("physgs_nerfstudio.synth.command", "SynthCommand"),
     "materials": ("physgs_nerfstudio.info", "MaterialsCommand"),
     "info": ("physgs_nerfstudio.info", "InfoCommand"),
 }
