@@ -12,6 +12,7 @@ import importlib
 COMMANDS: dict[str, tuple[str, str]] = {
     "synth": ("physgs_nerfstudio.synth.command", "SynthCommand"),
     "materials": ("physgs_nerfstudio.info", "MaterialsCommand"),
+    "eval": ("physgs_nerfstudio.eval.command", "EvalCommand"),
     "info": ("physgs_nerfstudio.info", "InfoCommand"),
 }
 
