@@ -11,6 +11,7 @@ import importlib
 # name -> (module, dataclass). Order is the order of the pipeline, as shown by `physgs --help`.
 COMMANDS: dict[str, tuple[str, str]] = {
     "synth": ("physgs_nerfstudio.synth.command", "SynthCommand"),
+    "perceive": ("physgs_nerfstudio.perception.command", "PerceiveCommand"),
     "materials": ("physgs_nerfstudio.info", "MaterialsCommand"),
     "eval": ("physgs_nerfstudio.eval.command", "EvalCommand"),
     "info": ("physgs_nerfstudio.info", "InfoCommand"),

@@ -1,0 +1,474 @@
+"""VLM backends behind one protocol: ``query(request) -> VLMResponse``.
+
+* :class:`OpenAIBackend` - any OpenAI-compatible ``/chat/completions`` endpoint with image input (OpenAI,
+  vLLM, Ollama, llama.cpp server, ...), standard library only (``urllib``). Timeouts; retries with
+  exponential backoff and jitter on 408/409/429/5xx, timeouts and connection errors (``Retry-After`` /
+  ``retry-after-ms`` honoured, capped); at most ``max_concurrency`` requests in flight per backend;
+  ``response_format={"type": "json_object"}`` (switched off for the rest of the run the first time the
+  server answers 400 to a request carrying it); token accounting from ``usage`` and a cost estimate from
+  configurable $/1k-token rates. The API key is read from the environment variable named by
+  ``api_key_env`` and is redacted from every message this module produces.
+* :class:`CachedBackend` - wraps a backend with the disk cache (cache.py); with ``inner=None`` it is the
+  ``replay`` backend, which answers only from the cache and raises :class:`ReplayMiss` naming the request.
+* ``simulated`` - see simulated.py (generated scenes only; every output flagged ``simulated``).
+"""
+
+from __future__ import annotations
+
+import base64
+import email.utils
+import http.client
+import json
+import logging
+import os
+import random
+import re
+import threading
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from .cache import ResponseCache, request_key
+from .prompts import VLMRequest
+
+logger = logging.getLogger(__name__)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# protocol
+# ---------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Usage:
+    prompt_tokens: int = 0
+    completion_tokens: int = 0
+    total_tokens: int = 0
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> Usage:
+        d = d or {}
+
+        def _int(v: Any) -> int:
+            try:
+                return max(0, int(v))
+            except (TypeError, ValueError):
+                return 0
+
+        p, c = _int(d.get("prompt_tokens")), _int(d.get("completion_tokens"))
+        t = _int(d.get("total_tokens")) or p + c
+        return cls(p, c, t)
+
+    def to_dict(self) -> dict[str, int]:
+        return {
+            "prompt_tokens": self.prompt_tokens,
+            "completion_tokens": self.completion_tokens,
+            "total_tokens": self.total_tokens,
+        }
+
+
+@dataclass
+class VLMResponse:
+    text: str
+    usage: Usage = field(default_factory=Usage)
+    cached: bool = False
+    simulated: bool = False
+    key: str = ""
+    """Cache key of the request ('' when not computed)."""
+
+
+class VLMBackend(Protocol):
+    name: str
+    """Backend id used in cache keys and observation records ("openai", "simulated", ...)."""
+    model: str
+    variant: str
+    """Configuration fingerprint that changes answers (cache key part); '' for real endpoints."""
+    simulated: bool
+
+    def query(self, request: VLMRequest) -> VLMResponse: ...
+
+
+class VLMError(RuntimeError):
+    """A request failed for good (after retries); the message never contains the API key."""
+
+
+class ReplayMiss(VLMError):
+    """The replay backend found no cached answer for a request."""
+
+
+def key_for(backend_name: str, model: str, variant: str, request: VLMRequest) -> str:
+    return request_key(
+        backend_name,
+        model,
+        variant,
+        request.system,
+        request.text,
+        request.image_hashes(),
+        request.schema_version,
+    )
+
+
+# ---------------------------------------------------------------------------------------------------------
+# secrets
+# ---------------------------------------------------------------------------------------------------------
+
+
+class Secret:
+    """Holds an API key; its repr/str never show it."""
+
+    __slots__ = ("_value",)
+
+    def __init__(self, value: str):
+        self._value = value
+
+    def reveal(self) -> str:
+        return self._value
+
+    def __bool__(self) -> bool:
+        return bool(self._value)
+
+    def __repr__(self) -> str:
+        return "Secret('***')" if self._value else "Secret('')"
+
+    __str__ = __repr__
+
+    def __reduce__(self):  # never pickled into caches or subprocesses
+        raise TypeError("Secret cannot be pickled")
+
+
+_TOKENISH = re.compile(r"[A-Za-z0-9_\-\.]{6,}")
+
+
+def redact(text: str, secrets: list[str] | tuple[str, ...]) -> str:
+    """Replace each secret, and any run of 6+ key characters that is part of one (servers often echo a
+    truncated key such as ``sk-...abcd1234``), with ``***``."""
+    secrets = [s for s in secrets if s]
+    if not secrets or not text:
+        return text
+    for s in secrets:
+        text = text.replace(s, "***")
+
+    def _sub(m: re.Match) -> str:
+        tok = m.group(0)
+        return "***" if any(tok in s for s in secrets) else tok
+
+    return _TOKENISH.sub(_sub, text)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# OpenAI-compatible endpoint
+# ---------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class OpenAIConfig:
+    """An OpenAI-compatible chat-completions endpoint with image input."""
+
+    base_url: str = "https://api.openai.com/v1"
+    """Endpoint root; ``/chat/completions`` is appended (e.g. http://localhost:8000/v1 for vLLM)."""
+    model: str = "gpt-5"
+    api_key_env: str = "OPENAI_API_KEY"
+    """Name of the environment variable holding the API key ('' for a keyless local server)."""
+    timeout_s: float = 120.0
+    """Socket timeout per request (connect and each read)."""
+    max_retries: int = 5
+    """Retries after the first attempt on 408/409/429/5xx, timeouts and connection errors."""
+    backoff_base_s: float = 1.0
+    backoff_max_s: float = 60.0
+    """Cap on one wait (also caps Retry-After)."""
+    max_concurrency: int = 4
+    """Requests in flight at once."""
+    json_mode: bool = True
+    """Send response_format={"type": "json_object"}; switched off after a 400 that may be caused by it."""
+    image_detail: str = "auto"
+    """OpenAI image ``detail``: auto | low | high."""
+    max_tokens: int | None = None
+    """Completion token limit (None: server default)."""
+    max_tokens_field: str = "max_completion_tokens"
+    """Name of the limit field: max_completion_tokens (OpenAI) or max_tokens (older servers)."""
+    temperature: float | None = None
+    """None: server default (GPT-5 only accepts its default)."""
+    usd_per_1k_prompt_tokens: float = 0.0
+    """Price per 1k prompt tokens for the cost estimate (0: unknown, cost shown as 0)."""
+    usd_per_1k_completion_tokens: float = 0.0
+    seed: int | None = 0
+    """Seed for the retry jitter."""
+
+
+def _retry_after_s(headers: Any) -> float | None:
+    if headers is None:
+        return None
+    ms = headers.get("retry-after-ms")
+    if ms:
+        try:
+            return max(0.0, float(ms) / 1000.0)
+        except ValueError:
+            pass
+    ra = headers.get("Retry-After")
+    if not ra:
+        return None
+    try:
+        return max(0.0, float(ra))
+    except ValueError:
+        try:
+            when = email.utils.parsedate_to_datetime(ra)
+            return max(0.0, when.timestamp() - time.time())
+        except (TypeError, ValueError):
+            return None
+
+
+def _message_text(body: dict) -> str:
+    choices = body.get("choices") or []
+    if not choices:
+        raise ValueError("response has no choices")
+    msg = choices[0].get("message") or {}
+    content = msg.get("content")
+    if isinstance(content, list):  # content parts
+        content = "".join(p.get("text", "") for p in content if isinstance(p, dict))
+    if content is None:
+        refusal = msg.get("refusal")
+        return "" if refusal is None else json.dumps({"refusal": str(refusal)})
+    return str(content)
+
+
+class OpenAIBackend:
+    name = "openai"
+    variant = ""
+    simulated = False
+
+    def __init__(self, config: OpenAIConfig | None = None, sleep: Callable[[float], None] = time.sleep):
+        self.config = cfg = config or OpenAIConfig()
+        self.model = cfg.model
+        self._url = cfg.base_url.rstrip("/") + "/chat/completions"
+        if cfg.api_key_env:
+            value = os.environ.get(cfg.api_key_env, "")
+            if not value:
+                raise VLMError(
+                    f"environment variable {cfg.api_key_env} is not set: export it with your API key "
+                    f"(export {cfg.api_key_env}=...), name another with --api-key-env, or pass "
+                    "--api-key-env '' for a keyless local server."
+                )
+            self._key = Secret(value)
+        else:
+            self._key = Secret("")
+        self._sleep = sleep
+        self._json_mode = cfg.json_mode
+        self._lock = threading.Lock()
+        self._slots = threading.BoundedSemaphore(max(1, cfg.max_concurrency))
+        self._rng = random.Random(cfg.seed)
+        # statistics (thread-safe through _lock)
+        self.http_requests = 0
+        self.retries = 0
+        self.failures = 0
+        self.usage = Usage()
+
+    def __repr__(self) -> str:
+        return f"OpenAIBackend(url={self._url!r}, model={self.model!r}, key={self._key!r})"
+
+    # -- helpers ---------------------------------------------------------------------------------
+    def _redact(self, text: str) -> str:
+        return redact(text, [self._key.reveal()])
+
+    def cost_usd(self, usage: Usage) -> float:
+        c = self.config
+        return (
+            usage.prompt_tokens / 1000 * c.usd_per_1k_prompt_tokens
+            + usage.completion_tokens / 1000 * c.usd_per_1k_completion_tokens
+        )
+
+    def _payload(self, request: VLMRequest, json_mode: bool) -> bytes:
+        cfg = self.config
+        content: list[dict] = [{"type": "text", "text": request.text}]
+        for data in request.images:
+            url = f"data:{request.mime};base64," + base64.b64encode(data).decode("ascii")
+            content.append({"type": "image_url", "image_url": {"url": url, "detail": cfg.image_detail}})
+        body: dict[str, Any] = {
+            "model": cfg.model,
+            "messages": [{"role": "system", "content": request.system}, {"role": "user", "content": content}],
+        }
+        if json_mode:
+            body["response_format"] = {"type": "json_object"}
+        if cfg.max_tokens is not None:
+            body[cfg.max_tokens_field] = int(cfg.max_tokens)
+        if cfg.temperature is not None:
+            body["temperature"] = float(cfg.temperature)
+        return json.dumps(body).encode("utf-8")
+
+    def _post(self, data: bytes) -> tuple[int, Any, bytes]:
+        req = urllib.request.Request(self._url, data=data, method="POST")
+        req.add_header("Content-Type", "application/json")
+        if self._key:
+            req.add_header("Authorization", "Bearer " + self._key.reveal())
+        with self._lock:
+            self.http_requests += 1
+        try:
+            with urllib.request.urlopen(req, timeout=self.config.timeout_s) as resp:
+                return resp.status, resp.headers, resp.read()
+        except urllib.error.HTTPError as err:
+            try:
+                body = err.read()
+            except Exception:  # pragma: no cover - broken connection while reading the error body
+                body = b""
+            return err.code, err.headers, body
+
+    def _backoff(self, attempt: int, retry_after: float | None) -> float:
+        cfg = self.config
+        if retry_after is not None:
+            return min(cfg.backoff_max_s, retry_after)
+        with self._lock:
+            jitter = 1.0 + 0.25 * self._rng.random()
+        return min(cfg.backoff_max_s, cfg.backoff_base_s * (2**attempt) * jitter)
+
+    # -- protocol ----------------------------------------------------------------------------------
+    def query(self, request: VLMRequest) -> VLMResponse:
+        cfg = self.config
+        attempt = 0
+        with self._slots:
+            while True:
+                json_mode = self._json_mode
+                retry_after: float | None = None
+                try:
+                    status, headers, body = self._post(self._payload(request, json_mode))
+                except (
+                    TimeoutError,
+                    urllib.error.URLError,
+                    ConnectionError,
+                    http.client.HTTPException,
+                    OSError,
+                ) as err:
+                    reason = getattr(err, "reason", err)
+                    problem = f"{type(err).__name__}: {reason}"
+                else:
+                    if status == 200:
+                        try:
+                            parsed = json.loads(body.decode("utf-8", errors="replace"))
+                            text = _message_text(parsed)
+                        except (ValueError, AttributeError, TypeError) as err:
+                            with self._lock:
+                                self.failures += 1
+                            raise VLMError(
+                                self._redact(
+                                    f"{request.describe()}: unreadable response from {self._url}: {err}"
+                                )
+                            ) from None
+                        usage = Usage.from_dict(parsed.get("usage") if isinstance(parsed, dict) else None)
+                        with self._lock:
+                            self.usage = Usage(
+                                self.usage.prompt_tokens + usage.prompt_tokens,
+                                self.usage.completion_tokens + usage.completion_tokens,
+                                self.usage.total_tokens + usage.total_tokens,
+                            )
+                        return VLMResponse(text=text, usage=usage, cached=False, simulated=False)
+                    snippet = body[:500].decode("utf-8", errors="replace")
+                    if status == 400 and json_mode:
+                        with self._lock:
+                            if self._json_mode:
+                                self._json_mode = False
+                                logger.warning(
+                                    "%s answered 400 to response_format=json_object (%s); retrying without it "
+                                    "for the rest of this run",
+                                    self._url,
+                                    self._redact(snippet[:200]),
+                                )
+                        continue
+                    if status not in (408, 409, 429) and status < 500:
+                        with self._lock:
+                            self.failures += 1
+                        raise VLMError(
+                            self._redact(f"{request.describe()}: HTTP {status} from {self._url}: {snippet}")
+                        )
+                    problem = f"HTTP {status}: {snippet[:200]}"
+                    retry_after = _retry_after_s(headers)
+                if attempt >= cfg.max_retries:
+                    with self._lock:
+                        self.failures += 1
+                    raise VLMError(
+                        self._redact(
+                            f"{request.describe()}: giving up after {attempt + 1} attempts ({problem})"
+                        )
+                    )
+                delay = self._backoff(attempt, retry_after)
+                logger.info("retrying %s in %.2fs after %s", request.describe(), delay, self._redact(problem))
+                with self._lock:
+                    self.retries += 1
+                attempt += 1
+                self._sleep(delay)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# cache wrapper / replay
+# ---------------------------------------------------------------------------------------------------------
+
+
+class CachedBackend:
+    """Answers from the disk cache when it can, else asks ``inner`` and caches the answer.
+
+    With ``inner=None`` this is the ``replay`` backend: the identity (name, model, variant) of the backend
+    that filled the cache must be given, and a miss raises :class:`ReplayMiss`.
+    """
+
+    def __init__(
+        self,
+        inner: VLMBackend | None,
+        cache: ResponseCache,
+        *,
+        name: str | None = None,
+        model: str | None = None,
+        variant: str | None = None,
+        simulated: bool | None = None,
+    ):
+        if inner is None and (name is None or model is None):
+            raise ValueError(
+                "the replay backend needs the name and model of the backend that filled the cache"
+            )
+        self.inner = inner
+        self.cache = cache
+        self.name = name if name is not None else inner.name  # type: ignore[union-attr]
+        self.model = model if model is not None else inner.model  # type: ignore[union-attr]
+        self.variant = variant if variant is not None else (inner.variant if inner is not None else "")
+        self.simulated = simulated if simulated is not None else bool(inner is not None and inner.simulated)
+
+    @property
+    def replay(self) -> bool:
+        return self.inner is None
+
+    def key(self, request: VLMRequest) -> str:
+        return key_for(self.name, self.model, self.variant, request)
+
+    def lookup(self, request: VLMRequest) -> VLMResponse | None:
+        key = self.key(request)
+        entry = self.cache.get(key)
+        if entry is None:
+            return None
+        return VLMResponse(
+            entry.text, Usage.from_dict(entry.usage), cached=True, simulated=entry.simulated, key=key
+        )
+
+    def query(self, request: VLMRequest) -> VLMResponse:
+        hit = self.lookup(request)
+        if hit is not None:
+            return hit
+        key = self.key(request)
+        if self.inner is None:
+            raise ReplayMiss(
+                f"replay: no cached response for {request.describe()} (key {key}, backend {self.name}, model "
+                f"{self.model!r}) in {self.cache.root}. Run once with the real backend, or check --model / "
+                "--replay-source and the prompt settings, which are part of the key."
+            )
+        response = self.inner.query(request)
+        self.cache.put(
+            key,
+            response.text,
+            response.usage.to_dict(),
+            response.simulated,
+            meta={
+                "backend": self.name,
+                "model": self.model,
+                "view": request.view,
+                "mask_id": request.mask_id,
+            },
+        )
+        return VLMResponse(response.text, response.usage, cached=False, simulated=response.simulated, key=key)
