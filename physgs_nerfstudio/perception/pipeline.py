@@ -53,7 +53,7 @@ class PerceptionConfig:
     data: Path
     """Nerfstudio dataset directory (with transforms.json)."""
     segmenter: Literal["builtin", "sam"] = "builtin"
-    """builtin: weight-free felzenszwalb masks (weaker); sam: segment-anything (pip install -e ".[sam]")."""
+    """builtin: weight-free SLIC superpixel masks merged by colour (weaker than SAM); sam: segment-anything (pip install -e ".[sam]")."""
     sam_checkpoint: Path | None = None
     """SAM checkpoint file (required with --segmenter sam)."""
     sam_model_type: str = "vit_h"
