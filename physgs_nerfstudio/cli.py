@@ -12,6 +12,7 @@ import importlib
 COMMANDS: dict[str, tuple[str, str]] = {
     "synth": ("physgs_nerfstudio.synth.command", "SynthCommand"),
     "perceive": ("physgs_nerfstudio.perception.command", "PerceiveCommand"),
+    "image": ("physgs_nerfstudio.single_image.command", "ImageCommand"),
     "materials": ("physgs_nerfstudio.info", "MaterialsCommand"),
     "eval": ("physgs_nerfstudio.eval.command", "EvalCommand"),
     "info": ("physgs_nerfstudio.info", "InfoCommand"),
