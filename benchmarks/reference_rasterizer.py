@@ -1,0 +1,90 @@
+"""Timing of the pure-torch reference rasterizer on this CPU.
+
+Prints forward and forward+backward times (median of a few runs) for 64x64 and 128x128 images with
+1k, 5k and 20k random Gaussians in front of the camera, each covering a few to tens of pixels.
+
+    python benchmarks/reference_rasterizer.py [--repeats 5] [--sizes 64 128] [--counts 1000 5000 20000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import torch
+
+from physgs_nerfstudio.render import reference_rasterization
+
+
+def random_scene(n: int, size: int, seed: int = 0) -> dict[str, torch.Tensor]:
+    """Gaussians in a frustum 2..4 m in front of an identity camera with a 60 degree field of view."""
+    g = torch.Generator().manual_seed(seed)
+    focal = 0.5 * size / torch.tan(torch.tensor(torch.pi / 6)).item()
+    z = 2.0 + 2.0 * torch.rand(n, generator=g)
+    xy = (torch.rand(n, 2, generator=g) - 0.5) * 2 * (0.5 * size / focal) * z[:, None]
+    means = torch.cat([xy, z[:, None]], 1)
+    # pixel footprint sigma ~ 0.5..3 px at the image scale -> 3-sigma radius of 2..9 px
+    sigma_px = 0.5 + 2.5 * torch.rand(n, 3, generator=g)
+    scales = sigma_px * z[:, None] / focal
+    quats = torch.randn(n, 4, generator=g)
+    opacities = 0.1 + 0.8 * torch.rand(n, generator=g)
+    colors = torch.rand(n, 3, generator=g)
+    viewmats = torch.eye(4)[None]
+    Ks = torch.tensor([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])[None]
+    return {"means": means, "quats": quats, "scales": scales, "opacities": opacities, "colors": colors,
+                "viewmats": viewmats, "Ks": Ks}  # fmt: skip
+
+
+def time_once(scene: dict[str, torch.Tensor], size: int, backward: bool) -> tuple[float, float]:
+    """(wall, process CPU) seconds of one render (and backward)."""
+    params = {k: v.clone().requires_grad_(backward and k not in ("viewmats", "Ks")) for k, v in scene.items()}
+    t0, c0 = time.perf_counter(), time.process_time()
+    with torch.set_grad_enabled(backward):
+        img, alpha, meta = reference_rasterization(**params, width=size, height=size, packed=False)
+        if backward:
+            meta["means2d"].retain_grad()
+            (img.sum() + alpha.sum()).backward()
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
+def median_times(
+    scene: dict[str, torch.Tensor], size: int, backward: bool, repeats: int
+) -> tuple[float, float]:
+    runs = [time_once(scene, size, backward) for _ in range(repeats)]
+    return statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[64, 128])
+    parser.add_argument("--counts", type=int, nargs="+", default=[1000, 5000, 20000])
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    print(
+        f"torch {torch.__version__}, threads {torch.get_num_threads()}; wall and process-CPU seconds, median"
+    )
+    print(
+        f"{'image':>9} {'gaussians':>9} {'visible':>8} {'fwd wall':>9} {'fwd cpu':>8} {'f+b wall':>9} {'f+b cpu':>8}"
+    )
+    for size in args.sizes:
+        for n in args.counts:
+            scene = random_scene(n, size)
+            with torch.no_grad():
+                _, _, meta = reference_rasterization(**scene, width=size, height=size, packed=False)
+            visible = int((meta["radii"] > 0).sum())
+            time_once(scene, size, True)  # warm-up
+            fwd = median_times(scene, size, False, args.repeats)
+            both = median_times(scene, size, True, args.repeats)
+            print(
+                f"{size:>4}x{size:<4} {n:>9} {visible:>8} {fwd[0]:>9.3f} {fwd[1]:>8.3f} {both[0]:>9.3f} {both[1]:>8.3f}"
+            )
+
+
+if __name__ == "__main__":
+    main()

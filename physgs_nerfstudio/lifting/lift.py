@@ -1,0 +1,121 @@
+"""Lift per-pixel evidence maps onto Gaussians through their alpha-blending weights.
+
+For Gaussian g and view v, the lifted evidence is sum_pixels w_g(p) * e_v(p), where w_g(p) = T * alpha is
+g's compositing weight at pixel p. Rendering a feature tensor F [N, C] gives I(p) = sum_g w_g(p) F_g, so
+d/dF_g of sum_p <I(p), e_v(p)> is exactly that sum: one backward pass of a C-channel render per view yields
+the evidence of every Gaussian at once. Geometry is detached; no gradient reaches it.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import NamedTuple
+
+import torch
+from jaxtyping import Float, Int
+from torch import Tensor
+
+from ..render import Backend, rasterize
+
+
+class LiftResult(NamedTuple):
+    """Unpacks as `(evidence, visibility)`, the tuple of the architecture contract."""
+
+    evidence: Float[Tensor, "N C"]  # sum over views and pixels of weight * evidence
+    visibility: Float[Tensor, " N"]  # sum over views and pixels of weight (times pixel_weights if given)
+
+
+def lift_evidence(
+    means: Float[Tensor, "N 3"],
+    quats: Float[Tensor, "N 4"],
+    scales: Float[Tensor, "N 3"],
+    opacities: Float[Tensor, " N"],
+    viewmats: Float[Tensor, "V 4 4"],
+    Ks: Float[Tensor, "V 3 3"],
+    width: int,
+    height: int,
+    evidence_maps: Float[Tensor, "V H W C"],
+    *,
+    backend: Backend = "auto",
+    channel_chunk: int = 32,
+    pixel_weights: Float[Tensor, "V H W"] | None = None,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    eps2d: float = 0.3,
+    rasterize_mode: str = "classic",
+) -> LiftResult:
+    """Per-Gaussian evidence and visibility from V views (activated scales/opacities, as for rendering).
+
+    `pixel_weights` (e.g. a validity mask) multiplies each pixel's evidence and its visibility count.
+    Channels are rendered `channel_chunk` at a time (the visibility channel rides along with the first).
+    """
+    N, V = means.shape[0], viewmats.shape[0]
+    if evidence_maps.dim() != 4 or evidence_maps.shape[:3] != (V, height, width):
+        raise ValueError(
+            f"evidence_maps must be [V={V}, H={height}, W={width}, C], got {tuple(evidence_maps.shape)}"
+        )
+    if Ks.shape != (V, 3, 3) or viewmats.shape != (V, 4, 4):
+        raise ValueError(
+            f"viewmats must be [V, 4, 4] and Ks [V, 3, 3], got {tuple(viewmats.shape)}, {tuple(Ks.shape)}"
+        )
+    if pixel_weights is not None and pixel_weights.shape != (V, height, width):
+        raise ValueError(
+            f"pixel_weights must be [V={V}, H={height}, W={width}], got {tuple(pixel_weights.shape)}"
+        )
+    if channel_chunk < 1:
+        raise ValueError(f"channel_chunk must be >= 1, got {channel_chunk}")
+    geometry = [t.detach() for t in (means, quats, scales, opacities, viewmats, Ks)]
+    means, quats, scales, opacities, viewmats, Ks = geometry
+    C = evidence_maps.shape[-1]
+    dtype = means.dtype
+    evidence = torch.zeros(N, C, dtype=dtype, device=means.device)
+    visibility = torch.zeros(N, dtype=dtype, device=means.device)
+    bounds = list(range(0, C + 1, channel_chunk))
+    if bounds[-1] != C + 1:
+        bounds.append(C + 1)
+
+    for v in range(V):
+        # channels 0..C-1: evidence; channel C: ones (visibility)
+        target = torch.cat(
+            [evidence_maps[v].to(dtype), torch.ones(height, width, 1, dtype=dtype, device=means.device)], -1
+        )
+        if pixel_weights is not None:
+            target = target * pixel_weights[v, ..., None].to(dtype)
+        for lo, hi in itertools.pairwise(bounds):
+            feats = torch.zeros(N, hi - lo, dtype=dtype, device=means.device, requires_grad=True)
+            with torch.enable_grad():
+                render, _, _ = rasterize(
+                    means, quats, scales, opacities, feats, viewmats[v : v + 1], Ks[v : v + 1], width, height,
+                    near_plane=near_plane, far_plane=far_plane, eps2d=eps2d, packed=False,
+                    rasterize_mode=rasterize_mode, backend=backend,
+                )  # fmt: skip
+                (grad,) = torch.autograd.grad(
+                    (render[0] * target[..., lo:hi]).sum(), feats, allow_unused=True
+                )
+            if grad is None:  # nothing visible in this view
+                continue
+            if hi == C + 1:
+                visibility += grad[:, -1]
+            top = min(hi, C)
+            if top > lo:
+                evidence[:, lo:top] += grad[:, : top - lo]
+    return LiftResult(evidence=evidence, visibility=visibility)
+
+
+def label_evidence_maps(
+    labels: Int[Tensor, "V H W"], confidence: Float[Tensor, "V H W"], num_classes: int
+) -> Float[Tensor, "V H W K"]:
+    """One-hot evidence maps from material label maps (0 = unknown -> no evidence, 1..K = class id)
+    scaled by the per-pixel confidence."""
+    if labels.shape != confidence.shape:
+        raise ValueError(
+            f"labels {tuple(labels.shape)} and confidence {tuple(confidence.shape)} differ in shape"
+        )
+    if labels.dtype.is_floating_point:
+        raise TypeError(f"labels must be an integer tensor, got {labels.dtype}")
+    if labels.numel() and (int(labels.min()) < 0 or int(labels.max()) > num_classes):
+        raise ValueError(f"labels must lie in [0, {num_classes}] (0 = unknown), got [{int(labels.min())}, "
+                         f"{int(labels.max())}]")  # fmt: skip
+    onehot = torch.nn.functional.one_hot(labels.long(), num_classes + 1)[..., 1:]
+    dtype = confidence.dtype if confidence.dtype.is_floating_point else torch.float32
+    return onehot.to(dtype) * confidence[..., None].to(dtype)
