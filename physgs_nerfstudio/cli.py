@@ -10,10 +10,12 @@ import importlib
 
 # name -> (module, dataclass). Order is the order of the pipeline, as shown by `physgs --help`.
 COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("physgs_nerfstudio.demo", "DemoCommand"),
     "synth": ("physgs_nerfstudio.synth.command", "SynthCommand"),
     "perceive": ("physgs_nerfstudio.perception.command", "PerceiveCommand"),
     "image": ("physgs_nerfstudio.single_image.command", "ImageCommand"),
     "materials": ("physgs_nerfstudio.info", "MaterialsCommand"),
+    "export": ("physgs_nerfstudio.export.command", "ExportCommand"),
     "eval": ("physgs_nerfstudio.eval.command", "EvalCommand"),
     "info": ("physgs_nerfstudio.info", "InfoCommand"),
 }

@@ -294,3 +294,19 @@ def test_dispatch_and_errors():
         reference_rasterization(*_args(scene), W, H, camera_model="fisheye")
     with pytest.raises(ValueError, match="SH"):
         reference_rasterization(*_args(scene), W, H, sh_degree=1)
+
+
+def test_candidate_boxes_stay_inside_the_image_for_gaussians_beyond_its_edges():
+    """Regression: a Gaussian centred past the right/bottom edge must give an empty, in-range box."""
+    from physgs_nerfstudio.render.composite import _live_pixels_in_boxes, candidate_boxes
+
+    width, height = 20, 12
+    means2d = torch.tensor([[35.0, 5.0], [5.0, 30.0], [-9.0, -9.0], [10.0, 6.0]])
+    covars2d = torch.tensor([[4.0, 0.0, 4.0]]).repeat(4, 1)
+    opacities = torch.full((4,), 0.9)
+    radii = torch.full((4,), 8, dtype=torch.int32)
+    x0, x1, y0, y1 = candidate_boxes(means2d, covars2d, opacities, radii, width, height, tile_size=4)
+    assert bool((x0 >= 0).all() and (x1 <= width).all() and (y0 >= 0).all() and (y1 <= height).all())
+    done = torch.zeros(width * height, dtype=torch.bool)
+    live = _live_pixels_in_boxes(done, (x0, x1, y0, y1), width, height)
+    assert live[3] > 0 and bool((live >= 0).all())

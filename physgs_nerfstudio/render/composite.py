@@ -54,9 +54,9 @@ def candidate_boxes(
         ok = level >= 0
         ex = (2.0 * level.clamp_min(0) * covars2d[:, 0].double()).sqrt()
         ey = (2.0 * level.clamp_min(0) * covars2d[:, 2].double()).sqrt()
-        x0 = torch.maximum(torch.floor(m[:, 0] - ex - 0.5) - 1, tx0 * tile_size).clamp_min(0)
+        x0 = torch.maximum(torch.floor(m[:, 0] - ex - 0.5) - 1, tx0 * tile_size).clamp(0, width)
         x1 = torch.minimum(torch.ceil(m[:, 0] + ex - 0.5) + 2, (tx1 * tile_size).clamp_max(width))
-        y0 = torch.maximum(torch.floor(m[:, 1] - ey - 0.5) - 1, ty0 * tile_size).clamp_min(0)
+        y0 = torch.maximum(torch.floor(m[:, 1] - ey - 0.5) - 1, ty0 * tile_size).clamp(0, height)
         y1 = torch.minimum(torch.ceil(m[:, 1] + ey - 0.5) + 2, (ty1 * tile_size).clamp_max(height))
         empty = ~ok | (x1 <= x0) | (y1 <= y0) | (radii <= 0)
         x1 = torch.where(empty, x0, x1)

@@ -1,0 +1,60 @@
+"""Mass report: ``report.json`` and a printed rich table (per material volume share, mass mean and interval)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from .mass import MassReport
+
+__all__ = ["mass_table", "print_mass_table", "write_report"]
+
+
+def _fmt(x: float) -> str:
+    if x == 0:
+        return "0"
+    return f"{x:.4g}" if 1e-3 <= abs(x) < 1e5 else f"{x:.3e}"
+
+
+def write_report(report: MassReport, path: Path, extra: dict[str, Any] | None = None) -> Path:
+    """``report.json``: the mass report (kg, m^3, m^2, kg/m^3) plus ``extra`` (e.g. ground truth, files)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = {"mass": report.to_dict(), **(extra or {})}
+    path.write_text(json.dumps(data, indent=2, default=float))
+    return path
+
+
+def mass_table(report: MassReport, title: str | None = None, truth_kg: float | None = None):
+    """A rich Table: one row per material present (volume share > 0.1% or mass share > 0.1%), then the total."""
+    from rich.table import Table
+
+    pct = int(round(report.level * 100))
+    sim = " [SIMULATED VLM]" if report.simulated else ""
+    table = Table(title=(title or "Mass estimate") + sim, caption=(
+        f"{report.n_samples} Monte Carlo samples, seed {report.seed}; scale {report.metres_per_unit:.4g} m/unit "
+        f"({report.scale_source})"))  # fmt: skip
+    for col, just in (("material", "left"), ("model", "left"), ("volume share", "right"),
+                      ("density kg/m^3", "right"), ("mass mean kg", "right"), (f"{pct}% interval kg", "right")):
+        table.add_column(col, justify=just)  # type: ignore[arg-type]
+    for m in report.materials:
+        if m.volume_share < 1e-3 and m.mass_share < 1e-3:
+            continue
+        model = m.volume_model if m.thickness_m is None else f"shell {m.thickness_m * 1000:.3g} mm"
+        table.add_row(m.name, model, f"{100 * m.volume_share:.1f}%", _fmt(m.density_mean), _fmt(m.mass_mean_kg),
+                      f"[{_fmt(m.mass_interval_kg[0])}, {_fmt(m.mass_interval_kg[1])}]")  # fmt: skip
+    table.add_section()
+    table.add_row("total", "", "100%", "", _fmt(report.mean_kg),
+                  f"[{_fmt(report.interval_kg[0])}, {_fmt(report.interval_kg[1])}]", style="bold")  # fmt: skip
+    if truth_kg is not None:
+        table.add_row("ground truth", "", "", "", _fmt(truth_kg),
+                      "covered" if report.covers(truth_kg) else "NOT covered", style="italic")  # fmt: skip
+    return table
+
+
+def print_mass_table(report: MassReport, title: str | None = None, truth_kg: float | None = None,
+                     console: Any = None) -> None:  # fmt: skip
+    from rich.console import Console
+
+    (console or Console()).print(mass_table(report, title, truth_kg))
