@@ -20,9 +20,19 @@ For every object of the generated suite (``physgs_nerfstudio.synth.SUITE``) this
    (c) full PhysGS: per part a Dirichlet over materials from every mask overlapping it (evidence weight =
        level weight x overlap fraction |mask & part| / |mask| x confidence; alpha0, lambda and level
        weights of ``MapFusionConfig``); per material NIG posteriors from the library priors (density in
-       log space; ``fuse_properties``); part density = mixture mean (``property_fields``); mass = sum.
-       90% interval by Monte Carlo: per sample one material per part (from its predictive) and one
-       density per material (Student-t in log space, shared by all parts of that material).
+       log space; ``fuse_properties``); part density = mixture mean (``property_fields``, default material
+       weights: the posterior probability that the material is the part's DOMINANT label,
+       ``bayes.dominance_probability``); mass = sum.
+       90% interval by Monte Carlo: per sample one material per part (from the same weights) and one
+       density per material, shared by all parts of that material. Default density draw: the posterior
+       of the material's MEAN density (NIG marginal of mu: Student-t, 2a dof, loc tau, scale^2 =
+       b / (a kappa), in log space): the object's density is a fixed unknown, while the NIG's aleatoric
+       spread describes the scatter of the VLM's reported values around it. The full predictive (a new
+       reported value: scale^2 = b (kappa + 1) / (a kappa)) is reported as a second coverage column.
+   (c-pred) the same with the paper's mixture weights taken literally: the Dirichlet posterior predictive
+       alpha / sum(alpha). It converges to the average confidence split of the answers, not to the part's
+       material, so confusable materials' densities stay blended in however much evidence arrives.
+   (c') variant: the argmax material per part only (no mixture).
 
 Masks: ``--segmenter oracle`` (default) cuts masks from the ground-truth part maps (whole = object
 silhouette, spanning several materials; part = each visible part; subpart = halves of larger parts) so the
@@ -40,13 +50,18 @@ import math
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from physgs_nerfstudio.bayes import dirichlet_posterior, evidence_from_observations, property_fields
+from physgs_nerfstudio.bayes import (
+    dirichlet_posterior,
+    evidence_from_observations,
+    material_mixture_weights,
+    property_fields,
+)
 from physgs_nerfstudio.eval.metrics import crps_samples, interval_coverage, point_metrics
 from physgs_nerfstudio.fusion.maps import MapFusionConfig
 from physgs_nerfstudio.fusion.properties import fuse_properties, legend_names
@@ -260,10 +275,14 @@ class PhysGSConfig:
     map_material: bool = False
     """Variant (not the paper's estimator): collapse each part's mixture to its most probable material
     (Dirichlet MAP) and use that material's NIG posterior; isolates the cost of the soft mixture."""
-    density_draw: str = "predictive"
-    """predictive: NIG Student-t predictive of a new value (aleatoric + epistemic, the product default);
-    posterior: the posterior of the material's mean density only (epistemic)."""
+    density_draw: str = "posterior"
+    """posterior (default): the posterior of the material's MEAN density (NIG marginal of mu, epistemic only;
+    the object's density is one fixed unknown); predictive: the NIG Student-t predictive of a new reported
+    value (aleatoric + epistemic)."""
     seed: int = 0
+    material_weights: str = "dominant"
+    """Per part material weights of the mixture: dominant (P(material is the part's dominant label), the
+    product default) or predictive (alpha / sum(alpha), the paper's eq. mixture literally)."""
 
 
 def part_evidence(scene: SceneData, names: Sequence[str], fusion: MapFusionConfig) -> np.ndarray:
@@ -318,11 +337,13 @@ def estimate_physgs(scene: SceneData, library: MaterialLibrary, cfg: PhysGSConfi
     ev = part_evidence(scene, names, cfg.fusion)
     observed = ev.sum(1) > 0
     alpha = dirichlet_posterior(torch.as_tensor(ev), cfg.fusion.alpha0, cfg.fusion.lam)
-    if cfg.map_material:  # one-hot on the argmax material (a point mass, up to a negligible floor)
+    if cfg.map_material:  # one-hot on the argmax material (a point mass, up to a negligible floor); use with
+        # material_weights="predictive" (the weights are then exactly the one-hot)
         alpha = torch.where(alpha == alpha.amax(-1, keepdim=True), torch.ones_like(alpha), torch.full_like(alpha, 1e-12))
-    fields = property_fields(alpha, post.posterior.to(torch.float64), post.log_space)
+    fields = property_fields(alpha, post.posterior.to(torch.float64), post.log_space,
+                             material_weights=cfg.material_weights)
     mean = fields["mean"].numpy()
-    pi = (alpha / alpha.sum(-1, keepdim=True)).numpy()
+    pi = material_mixture_weights(alpha, cfg.material_weights).numpy()
     props: dict[str, list[float]] = {}
     for p_i, k in enumerate(PROPERTY_KEYS):
         props[k] = [float(mean[j, p_i]) if observed[j] else fb[k] for j in range(P)]
@@ -536,10 +557,19 @@ def load_scene(root: Path, name: str | None = None) -> SceneData:
 
 
 METHODS = ("(a) single view, no BI", "(b) multi-view average, no BI", "(c) PhysGS (Dirichlet + NIG)")
+VARIANTS = {
+    "physgs": ("(c) PhysGS (Dirichlet + NIG), dominant-material weights (default)", "dominant", False),
+    "physgs_predictive_weights": ("(c-pred) PhysGS with predictive weights alpha/sum (the paper's eq. literally)",
+                                  "predictive", False),
+    "physgs_map_variant": ("(c') variant: PhysGS with the argmax material per part (no mixture)", "predictive", True),
+}
+"""result key -> (table label, material_weights, map_material)."""
 
 
 def evaluate_scenes(scenes: Sequence[SceneData], library: MaterialLibrary, pcfg: PhysGSConfig,
-                    draws: Sequence[str] = ("predictive", "posterior")) -> dict:
+                    draws: Sequence[str] = ("posterior", "predictive")) -> dict:
+    """Metrics of every estimator; PhysGS variants (``VARIANTS``) once per density draw mode in ``draws``
+    (``res[key][draw]``; the first draw is the one of the main table columns)."""
     # (a) over every start view
     V = min(len(s.views) for s in scenes)
     per_start = []
@@ -551,54 +581,62 @@ def evaluate_scenes(scenes: Sequence[SceneData], library: MaterialLibrary, pcfg:
                      for k in ("ADE", "ALDE", "APE", "MnRE")}
     avg_est = [estimate_average(s, library) for s in scenes]
     average = summarize_method(scenes, avg_est)
-    physgs = {}
+    res: dict = {"single_view": single, "single_view_range_over_start_views": single_spread, "average": average,
+                 "start_views": V, "draws": list(draws)}
     per_object = []
-    for draw in draws:
-        cfg = PhysGSConfig(pcfg.fusion, pcfg.prior, pcfg.n_samples, pcfg.level, False, draw, pcfg.seed)
-        ests = [estimate_physgs(s, library, cfg) for s in scenes]
-        physgs[draw] = summarize_method(scenes, ests)
-        if draw == draws[0]:
-            for s, e, ea in zip(scenes, ests, avg_est):
-                e_single = [estimate_single_view(s, library, st).mass_kg for st in range(V)]
-                per_object.append({
-                    "object": s.name, "truth_kg": s.mass_kg, "single_view_kg_mean": float(np.mean(e_single)),
-                    "single_view_APE_mean": float(np.mean([abs(x - s.mass_kg) / s.mass_kg for x in e_single])),
-                    "average_kg": ea.mass_kg, "physgs_kg": e.mass_kg,
-                    "physgs_interval_kg": list(e.interval or ()), "covered": bool(e.interval[0] <= s.mass_kg <= e.interval[1]),
-                    "parts": len(s.parts), "masks": len(s.masks), "observations": len(s.observations),
-                })
-        else:
+    for key, (_, weights, use_map) in VARIANTS.items():
+        res[key] = {}
+        for draw in draws:
+            cfg = replace(pcfg, map_material=use_map, density_draw=draw, material_weights=weights)
+            ests = [estimate_physgs(s, library, cfg) for s in scenes]
+            res[key][draw] = summarize_method(scenes, ests)
+            if key != "physgs":
+                if draw == draws[0]:
+                    for row, e in zip(per_object, ests):
+                        row[f"{key}_kg"] = e.mass_kg
+                continue
+            if draw == draws[0]:
+                for s, e, ea in zip(scenes, ests, avg_est):
+                    e_single = [estimate_single_view(s, library, st).mass_kg for st in range(V)]
+                    per_object.append({
+                        "object": s.name, "truth_kg": s.mass_kg, "single_view_kg_mean": float(np.mean(e_single)),
+                        "single_view_APE_mean": float(np.mean([abs(x - s.mass_kg) / s.mass_kg for x in e_single])),
+                        "average_kg": ea.mass_kg, "physgs_kg": e.mass_kg,
+                        "physgs_interval_kg": list(e.interval or ()),
+                        "covered": bool(e.interval[0] <= s.mass_kg <= e.interval[1]),
+                        "parts": len(s.parts), "masks": len(s.masks), "observations": len(s.observations),
+                    })
             for row, e in zip(per_object, ests):
                 row[f"physgs_interval_kg_{draw}"] = list(e.interval or ())
-    map_cfg = PhysGSConfig(pcfg.fusion, pcfg.prior, pcfg.n_samples, pcfg.level, True, draws[0], pcfg.seed)
-    physgs_map = summarize_method(scenes, [estimate_physgs(s, library, map_cfg) for s in scenes])
-    return {"physgs_map_variant": physgs_map, "single_view": single, "single_view_range_over_start_views": single_spread, "average": average,
-            "physgs": physgs, "per_object": per_object, "start_views": V}
+                row[f"covered_{draw}"] = bool(e.interval[0] <= row["truth_kg"] <= e.interval[1])
+    res["per_object"] = per_object
+    return res
 
 
 def markdown_table(res: dict, draws: Sequence[str]) -> str:
     d0 = draws[0]
     rows = [
-        (METHODS[0] + f" (mean of {res['start_views']} start views)", res["single_view"]),
-        (METHODS[1], res["average"]),
-        (METHODS[2], res["physgs"][d0]),
-        ("(c') variant: PhysGS with the MAP material per part (not the paper's mixture)", res["physgs_map_variant"]),
-    ]
-    head = ("| method | ADE (kg) | ALDE | APE | MnRE | 90% cov. | friction APE | hardness APE | density APE | "
+        (METHODS[0] + f" (mean of {res['start_views']} start views)", res["single_view"], None),
+        (METHODS[1], res["average"], None),
+    ] + [(label, res[key][d0], res[key]) for key, (label, _, _) in VARIANTS.items()]
+    cov_heads = " | ".join(f"90% cov. ({'mean-density' if d == 'posterior' else 'full-predictive'} draws)"
+                           for d in draws)
+    head = (f"| method | ADE (kg) | ALDE | APE | MnRE | {cov_heads} | friction APE | hardness APE | density APE | "
             "material acc. |")
-    lines = [head, "|" + "---|" * 10]
-    for name, r in rows:
-        cov = f"{r['coverage90']:.1%}" if "coverage90" in r else "-"
+    lines = [head, "|" + "---|" * (9 + len(draws))]
+    for name, r, by_draw in rows:
+        covs = " | ".join(f"{by_draw[d]['coverage90']:.1%}" if by_draw else "-" for d in draws)
         lines.append(
-            f"| {name} | {r['ADE']:.4f} | {r['ALDE']:.3f} | {r['APE']:.3f} | {r['MnRE']:.3f} | {cov} | "
+            f"| {name} | {r['ADE']:.4f} | {r['ALDE']:.3f} | {r['APE']:.3f} | {r['MnRE']:.3f} | {covs} | "
             f"{r['kinetic_friction_APE']:.3f} | {r['shore_hardness_APE']:.3f} | {r['density_APE']:.3f} | "
             f"{r['material_acc']:.3f} |"
         )
     extra = []
-    for d in draws:
-        r = res["physgs"][d]
-        extra.append(f"- PhysGS 90% interval with density draws `{d}`: coverage {r['coverage90']:.1%}, mean relative "
-                     f"width {r['rel_width90']:.3f}, CRPS {r['CRPS_kg']:.4f} kg")
+    for key, (label, _, _) in VARIANTS.items():
+        for d in draws:
+            r = res[key][d]
+            extra.append(f"- {label.split(' ')[0]} 90% interval, density draws `{d}`: coverage {r['coverage90']:.1%}, "
+                         f"mean relative width {r['rel_width90']:.3f}, CRPS {r['CRPS_kg']:.4f} kg")
     sp = res["single_view_range_over_start_views"]
     extra.append("- single view, range over start views: " + ", ".join(f"{k} [{a:.3f}, {b:.3f}]" for k, (a, b) in sp.items()))
     return "\n".join(lines) + "\n\n" + "\n".join(extra) + "\n"
@@ -654,17 +692,19 @@ def main(argv: Sequence[str] | None = None) -> dict:
         print(f"  {obj:10s} {len(scenes[-1].parts)} parts, {len(scenes[-1].masks)} masks, "
               f"{len(scenes[-1].observations)} observations ({time.time() - t:.1f}s)", flush=True)
     pcfg = PhysGSConfig(n_samples=args.samples, seed=args.seed)
-    draws = ("predictive", "posterior")
+    draws = ("posterior", "predictive")
     res = evaluate_scenes(scenes, library, pcfg, draws)
     table = markdown_table(res, draws)
     print()
     print(table)
-    print("| object | truth (kg) | single-view mean (kg) | average (kg) | PhysGS (kg) | PhysGS 90% interval | covered |")
-    print("|---|---|---|---|---|---|---|")
+    obj_lines = [("| object | truth (kg) | single-view mean (kg) | average (kg) | PhysGS (kg) | PhysGS c-pred (kg) | "
+                  "PhysGS 90% interval (mean-density draws) | covered |"), "|---|---|---|---|---|---|---|---|"]
     for r in res["per_object"]:
         lo, hi = r["physgs_interval_kg"]
-        print(f"| {r['object']} | {r['truth_kg']:.4f} | {r['single_view_kg_mean']:.4f} | {r['average_kg']:.4f} | "
-              f"{r['physgs_kg']:.4f} | [{lo:.4f}, {hi:.4f}] | {'yes' if r['covered'] else 'NO'} |")
+        obj_lines.append(f"| {r['object']} | {r['truth_kg']:.4f} | {r['single_view_kg_mean']:.4f} | {r['average_kg']:.4f} | "
+                         f"{r['physgs_kg']:.4f} | {r['physgs_predictive_weights_kg']:.4f} | [{lo:.4f}, {hi:.4f}] | "
+                         f"{'yes' if r['covered'] else 'NO'} |")
+    print("\n".join(obj_lines))
     out_dir = args.results_dir or (cfg.work_dir / "results")
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = {
@@ -675,7 +715,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     }
     (out_dir / "accuracy.json").write_text(json.dumps(doc, indent=2))
     (out_dir / "accuracy.md").write_text("# Accuracy on generated scenes (SIMULATED VLM)\n\n" + describe_noise(sim)
-                                         + "\n\n" + table)
+                                         + "\n\n" + table + "\n" + "\n".join(obj_lines) + "\n")
     print(f"\nwrote {out_dir / 'accuracy.json'} and {out_dir / 'accuracy.md'} ({time.time() - t0:.1f}s)")
     return doc
 

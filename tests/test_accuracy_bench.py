@@ -133,7 +133,8 @@ def test_physgs_mass_and_interval(acc, library):
     assert em.part_props["density"][1] == pytest.approx(mean[names.index("steel")], rel=1e-6)
     # with the material fixed, posterior draws (the material's mean only) give a narrower interval than
     # predictive draws (mean + the spread of single values)
-    e_pred = acc.estimate_physgs(scene, library, acc.PhysGSConfig(n_samples=4000, map_material=True))
+    e_pred = acc.estimate_physgs(scene, library, acc.PhysGSConfig(n_samples=4000, map_material=True,
+                                                                  density_draw="predictive"))
     e_post = acc.estimate_physgs(scene, library, acc.PhysGSConfig(n_samples=4000, map_material=True,
                                                                   density_draw="posterior"))
     assert (e_post.interval[1] - e_post.interval[0]) < (e_pred.interval[1] - e_pred.interval[0])
@@ -156,3 +157,39 @@ def test_summary_metrics(acc, library):
     assert s["APE"] == pytest.approx(abs(ests[0].mass_kg - scene.mass_kg) / scene.mass_kg)
     assert s["coverage90"] in (0.0, 1.0)
     assert 0 <= s["material_acc"] <= 1
+
+
+def _split_scene(acc, n_views):
+    parts = [acc.PartTruth(1, "body", "ceramic", 1e-4, 0.23, {"density": 2300.0, "kinetic_friction": 0.5,
+                                                               "shore_hardness": 100.0})]
+    views = [f"v{i}" for i in range(n_views)]
+    masks = {(v, 0): acc.MaskInfo(v, 0, "part", 100, {1: 100}) for v in views}
+    observations = [o for v in views for o in (obs(v, 0, "ceramic", 0.6, 2300.0), obs(v, 0, "steel", 0.4, 7850.0))]
+    return acc.SceneData("split", parts, views, masks, observations, {(v, 1): 100 for v in views})
+
+
+def test_dominant_weights_recover_the_material_predictive_weights_blend(acc, library):
+    """A part answered in every view with the same 60/40 split between its material (ceramic, 2300 kg/m^3) and
+    a much denser wrong one (steel): estimator (c) (dominant weights, the default) converges to the ceramic
+    estimate of the argmax variant (c') as views accumulate; (c-pred) (alpha / sum) keeps ~40% of steel's
+    density blended in however many views there are."""
+    assert acc.PhysGSConfig().material_weights == "dominant" and acc.PhysGSConfig().density_draw == "posterior"
+    gaps = []
+    for n_views in (5, 20, 80):
+        scene = _split_scene(acc, n_views)
+        dom = acc.estimate_physgs(scene, library, acc.PhysGSConfig(n_samples=2000))
+        pred = acc.estimate_physgs(scene, library, acc.PhysGSConfig(n_samples=2000, material_weights="predictive"))
+        argmax = acc.estimate_physgs(scene, library, acc.PhysGSConfig(n_samples=2000, map_material=True,
+                                                                      material_weights="predictive"))
+        assert dom.part_material == pred.part_material == argmax.part_material == ["ceramic"]
+        rho = argmax.part_props["density"][0]
+        assert rho == pytest.approx(2300.0, rel=0.01)
+        assert pred.part_props["density"][0] > 1.5 * rho
+        gaps.append(dom.part_props["density"][0] / rho - 1)
+        assert dom.interval[0] <= scene.mass_kg <= dom.interval[1]
+    assert gaps[0] > gaps[1] > gaps[2] >= 0 and gaps[2] < 1e-3 and gaps[0] > 0.05  # concentrates with evidence
+    res = acc.evaluate_scenes([_split_scene(acc, 80)], library, acc.PhysGSConfig(n_samples=500))
+    assert res["physgs"]["posterior"]["APE"] < 0.01
+    assert res["physgs_predictive_weights"]["posterior"]["APE"] > 0.3
+    table = acc.markdown_table(res, res["draws"])
+    assert "(c-pred)" in table and "90% cov. (mean-density draws) | 90% cov. (full-predictive draws)" in table

@@ -156,3 +156,52 @@ def test_run_active_stop_uncertainty_and_replay(tmp_path, library):
         ActiveConfig(budget=4), segmenter=seg, library=library,
     )
     assert rep.answered == 4 and rep.calls == 0 and rep.cache_hits == 4
+
+
+def test_perceive_command_active_flags(tmp_path):
+    """`physgs perceive --active --query-budget N --stop-uncertainty X --active-batch-size B` parses into an
+    ActiveConfig and runs run_active_perception (builtin segmenter, simulated VLM)."""
+    import tyro
+
+    from physgs_nerfstudio.perception import ActiveConfig as ExportedActiveConfig
+    from physgs_nerfstudio.perception import run_active_perception as exported_run
+    from physgs_nerfstudio.perception.command import PerceiveCommand, summary_table
+
+    assert ExportedActiveConfig is ActiveConfig and exported_run is run_active_perception
+    root = make_scene(tmp_path / "scene", num_views=2)
+    cmd = tyro.cli(PerceiveCommand, args=["--data", str(root), "--vlm", "simulated", "--no-progress", "--active",
+                                          "--query-budget", "3", "--stop-uncertainty", "0.01",
+                                          "--active-batch-size", "2"])
+    assert cmd.active_config() == ActiveConfig(budget=3, stop_uncertainty=0.01, batch_size=2)
+    res = cmd.run()
+    assert res.answered == 3 and len(res.queried) == 3 and res.stop_reason.startswith("query budget")
+    assert res.candidates > 3  # the budget, not the candidates, stopped it
+    assert json.loads((root / "perception" / "active.json").read_text())["config"]["batch_size"] == 2
+    assert (root / "materials.json").is_file()
+    import io
+
+    from rich.console import Console
+
+    console = Console(record=True, width=200, file=io.StringIO())
+    console.print(summary_table(res))
+    assert "active: masks answered / candidates" in console.export_text()
+    # without --active the same command is the exhaustive run (it resumes the 3 answered masks)
+    full = tyro.cli(PerceiveCommand, args=["--data", str(root), "--vlm", "simulated", "--no-progress"]).run()
+    assert not hasattr(full, "stop_reason") and full.resumed_masks == 3
+    with pytest.raises(ValueError, match="only apply with --active"):
+        PerceiveCommand(data=root, vlm="simulated", query_budget=3)
+    with pytest.raises(ValueError, match="batch_size"):
+        PerceiveCommand(data=root, vlm="simulated", active=True, active_batch_size=0)
+
+
+def test_save_masks_round_trips_an_empty_mask_list(tmp_path):
+    from physgs_nerfstudio.perception.segment import load_masks, save_masks
+
+    path = tmp_path / "m.npz"
+    save_masks(path, [], (6, 9), "fp")
+    assert load_masks(path, "fp") == []
+    m = np.zeros((6, 9), bool)
+    m[1:3, 2:7] = True
+    save_masks(path, [Mask(m, int(m.sum()), 0.9, 0.8, "part")], (6, 9), "fp")
+    (back,) = load_masks(path, "fp")
+    assert np.array_equal(back.segmentation, m) and back.level == "part" and back.area == 10

@@ -12,6 +12,7 @@ from scipy import stats
 from physgs_nerfstudio.bayes import (
     dirichlet_posterior,
     dirichlet_strength,
+    dominance_probability,
     evidence_from_observations,
     expected_entropy,
     mutual_information,
@@ -112,3 +113,96 @@ def test_guards_name_the_offending_index():
         dirichlet_posterior(torch.zeros(3), 1.0, -1.0)
     with pytest.raises(ValueError, match=r"predictive\(alpha\).*index \(0, 1\)"):
         predictive(torch.tensor([[1.0, 0.0, 1.0]]))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# dominance probability P(theta_i = max_j theta_j)
+# ---------------------------------------------------------------------------------------------------------
+
+
+def test_dominance_two_classes_matches_regularised_beta():
+    """K = 2: theta_1 ~ Beta(a1, a2), so P(theta_1 is max) = P(theta_1 > 1/2) = 1 - I_{1/2}(a1, a2)."""
+    from scipy.special import betainc
+
+    a = np.array([[2.0, 3.0], [0.05, 0.3], [0.5, 0.7], [100.0, 120.0], [1e4, 1.02e4], [7.0, 7.5], [30.0, 1.0]])
+    got = dominance_probability(torch.tensor(a))
+    np.testing.assert_allclose(got[:, 0].numpy(), 1 - betainc(a[:, 0], a[:, 1], 0.5), atol=1e-9)
+    np.testing.assert_allclose(got.sum(-1).numpy(), 1.0, atol=1e-12)
+
+
+def test_dominance_vs_monte_carlo_argmax_frequencies():
+    rng = np.random.default_rng(0)
+    alphas = np.array([
+        [1.0, 1.0, 3.0, 0.5],
+        [5.2, 4.8, 1.0, 1.0],
+        [0.3, 0.1, 0.2, 0.05],  # all concentrations small (the coarsest regime)
+        [40.0, 38.0, 35.0, 1.0],
+        [1.0 + 4 * 6.0, 1.0 + 4 * 4.0, 1.0, 1.0],  # a 60/40 split after 10 observations
+    ])
+    got = dominance_probability(torch.tensor(alphas)).numpy()
+    n = 200_000
+    for a, p in zip(alphas, got):
+        freq = np.bincount(np.argmax(rng.dirichlet(a, size=n), axis=1), minlength=len(a)) / n
+        se = np.sqrt(np.maximum(p * (1 - p), 1e-12) / n)
+        assert np.all(np.abs(freq - p) <= 5 * se + 1e-9), (a, freq, p)
+
+
+def test_dominance_symmetric_is_uniform_and_evidence_concentrates():
+    for k, a0 in ((3, 1.0), (20, 0.05), (7, 1000.0)):
+        p = dominance_probability(torch.full((2, k), a0, dtype=torch.float64))
+        torch.testing.assert_close(p, torch.full_like(p, 1.0 / k), rtol=0, atol=1e-12)
+    # the predictive of a 60/40 split stays at 0.6; the dominance probability goes to 1
+    n = torch.tensor([1.0, 10.0, 100.0, 1000.0], dtype=torch.float64)[:, None]
+    alpha = 1.0 + n * torch.tensor([[0.6, 0.4, 0.0]], dtype=torch.float64)
+    p0 = dominance_probability(alpha)[:, 0]
+    assert torch.all(torch.diff(p0) > 0) and p0[-1] > 1 - 1e-9
+    assert predictive(alpha)[-1, 0].item() == pytest.approx(0.6, abs=1e-3)
+
+
+def test_dominance_shapes_dtypes_chunks_and_extremes():
+    rng = np.random.default_rng(1)
+    a = torch.tensor(np.exp(rng.uniform(np.log(0.05), np.log(1e4), (2, 5, 6))))
+    ref = dominance_probability(a, num_nodes=1024)
+    got = dominance_probability(a, chunk_elements=64 * 6 * 3)  # chunks of 3 entities
+    assert got.shape == (2, 5, 6) and got.dtype == torch.float64
+    torch.testing.assert_close(got, ref, rtol=0, atol=1e-6)
+    rep = a.reshape(-1, 6)[torch.tensor([0, 3, 3, 0, 0, 7, 3, 3])]  # repeated rows are computed once
+    torch.testing.assert_close(dominance_probability(rep), ref.reshape(-1, 6)[[0, 3, 3, 0, 0, 7, 3, 3]],
+                               rtol=0, atol=1e-6)
+    g32 = dominance_probability(a.float())
+    assert g32.dtype == torch.float32
+    torch.testing.assert_close(g32.double(), ref, rtol=0, atol=1e-5)
+    # extreme concentrations stay finite and normalised
+    ext = torch.tensor([[1e-12, 1e-12, 1.0], [1e6, 1e-3, 1e-3], [1e-3, 1e-3, 1e-3], [1e7, 1e7 + 1e4, 1.0]],
+                       dtype=torch.float64)
+    pe = dominance_probability(ext)
+    assert torch.isfinite(pe).all() and torch.allclose(pe.sum(-1), torch.ones(4, dtype=torch.float64))
+    from scipy.special import betainc
+
+    assert pe[1, 0] > 1 - 1e-12
+    assert pe[3, 1].item() == pytest.approx(betainc(1e7, 1e7 + 1e4, 0.5), abs=1e-6)  # class 2 (alpha 1) is negligible
+    assert torch.allclose(pe[2], torch.full((3,), 1 / 3, dtype=torch.float64))
+    assert dominance_probability(torch.tensor([[2.5]])).tolist() == [[1.0]]
+    assert dominance_probability(torch.zeros(0, 4)).shape == (0, 4)
+    with pytest.raises(ValueError, match="> 0"):
+        dominance_probability(torch.tensor([[1.0, 0.0]]))
+
+
+_alpha_st = st.lists(st.floats(0.05, 500.0), min_size=2, max_size=7)
+
+
+@settings(max_examples=40, deadline=None)
+@given(alpha=_alpha_st, perm_seed=st.integers(0, 10_000), i=st.integers(0, 6), bump=st.floats(0.05, 50.0))
+def test_dominance_invariants(alpha, perm_seed, i, bump):
+    a = torch.tensor([alpha], dtype=torch.float64)
+    p = dominance_probability(a)
+    assert torch.all(p >= 0) and abs(p.sum().item() - 1) < 1e-12
+    perm = torch.as_tensor(np.random.default_rng(perm_seed).permutation(a.shape[1]))
+    torch.testing.assert_close(dominance_probability(a[:, perm]), p[:, perm], rtol=0, atol=1e-9)
+    i = i % a.shape[1]
+    a2 = a.clone()
+    a2[0, i] += bump
+    p2 = dominance_probability(a2)
+    assert p2[0, i] >= p[0, i] - 1e-9  # more evidence for i never makes i less likely to dominate
+    others = torch.arange(a.shape[1]) != i
+    assert torch.all(p2[0, others] <= p[0, others] + 1e-9)

@@ -10,6 +10,7 @@ from scipy import integrate, optimize, stats
 from physgs_nerfstudio.bayes import (
     NIG,
     component_scale,
+    material_mixture_weights,
     mixture_cdf,
     mixture_interval,
     mixture_logpdf,
@@ -130,14 +131,45 @@ def test_property_fields_linear_matches_mixture_moments():
     nig = NIG(nig.tau * 100 + 1000, nig.kappa, nig.a, nig.b * 1e4)  # large offset: cancellation check
     alpha = torch.tensor(rng.random((N, K)) * 3 + 0.01)
     alpha[0] = torch.tensor([1e6] + [1e-3] * (K - 1), dtype=F64)  # near-certain entity
-    for dtype in (F64, torch.float32):
-        out = property_fields(alpha.to(dtype), nig, [False] * P)
-        pi = predictive(alpha)
+    for weights in ("dominant", "predictive"):
+        pi = material_mixture_weights(alpha, weights)
         ref = mixture_moments(pi[:, None, :], nig.tau.T, nig.aleatoric().T, nig.epistemic().T)
-        tol = {"rtol": 1e-10, "atol": 1e-8} if dtype == F64 else {"rtol": 1e-5, "atol": 2e-2}
-        for name, r in zip(("mean", "aleatoric", "epistemic", "total"), ref):
-            assert out[name].shape == (N, P) and out[name].dtype == dtype
-            torch.testing.assert_close(out[name].double(), r, **tol)
+        for dtype in (F64, torch.float32):
+            out = property_fields(alpha.to(dtype), nig, [False] * P, material_weights=weights)
+            tol = {"rtol": 1e-10, "atol": 1e-8} if dtype == F64 else {"rtol": 1e-5, "atol": 2e-2}
+            for name, r in zip(("mean", "aleatoric", "epistemic", "total"), ref):
+                assert out[name].shape == (N, P) and out[name].dtype == dtype
+                torch.testing.assert_close(out[name].double(), r, **tol)
+    # weights: "predictive" is alpha / sum; the default (positional call) is "dominant", which differs
+    torch.testing.assert_close(material_mixture_weights(alpha, "predictive"), predictive(alpha))
+    default = property_fields(alpha, nig, [False] * P)["mean"]
+    torch.testing.assert_close(default, property_fields(alpha, nig, [False] * P, material_weights="dominant")["mean"])
+    assert (default - property_fields(alpha, nig, [False] * P, material_weights="predictive")["mean"]).abs().max() > 1
+    with pytest.raises(ValueError, match="material_weights"):
+        property_fields(alpha, nig, [False] * P, material_weights="argmax")
+
+
+def test_dominant_weights_concentrate_with_evidence_predictive_do_not():
+    """An entity whose observations split 60/40 between two materials: with growing evidence the dominant
+    mixture's mean goes to the majority material's and its material-ambiguity (between) variance to 0; the
+    predictive mixture stays at the 60/40 blend. Balanced evidence keeps the dominant mixture split."""
+    nig = NIG(torch.tensor([[0.0], [10.0], [-5.0]], dtype=F64), torch.full((3, 1), 50.0, dtype=F64),
+              torch.full((3, 1), 30.0, dtype=F64), torch.full((3, 1), 1.0, dtype=F64))
+    n = torch.tensor([1.0, 4.0, 16.0, 64.0, 256.0], dtype=F64)[:, None]
+    alpha = 1.0 + 4.0 * n * torch.tensor([[0.6, 0.4, 0.0]], dtype=F64)
+    dom = property_fields(alpha, nig, [False], material_weights="dominant")
+    pred = property_fields(alpha, nig, [False], material_weights="predictive")
+    ale_epi = (nig.aleatoric() + nig.epistemic())[0, 0].item()  # within-material variance of material 0
+    between_dom = dom["total"][:, 0] - (material_mixture_weights(alpha) * (nig.aleatoric() + nig.epistemic())[:, 0]).sum(-1)
+    assert torch.all(torch.diff(dom["mean"][:, 0]) < 0)  # moves monotonically towards material 0 (tau 0)
+    assert dom["mean"][-1, 0].abs() < 1e-6 and between_dom[-1] < 1e-6
+    assert dom["total"][-1, 0].item() == pytest.approx(ale_epi, rel=1e-4)
+    # predictive: the mean goes to the 60/40 blend (~4), the between-material variance to 0.24 * 100 = 24
+    assert pred["mean"][-1, 0].item() == pytest.approx(0.6 * 0 + 0.4 * 10, abs=0.05)
+    assert pred["epistemic"][-1, 0].item() > 20
+    balanced = 1.0 + 4.0 * 256.0 * torch.tensor([[0.5, 0.5, 0.0]], dtype=F64)
+    wb = material_mixture_weights(balanced)
+    assert wb[0, 0].item() == pytest.approx(0.5, abs=1e-9) and wb[0, 1].item() == pytest.approx(0.5, abs=1e-9)
 
 
 def test_property_fields_log_space_vs_monte_carlo():
@@ -146,7 +178,7 @@ def test_property_fields_log_space_vs_monte_carlo():
     nig = _random_nig(rng, K, P, log_tau=np.array([7.0, 20.0]))  # density ~1e3, modulus ~5e8
     alpha = torch.tensor(rng.random((N, K)) * 2 + 0.2)
     out = property_fields(alpha, nig, [True, False])
-    pi = predictive(alpha).numpy()
+    pi = material_mixture_weights(alpha).numpy()
     sd = np.sqrt((nig.aleatoric() + nig.epistemic()).numpy())
     tau = nig.tau.numpy()
     n_mc = 400_000
@@ -176,7 +208,7 @@ def test_property_intervals_cover_nominal_mass():
     for student_t in (False, True):
         lo, hi = property_intervals(alpha, nig, [True, False], 0.8, student_t=student_t, chunk_size=3)
         assert lo.shape == (N, P) and torch.all(lo < hi)
-        pi = predictive(alpha)
+        pi = material_mixture_weights(alpha)  # the default weights ("dominant")
         scale, df = component_scale(nig, student_t)
         for p in range(P):
             s = mixture_sample(pi, nig.tau[:, p], scale[:, p], 50_000, None if df is None else df[:, p],
@@ -200,7 +232,7 @@ def test_property_fields_shape_errors_and_speed():
     K, P, N = 20, 4, 200_000
     nig = NIG(torch.randn(K, P), torch.rand(K, P) + 1, torch.rand(K, P) + 2, torch.rand(K, P) + 0.1)
     alpha = torch.rand(N, K) + 0.1
-    t0 = time.perf_counter()
-    out = property_fields(alpha, nig, [True, False, False, True])
+    t0 = time.perf_counter()  # the matrix products (the dominance weights are timed in benchmarks)
+    out = property_fields(alpha, nig, [True, False, False, True], material_weights="predictive")
     assert time.perf_counter() - t0 < 5.0
     assert all(torch.isfinite(v).all() for v in out.values())

@@ -117,7 +117,8 @@ def test_interval_widens_with_weaker_posterior(box_field, box_geometry):
 
 def test_interval_covers_truth_and_is_calibrated(box_field, box_geometry):
     truth = 800.0 * math.prod(BOX)
-    r = integrate_mass(replace(box_field, nig=material_nig([800.0], rel_sd=0.05)), cfg(level=0.9),
+    r = integrate_mass(replace(box_field, nig=material_nig([800.0], rel_sd=0.05)),
+                       cfg(level=0.9, density_draw="predictive"),
                        geometry=box_geometry, keep_samples=True)  # fmt: skip
     assert r.covers(truth)
     assert r.samples is not None and np.mean(r.samples <= r.interval_kg[1]) == pytest.approx(0.95, abs=0.01)

@@ -7,6 +7,7 @@ No nerfstudio or materials imports; everything is batched over entities and work
 from .dirichlet import (
     dirichlet_posterior,
     dirichlet_strength,
+    dominance_probability,
     evidence_from_observations,
     expected_entropy,
     mutual_information,
@@ -16,6 +17,7 @@ from .dirichlet import (
 )
 from .mixture import (
     component_scale,
+    material_mixture_weights,
     mixture_cdf,
     mixture_interval,
     mixture_logpdf,
@@ -33,8 +35,10 @@ __all__ = [
     "component_scale",
     "dirichlet_posterior",
     "dirichlet_strength",
+    "dominance_probability",
     "evidence_from_observations",
     "expected_entropy",
+    "material_mixture_weights",
     "mixture_cdf",
     "mixture_interval",
     "mixture_logpdf",

@@ -9,6 +9,11 @@ law of total variance:
     epistemic_e = sum_i pi_i epistemic_i + (sum_i pi_i tau_i^2 - mean_e^2)     (material ambiguity)
     total_e     = aleatoric_e + epistemic_e
 
+In :func:`property_fields` / :func:`property_intervals` the weights pi_e come from the entity's
+Dirichlet(alpha_e): by default the posterior probability that material i is the entity's dominant label
+(``material_weights="dominant"``), or the posterior predictive alpha_e / sum(alpha_e) (``"predictive"``,
+the paper's eq. literally); see :func:`property_fields` for why the default differs from the paper.
+
 Conventions: the mixture-component axis is the LAST axis of ``pi``, ``loc``/``tau``, ``scale`` and
 ``df``; they broadcast against each other, and the remaining (batch) axes broadcast against ``x``/``q``.
 """
@@ -17,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Literal
 
 import torch
 from jaxtyping import Float
@@ -24,11 +30,12 @@ from torch import Tensor
 
 from ._checks import as_float_tensor, check_finite, check_nonnegative, check_positive, raise_if
 from ._special import student_t_cdf
-from .dirichlet import predictive
+from .dirichlet import dominance_probability, predictive
 from .nig import NIG, student_t_logpdf
 
 __all__ = [
     "component_scale",
+    "material_mixture_weights",
     "mixture_cdf",
     "mixture_interval",
     "mixture_logpdf",
@@ -250,6 +257,22 @@ def component_scale(nig: NIG, student_t: bool = False) -> tuple[Tensor, Tensor |
     return torch.sqrt(nig.variance()), None
 
 
+MaterialWeights = Literal["dominant", "predictive"]
+
+
+def material_mixture_weights(alpha: Float[Tensor, "n k"], material_weights: MaterialWeights = "dominant") -> Tensor:
+    """Per-entity material weights of the property mixture (see :func:`property_fields`).
+
+    ``"dominant"``: :func:`~physgs_nerfstudio.bayes.dirichlet.dominance_probability` (the posterior that
+    material i is the entity's dominant label); ``"predictive"``: ``alpha / sum(alpha)`` (paper eq. mixture).
+    """
+    if material_weights == "dominant":
+        return dominance_probability(alpha)
+    if material_weights == "predictive":
+        return predictive(alpha)
+    raise ValueError(f"material_weights must be 'dominant' or 'predictive', got {material_weights!r}.")
+
+
 def _check_fields_inputs(alpha: Tensor, nig: NIG, log_space: Sequence[bool], where: str) -> Tensor:
     alpha = as_float_tensor(alpha)
     if alpha.dim() != 2 or nig.tau.dim() != 2 or alpha.shape[1] != nig.shape[0]:
@@ -263,12 +286,34 @@ def _check_fields_inputs(alpha: Tensor, nig: NIG, log_space: Sequence[bool], whe
 
 
 def property_fields(
-    alpha: Float[Tensor, "n k"], nig: NIG, log_space: Sequence[bool]
+    alpha: Float[Tensor, "n k"],
+    nig: NIG,
+    log_space: Sequence[bool],
+    *,
+    material_weights: MaterialWeights = "dominant",
 ) -> dict[str, Float[Tensor, "n p"]]:
     """Per-entity property mean and variance split, in linear (reporting) units.
 
     Each material i contributes component N(tau_ip, v_ip), v = aleatoric + epistemic of ``nig[i, p]``,
-    with weight pi_ni = alpha_ni / sum_k alpha_nk. For a linear property the module-doc formulas apply
+    with weight w_ni from the entity's Dirichlet(alpha_n):
+
+    * ``material_weights="dominant"`` (default): w_ni = P(theta_i = max_j theta_j | alpha_n)
+      (:func:`~physgs_nerfstudio.bayes.dirichlet.dominance_probability`), the posterior that i is the
+      entity's material read as its most frequent label;
+    * ``"predictive"``: w_ni = alpha_ni / sum_k alpha_nk, the Dirichlet posterior predictive (the paper's
+      eq. mixture taken literally).
+
+    Why "dominant" is the default: the predictive converges to the AVERAGE confidence split of the
+    observations (a VLM that puts ~55% on the right material and the rest on a confusable neighbour keeps
+    ~45% of the neighbour's property blended in however much evidence arrives), so material ambiguity never
+    shrinks and the mean stays biased. Measured on the generated suite with the simulated VLM
+    (benchmarks/accuracy.py, 12 objects x 16 views): object mass APE 0.208 with predictive weights, worse
+    than a single view (0.152); 0.020 with dominance weights (equal to using each part's most probable
+    material once evidence is plentiful). The dominance weights keep the Bayesian mixture (split when
+    evidence is balanced, epistemic from material ambiguity) but concentrate as evidence accumulates. Pass ``"predictive"`` when ``alpha`` already holds mixture
+    weights (e.g. probabilities averaged over Gaussians) rather than Dirichlet concentrations.
+
+    For a linear property the module-doc formulas apply
     directly. For a log-space property (the NIG lives in natural-log units) each component is the
     lognormal exp(N(tau, v)) and is moment-matched in linear units:
 
@@ -283,6 +328,9 @@ def property_fields(
     Cost: per-material terms are computed once in float64 ([K, P]); per entity only ``[N, K] @ [K, P]``
     products in alpha's dtype, shifted and scaled per property to avoid cancellation, so memory is
     O(N K + N P) and there is no Python loop over entities.
+
+    The dominance weights cost ``N K 64`` incomplete-gamma evaluations (about 3 minutes per million
+    entities at K = 20 on one CPU core: 3 to 6 minutes measured), the rest is negligible.
 
     Returns:
         dict with ``mean``, ``aleatoric``, ``epistemic``, ``total``, each ``[N, P]`` in alpha's dtype.
@@ -309,7 +357,7 @@ def property_fields(
     dt = alpha.dtype
     dev = alpha.device
     m_sc_t, m2_t, va_t, ve_t = (t.to(device=dev, dtype=dt) for t in (m_sc, m_sc * m_sc, va / s**2, ve / s**2))
-    pi = predictive(alpha)
+    pi = material_mixture_weights(alpha, material_weights)
     mean_sc = pi @ m_sc_t
     between = (pi @ m2_t - mean_sc * mean_sc).clamp_min(0)
     s_t = s.to(device=dev, dtype=dt)
@@ -328,8 +376,12 @@ def property_intervals(
     *,
     student_t: bool = False,
     chunk_size: int = 65536,
+    material_weights: MaterialWeights = "dominant",
 ) -> tuple[Float[Tensor, "n p"], Float[Tensor, "n p"]]:
     """Central ``level`` predictive interval per entity and property, in linear units.
+
+    The mixture weights are those of :func:`property_fields` (``material_weights``, same default and
+    reasons).
 
     Quantiles of the mixture in fusion units (normal components N(tau, aleatoric + epistemic), or the
     NIG Student-t predictives with ``student_t=True``), exponentiated for log-space properties
@@ -345,7 +397,7 @@ def property_intervals(
     log_mask = torch.as_tensor(list(log_space), dtype=torch.bool, device=alpha.device)
     los, his = [], []
     for start in range(0, alpha.shape[0], chunk_size):
-        pi = predictive(alpha[start : start + chunk_size]).unsqueeze(1)  # [n, 1, K]
+        pi = material_mixture_weights(alpha[start : start + chunk_size], material_weights).unsqueeze(1)  # [n, 1, K]
         lo, hi = mixture_interval(pi, loc_kp, scale_pk, level, df_pk)  # [n, P]
         los.append(torch.where(log_mask, torch.exp(lo), lo))
         his.append(torch.where(log_mask, torch.exp(hi), hi))

@@ -26,7 +26,8 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-from ..bayes import NIG, predictive, property_fields
+from ..bayes import NIG, property_fields
+from ..bayes.mixture import material_mixture_weights
 from .scale import SceneScale, read_dataparser_scale, resolve_scale
 
 logger = logging.getLogger(__name__)
@@ -74,6 +75,7 @@ class PropertyField:
     """higher-order SH coefficients (nerfstudio `features_rest`, [N, (deg+1)^2 - 1, 3])"""
     property_keys: tuple[str, ...] = field(default_factory=_property_keys)
     simulated: bool = False
+    _pi: Tensor | None = field(default=None, init=False, repr=False, compare=False)
     """material posteriors come from the simulated VLM (always say so in outputs)"""
 
     def __post_init__(self) -> None:
@@ -124,8 +126,11 @@ class PropertyField:
         return self.means.device
 
     def pi(self) -> Float[Tensor, "n k"]:
-        """Posterior predictive material probabilities alpha / sum(alpha)."""
-        return predictive(self.alpha)
+        """Per-Gaussian material mixture weights: the posterior that each material is the Gaussian's dominant
+        label (``bayes.dominance_probability``), the weights ``fields()`` uses too. Computed once."""
+        if self._pi is None or self._pi.shape != self.alpha.shape:
+            self._pi = material_mixture_weights(self.alpha)
+        return self._pi
 
     def fields(self) -> dict[str, Float[Tensor, "n p"]]:
         """Per-Gaussian mixture predictive (mean, aleatoric, epistemic, total variance), linear units."""

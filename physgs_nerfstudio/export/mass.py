@@ -86,7 +86,7 @@ class MassConfig:
     thickness_spread: float = 2.0
     """90% of thickness draws lie within [t / spread, t x spread]"""
     density_key: str = "density"
-    density_draw: Literal["predictive", "posterior"] = "predictive"
+    density_draw: Literal["predictive", "posterior"] = "posterior"
     sheet_depth: float | None = None
     """auto shell surface: the object is a sheet where it is at most twice this deep (scene units); None =
     half the largest wall thickness + 2.5 x the Gaussians' median thinnest sigma (filtered) + 1.5 voxels,

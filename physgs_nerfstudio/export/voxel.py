@@ -57,7 +57,9 @@ def write_voxel_grid(
     prob[idx] = pi
     out["material_prob"] = prob
     nig = pf.nig.to(torch.float64)
-    fields = property_fields(torch.from_numpy(np.clip(pi, 1e-12, None)), nig, pf.log_space)
+    # pi already holds mixture weights: 'predictive' of pi is pi itself.
+    fields = property_fields(torch.from_numpy(np.clip(pi, 1e-12, None)), nig, pf.log_space,
+                             material_weights="predictive")
     for p, key in enumerate(pf.property_keys):
         for f in ("mean", "total"):
             arr = np.full(shape, np.nan, dtype=np.float32)

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from .pipeline import PerceptionConfig, PerceptionResult
+
+if TYPE_CHECKING:
+    from .active import ActiveConfig
 
 
 def summary_table(result: PerceptionResult):
@@ -36,6 +40,13 @@ def summary_table(result: PerceptionResult):
         ("materials.json", str(result.materials_json) if result.materials_json else "-"),
         ("time", f"{result.seconds:.1f} s"),
     ]
+    if hasattr(result, "stop_reason"):  # an active run (perception.active.ActiveResult)
+        rows[1:1] = [
+            ("active: masks answered / candidates", f"{result.answered} / {result.candidates}"),
+            ("active: queried this run", str(len(result.queried))),
+            ("active: stop reason", result.stop_reason or "-"),
+            ("active: final uncertainty", f"{result.final_uncertainty:.3f}"),
+        ]
     for k, v in rows:
         table.add_row(k, v)
     return table
@@ -45,17 +56,53 @@ def summary_table(result: PerceptionResult):
 class PerceiveCommand(PerceptionConfig):
     """Estimate materials and physical properties of a nerfstudio dataset's frames with a VLM, fuse them
     (Dirichlet materials per pixel, NIG property posteriors per material) and write materials.json,
-    per-frame material maps and their transforms.json entries."""
+    per-frame material maps and their transforms.json entries.
+
+    With ``--active`` only the masks the current beliefs say are most informative are asked (perception.active:
+    material entropy, property epistemic variance, unseen views), until ``--query-budget`` masks are answered
+    or the best remaining score is below ``--stop-uncertainty``; answers go to the same resumable store, so an
+    exhaustive run afterwards only asks the rest."""
+
+    active: bool = False
+    """Active querying instead of asking every mask of every view."""
+    query_budget: int | None = None
+    """Active mode: stop once this many masks are answered (earlier runs included); None: no limit."""
+    stop_uncertainty: float | None = None
+    """Active mode: stop when the best remaining score (no exploration bonus; in [0, 2]) is below this; None: never."""
+    active_batch_size: int = 8
+    """Active mode: masks chosen per round (sent concurrently, then the beliefs are updated)."""
+
+    def active_config(self) -> ActiveConfig:
+        """The :class:`~physgs_nerfstudio.perception.active.ActiveConfig` of the active-mode flags."""
+        from .active import ActiveConfig
+
+        return ActiveConfig(budget=self.query_budget, stop_uncertainty=self.stop_uncertainty,
+                            batch_size=self.active_batch_size)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.active and (self.query_budget is not None or self.stop_uncertainty is not None):
+            raise ValueError("--query-budget / --stop-uncertainty only apply with --active")
+        if self.active:
+            self.active_config()  # validate the flags before any work
+
+    def run(self) -> PerceptionResult:
+        """Run exhaustive or (``active``) active perception; returns the run's result."""
+        if self.active:
+            from .active import run_active_perception
+
+            return run_active_perception(self, self.active_config())
+        from .pipeline import run_perception
+
+        return run_perception(self)
 
     def main(self) -> None:
         import logging
 
         from rich.console import Console
 
-        from .pipeline import run_perception
-
         logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-        result = run_perception(self)
+        result = self.run()
         console = Console()
         console.print(summary_table(result))
         for msg in result.failed[:5]:

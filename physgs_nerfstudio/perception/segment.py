@@ -653,7 +653,7 @@ def save_masks(path: Path, masks: Sequence[Mask], shape: tuple[int, int], finger
     tmp = path.with_name(path.name + ".tmp.npz")
     np.savez_compressed(
         tmp,
-        bits=np.packbits(stack.reshape(len(stack), -1), axis=1),
+        bits=np.packbits(stack.reshape(len(stack), h * w), axis=1),  # explicit h*w: -1 fails for 0 masks
         shape=np.array([len(stack), h, w]),
         predicted_iou=np.array([m.predicted_iou for m in masks], np.float64),
         stability=np.array([m.stability for m in masks], np.float64),

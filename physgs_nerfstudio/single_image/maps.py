@@ -7,8 +7,12 @@ Fusion over the image (DESIGN.md section 3, with the image as the scene and pixe
 * materials: per pixel, a Dirichlet over the image's legend (the materials observed in it) whose evidence
   is the level-weighted confidence of every observation of every mask covering the pixel
   (``fusion.maps.fuse_view``: finer levels weigh more); alpha = alpha0 + lambda * evidence;
-* per pixel, the mixture predictive over materials gives the property mean and the variance split
-  (``bayes.property_fields``): aleatoric, epistemic (material ambiguity included), total.
+* per pixel, the mixture over materials gives the property mean and the variance split
+  (``bayes.property_fields``): aleatoric, epistemic (material ambiguity included), total. The mixture
+  weights are ``property_fields``' default: the posterior probability that the material is the pixel's
+  DOMINANT label under its Dirichlet (``bayes.dominance_probability``), which concentrates on one material
+  as evidence accumulates; the label and ``material_confidence`` stay the argmax / max of the Dirichlet
+  predictive alpha / sum(alpha) (``fusion.maps.fuse_view``; the argmax of both is the same material).
 
 A pixel is ``covered`` when some mask with a usable observation covers it. Other pixels (no mask, or only
 masks whose answer was empty or rejected) carry no evidence, so they get the prior: with
@@ -71,7 +75,7 @@ NPZ_KEYS: dict[str, str] = {
     "evidence": "float32 [H, W, K]: sum over covering observations of level weight x confidence, per legend material",
     "legend_names": "str [K + 1]: 'unknown', then the K legend materials (ids 1..K)",
     "legend_colors": "uint8 [K + 1, 3]: legend colours (row 0 = unknown)",
-    "<key>_mean": "float32 [H, W]: posterior predictive mean of property <key>, in units[<key>]",
+    "<key>_mean": "float32 [H, W]: mean of property <key> under the pixel's material mixture (weights: P(material is the pixel's dominant label)), in units[<key>]",
     "<key>_aleatoric": "float32 [H, W]: aleatoric variance (E[sigma^2] mixed over materials), units[<key>]^2",
     "<key>_epistemic": "float32 [H, W]: epistemic variance (Var[mu] + between-material spread), units[<key>]^2",
     "<key>_total": "float32 [H, W]: total variance = aleatoric + epistemic, units[<key>]^2",

@@ -1,0 +1,635 @@
+"""`PhysGSModel`: splatfacto-big plus a Bayesian physical-property head (paper section 3, DESIGN.md section 5).
+
+Per Gaussian g, on top of splatfacto's parameters:
+
+- `material_logits` [N, K] (trainable, in `gauss_params`): rendered as K extra colour channels in the same
+  rasterization as RGB (+ depth) and trained with a confidence-weighted cross-entropy against the material
+  label maps. The rendered logits give the `material` output (argmax, legend colours).
+- `dirichlet_evidence` [N, K] (not trainable, in `gauss_params` so densification splits / clones / prunes it
+  with everything else; children of a split inherit their parent's evidence): the lifted evidence
+  e_gk = sum over training pixels of (T * alpha)_g(pixel) * confidence(pixel) * [label(pixel) = k],
+  computed by `run_lifting` through `physgs_nerfstudio.lifting.lift_evidence`. Posterior
+  alpha_g = alpha0 + lambda * e_g; a Gaussian with (near) zero evidence keeps the prior (maximal
+  epistemic uncertainty).
+
+How the two combine: the Dirichlet posterior is *the* Bayesian belief used for every physical property and
+its uncertainty (mixture predictive over the per-material NIG posteriors of `materials.json`,
+`bayes.property_fields`); the logits only drive the rendered material map (they are a point estimate fit by
+gradient descent, good at pixel-sharp boundaries, with no calibrated uncertainty). Lifting runs when
+densification stops (`lifting_step`, default `stop_split_at`), at the last training iteration and on demand
+(`run_lifting(datamanager)`); before the first lifting every Gaussian shows the prior.
+
+The `material` output shows the argmax of the rendered logits where the accumulated opacity exceeds
+`material_alpha_thresh` and, once lifted, where the composited labelled fraction (share of the Gaussians'
+blending weight that fell on labelled pixels, `lifting_weight`) exceeds `material_min_labelled`; elsewhere
+the background colour (label 0). `material_id` (float label, [H, W, 1]) carries the same map for metrics.
+
+Rendering is one call of `physgs_nerfstudio.render.rasterize` (gsplat on CUDA, the pure-torch reference
+rasterizer on CPU) with per-Gaussian colours [N, 3 + K (+ property channels)]; view-dependent RGB is
+evaluated from the SH coefficients before rasterization so that RGB and the extra channels share one pass.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import torch
+import torch.nn.functional as F
+from gsplat.strategy import DefaultStrategy
+from jaxtyping import Float
+from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
+from nerfstudio.model_components.lib_bilagrid import BilateralGrid
+from nerfstudio.models.splatfacto import (
+    RGB2SH,
+    SplatfactoModel,
+    SplatfactoModelConfig,
+    num_sh_bases,
+    random_quat_tensor,
+)
+from nerfstudio.utils.colors import get_color
+from nerfstudio.utils.rich_utils import CONSOLE
+from pytorch_msssim import SSIM
+from torch import Tensor
+from torch.nn import Parameter
+
+from physgs_nerfstudio.bayes import NIG, dirichlet_posterior, property_fields
+from physgs_nerfstudio.render import eval_sh_colors, rasterize
+
+from .legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
+
+PROPERTY_OUTPUTS = ("density", "friction", "hardness", "stiffness")
+UNCERTAINTY_OUTPUTS = ("aleatoric", "epistemic", "total_uncertainty")
+EVIDENCE_KEY = "dirichlet_evidence"
+WEIGHT_KEY = "lifting_weight"
+NON_TRAINABLE_KEYS = (EVIDENCE_KEY, WEIGHT_KEY)
+LOGITS_KEY = "material_logits"
+_SPLATFACTO_PARAMS = ("means", "scales", "quats", "features_dc", "features_rest", "opacities")
+
+
+@dataclass
+class PhysGSModelConfig(SplatfactoModelConfig):
+    """splatfacto-big (cull_alpha_thresh 0.005, densify_grad_thresh 0.0005) with the paper's random scale 2.0 and
+    random background, plus the material / property head."""
+
+    _target: type = field(default_factory=lambda: PhysGSModel)
+    cull_alpha_thresh: float = 0.005
+    densify_grad_thresh: float = 0.0005
+    random_scale: float = 2.0
+    """Size of the cube for random initialisation (paper: 2.0)."""
+    background_color: Literal["random", "black", "white"] = "random"
+    material_loss_weight: float = 0.1
+    """Weight of the confidence-weighted cross-entropy between rendered logits and the label maps."""
+    dirichlet_alpha0: float | None = None
+    """Dirichlet prior concentration per material; None = `alpha0` of materials.json (1.0 if absent)."""
+    dirichlet_lambda: float | None = None
+    """Evidence strength lambda (evidence in pixel-weight units); None = `lambda` of materials.json (1.0 if absent)."""
+    min_evidence: float = 1e-3
+    """Gaussians with less total lifted evidence than this keep the exact prior (never seen)."""
+    evidence_per_view: Literal["view", "pixels"] = "view"
+    """How a view's lifted evidence counts in the Dirichlet. "view": divided by the Gaussian's blending weight in
+    that view when it exceeds one pixel, so each view is at most one (confidence-weighted) observation and the
+    concentration grows with the number of consistent views, not with the Gaussian's size on screen. "pixels":
+    the raw pixel sum (every covered pixel counts as an observation: far more confident)."""
+    lifting_step: int | None = None
+    """Step at which to lift the material maps onto the Gaussians; None = `stop_split_at` (densification end)."""
+    lift_at_end: bool = True
+    """Lift again at the last training iteration (so the checkpoint's evidence matches the final Gaussians)."""
+    uncertainty_property: Literal["density", "friction", "hardness", "stiffness"] = "density"
+    """Property whose aleatoric / epistemic / total uncertainty the viewer outputs show."""
+    uncertainty_as_std: bool = True
+    """Show uncertainties as standard deviations (property units) instead of variances."""
+    material_alpha_thresh: float = 0.5
+    """Pixels with less accumulated opacity are background in the `material` output (label 0)."""
+    material_min_labelled: float = 0.3
+    """After lifting, pixels whose composited labelled fraction (share of the Gaussians' blending weight that fell
+    on labelled pixels, x confidence) is below this show no material (regions the maps leave unknown)."""
+    render_property_outputs: bool = True
+    """Render the property / uncertainty outputs at evaluation and in the viewer."""
+    rasterize_backend: Literal["auto", "gsplat", "reference"] = "auto"
+    """auto: gsplat on CUDA, the pure-torch reference rasterizer elsewhere."""
+    compute_lpips: bool = True
+    """LPIPS in eval metrics (needs torchvision's AlexNet weights; skipped with a warning when absent)."""
+
+
+class _LazyLPIPS:
+    """LPIPS built on first use; nan (with one warning) if its backbone weights cannot be loaded offline.
+
+    Deliberately not an nn.Module, so its weights stay out of checkpoints.
+    """
+
+    def __init__(self, enabled: bool):
+        self.enabled = enabled
+        self.metric = None
+        self.failed = not enabled
+
+    def __call__(self, a: Tensor, b: Tensor) -> Tensor:
+        if not self.failed and self.metric is None:
+            try:
+                from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
+
+                self.metric = LearnedPerceptualImagePatchSimilarity(normalize=True)
+            except Exception as err:  # noqa: BLE001  (offline machines have no AlexNet weights; any failure)
+                self.failed = True
+                CONSOLE.log(f"[yellow]LPIPS disabled: {type(err).__name__}: {str(err)[:120]}")
+        if self.failed:
+            return torch.tensor(float("nan"))
+        self.metric = self.metric.to(a.device)
+        return self.metric(a, b)
+
+
+def world_to_camera(c2w: Float[Tensor, "C 3 4"]) -> Float[Tensor, "C 4 4"]:
+    """nerfstudio camera-to-world (OpenGL axes) -> gsplat world-to-camera (OpenCV axes)."""
+    flip = torch.tensor([1.0, -1.0, -1.0], device=c2w.device, dtype=c2w.dtype)
+    rot = c2w[:, :3, :3] * flip  # flip camera y and z axes
+    rot_t = rot.transpose(1, 2)
+    out = torch.eye(4, device=c2w.device, dtype=c2w.dtype).repeat(c2w.shape[0], 1, 1)
+    out[:, :3, :3] = rot_t
+    out[:, :3, 3:4] = -rot_t @ c2w[:, :3, 3:4]
+    return out
+
+
+def downscale_labels(t: Tensor, d: int, height: int, width: int) -> Tensor:
+    """Nearest-neighbour downscale of a [H, W, C] map by d (centre sample of each d x d block)."""
+    if d > 1:
+        t = t[d // 2 :: d, d // 2 :: d]
+    return t[:height, :width]
+
+
+class PhysGSModel(SplatfactoModel):
+    """Splatfacto with per-Gaussian material logits, lifted Dirichlet evidence and property outputs."""
+
+    config: PhysGSModelConfig
+
+    # ------------------------------------------------------------------ setup
+    def populate_modules(self):
+        legend = self.kwargs.get("metadata", {}).get("material_legend")
+        if not isinstance(legend, MaterialLegend):
+            raise ValueError(  # noqa: TRY004  (a missing input, reported as a configuration error)
+                "PhysGSModel needs the material legend in the dataparser metadata (use the physgs datamanager). "
+                + PERCEIVE_HINT
+            )
+        self.legend = legend
+        K = legend.num_materials
+        P = len(legend.property_keys)
+        self.log_space = legend.log_space
+        self.property_keys = legend.property_keys
+        alpha0 = self.config.dirichlet_alpha0 if self.config.dirichlet_alpha0 is not None else legend.alpha0
+        lam = self.config.dirichlet_lambda if self.config.dirichlet_lambda is not None else legend.lam
+        self.alpha0 = 1.0 if alpha0 is None else float(alpha0)
+        self.lam = 1.0 if lam is None else float(lam)
+        # scene-level per-material property posteriors (persist in checkpoints)
+        for f, v in legend.nig.items():
+            self.register_buffer(f"nig_{f}", v.clone().reshape(K, P))
+        self.register_buffer("material_colors", legend.colors.clone().reshape(K, 3))
+        self.register_buffer("lifted_views", torch.zeros((), dtype=torch.long))
+
+        # --- Gaussians, seeded device-agnostically (splatfacto's populate_modules moves SH to CUDA)
+        seed = self.seed_points
+        if seed is not None and not self.config.random_init:
+            means = seed[0].detach().float().clone()
+        else:
+            means = (torch.rand((self.config.num_random, 3)) - 0.5) * self.config.random_scale
+        distances, _ = self.k_nearest_sklearn(means, 3)
+        scales = torch.log(
+            torch.from_numpy(distances).mean(dim=-1, keepdim=True).clamp_min(1e-7).repeat(1, 3)
+        )
+        n = means.shape[0]
+        dim_sh = num_sh_bases(self.config.sh_degree)
+        features_rest = torch.zeros((n, dim_sh - 1, 3))
+        if seed is not None and not self.config.random_init and seed[1].shape[0] > 0:
+            rgb = seed[1].detach().float().cpu() / 255.0
+            features_dc = RGB2SH(rgb) if self.config.sh_degree > 0 else torch.logit(rgb, eps=1e-10)
+        else:
+            features_dc = torch.rand(n, 3)
+        self.gauss_params = torch.nn.ParameterDict(
+            {
+                "means": Parameter(means),
+                "scales": Parameter(scales),
+                "quats": Parameter(random_quat_tensor(n)),
+                "features_dc": Parameter(features_dc),
+                "features_rest": Parameter(features_rest),
+                "opacities": Parameter(torch.logit(0.1 * torch.ones(n, 1))),
+                LOGITS_KEY: Parameter(torch.zeros(n, K)),
+                EVIDENCE_KEY: Parameter(torch.zeros(n, K), requires_grad=False),
+                WEIGHT_KEY: Parameter(torch.zeros(n, 1), requires_grad=False),
+            }
+        )
+
+        self.camera_optimizer = self.config.camera_optimizer.setup(
+            num_cameras=self.num_train_data, device="cpu"
+        )
+        from torchmetrics.image import PeakSignalNoiseRatio
+
+        self.psnr = PeakSignalNoiseRatio(data_range=1.0)
+        self.ssim = SSIM(data_range=1.0, size_average=True, channel=3)
+        self.lpips = _LazyLPIPS(self.config.compute_lpips)
+        self.step = 0
+        self.crop_box = None
+        if self.config.background_color == "random":
+            # viser's background colour, as splatfacto
+            self.background_color = torch.tensor([0.1490, 0.1647, 0.2157])
+        else:
+            self.background_color = get_color(self.config.background_color)
+        if self.config.use_bilateral_grid:
+            self.bil_grids = BilateralGrid(
+                num=self.num_train_data,
+                grid_X=self.config.grid_shape[0],
+                grid_Y=self.config.grid_shape[1],
+                grid_W=self.config.grid_shape[2],
+            )
+        c = self.config
+        self.strategy = DefaultStrategy(
+            prune_opa=c.cull_alpha_thresh,
+            grow_grad2d=c.densify_grad_thresh,
+            grow_scale3d=c.densify_size_thresh,
+            grow_scale2d=c.split_screen_size,
+            prune_scale3d=c.cull_scale_thresh,
+            prune_scale2d=c.cull_screen_size,
+            refine_scale2d_stop_iter=c.stop_screen_size_at,
+            refine_start_iter=c.warmup_length,
+            refine_stop_iter=c.stop_split_at,
+            reset_every=c.reset_alpha_every * c.refine_every,
+            refine_every=c.refine_every,
+            pause_refine_after_reset=self.num_train_data + c.refine_every,
+            absgrad=c.use_absgrad,
+            revised_opacity=False,
+            verbose=True,
+        )
+        self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
+        self.optimizers: dict[str, torch.optim.Optimizer] = {}
+
+    @property
+    def num_materials(self) -> int:
+        return self.gauss_params[LOGITS_KEY].shape[1]
+
+    @property
+    def material_logits(self) -> Tensor:
+        return self.gauss_params[LOGITS_KEY]
+
+    @property
+    def dirichlet_evidence(self) -> Tensor:
+        return self.gauss_params[EVIDENCE_KEY]
+
+    def labelled_fraction(self) -> Float[Tensor, "n 1"]:
+        """Share of each Gaussian's lifted blending weight that fell on labelled pixels (x confidence);
+        0 for Gaussians never seen."""
+        w = self.gauss_params[WEIGHT_KEY].detach()
+        frac = self.dirichlet_evidence.detach().sum(-1, keepdim=True) / w.clamp_min(1e-12)
+        return torch.where(w > 0, frac, torch.zeros_like(frac)).clamp(0.0, 1.0)
+
+    def get_gaussian_param_groups(self) -> dict[str, list[Parameter]]:
+        return {name: [self.gauss_params[name]] for name in (*_SPLATFACTO_PARAMS, LOGITS_KEY)}
+
+    def load_state_dict(self, dict, **kwargs):  # type: ignore
+        super().load_state_dict(dict, **kwargs)  # splatfacto resizes every gauss_params entry to the saved N
+        for key in NON_TRAINABLE_KEYS:
+            self.gauss_params[key].requires_grad_(False)
+
+    # ------------------------------------------------------------------ densification
+    def _strategy_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """nerfstudio's optimizers plus no-op ones for the lifted tensors, since gsplat's strategy ops update
+        every `gauss_params` entry through an optimizer (these are never stepped)."""
+        noop = {k: torch.optim.SGD([self.gauss_params[k]], lr=0.0) for k in NON_TRAINABLE_KEYS}
+        return {**self.optimizers, **noop}
+
+    def step_post_backward(self, step):
+        assert step == self.step
+        self.strategy.step_post_backward(
+            params=self.gauss_params,
+            optimizers=self._strategy_optimizers(),
+            state=self.strategy_state,
+            step=self.step,
+            info=self.info,
+            packed=False,
+        )
+        for key in NON_TRAINABLE_KEYS:
+            self.gauss_params[key].requires_grad_(False)
+
+    def get_training_callbacks(
+        self, training_callback_attributes: TrainingCallbackAttributes
+    ) -> list[TrainingCallback]:
+        cbs = super().get_training_callbacks(training_callback_attributes)
+        cbs.append(
+            TrainingCallback(
+                [TrainingCallbackLocation.AFTER_TRAIN_ITERATION],
+                self._lifting_callback,
+                args=[training_callback_attributes],
+            )
+        )
+        return cbs
+
+    def _lifting_callback(self, attrs: TrainingCallbackAttributes, step: int) -> None:
+        lift_at = (
+            self.config.lifting_step if self.config.lifting_step is not None else self.config.stop_split_at
+        )
+        last = None
+        if attrs.trainer is not None:
+            last = attrs.trainer._start_step + attrs.trainer.config.max_num_iterations - 1
+        if step == lift_at or (self.config.lift_at_end and step == last):
+            assert attrs.pipeline is not None
+            self.run_lifting(attrs.pipeline.datamanager)
+
+    # ------------------------------------------------------------------ Bayesian head
+    @torch.no_grad()
+    def run_lifting(self, datamanager) -> Tensor:
+        """Lifts the training views' material maps onto the Gaussians (replaces `dirichlet_evidence`).
+
+        Evidence map of a view: confidence-weighted one-hot of its labels (label 0 contributes nothing);
+        `lift_evidence` sums each Gaussian's blending weight times the map over all pixels, and its total
+        blending weight (`lifting_weight`), so that `labelled_fraction = sum_k evidence_k / lifting_weight`
+        tells Gaussians seen mostly in labelled pixels from those seen mostly in unknown (label 0) pixels.
+        """
+        from physgs_nerfstudio.lifting import label_evidence_maps, lift_evidence
+
+        cameras, cached = datamanager.material_views("train")
+        K = self.num_materials
+        means = self.means.detach()
+        quats = self.quats.detach()
+        scales = torch.exp(self.scales.detach())
+        opacities = torch.sigmoid(self.opacities.detach()).squeeze(-1)
+        evidence = torch.zeros(self.num_points, K, device=self.device)
+        weight = torch.zeros(self.num_points, 1, device=self.device)
+        used = 0
+        for idx, data in enumerate(cached):
+            labels = data["material"][..., 0].to(self.device).long()  # views without a map still count
+            used += int(bool((labels > 0).any()))  # for every Gaussian's total weight (labelled_fraction)
+            conf = data["material_confidence"][..., 0].to(self.device).float() / 255.0
+            maps = label_evidence_maps(labels[None], conf[None], K)  # [1, H, W, K]
+            cam = cameras[idx : idx + 1].to(self.device)
+            cam.metadata = {"cam_idx": idx}
+            c2w = self.camera_optimizer.apply_to_camera(cam)
+            lifted = lift_evidence(
+                means,
+                quats,
+                scales,
+                opacities,
+                world_to_camera(c2w),
+                cam.get_intrinsics_matrices(),
+                int(cam.width.item()),
+                int(cam.height.item()),
+                maps,
+                backend=self.config.rasterize_backend,
+                rasterize_mode=self.config.rasterize_mode,
+            )
+            view_evidence = lifted.evidence.to(evidence)
+            view_weight = lifted.visibility.to(weight)[:, None]
+            if self.config.evidence_per_view == "view":
+                norm = view_weight.clamp_min(1.0)
+                view_evidence, view_weight = view_evidence / norm, view_weight / norm
+            evidence += view_evidence
+            weight += view_weight
+        evidence = evidence.clamp_min(0.0)
+        evidence[evidence.sum(-1) < self.config.min_evidence] = 0.0
+        self.gauss_params[EVIDENCE_KEY].data = evidence
+        self.gauss_params[WEIGHT_KEY].data = weight
+        self.lifted_views.fill_(used)
+        CONSOLE.log(
+            f"PhysGS lifting: {used} views -> evidence on {(evidence.sum(-1) > 0).sum().item()}"
+            f"/{self.num_points} Gaussians"
+        )
+        return evidence
+
+    def dirichlet_alpha(self) -> Float[Tensor, "n k"]:
+        """Per-Gaussian Dirichlet posterior alpha0 + lambda * evidence (the prior where evidence is 0)."""
+        return dirichlet_posterior(self.dirichlet_evidence.detach(), self.alpha0, self.lam)
+
+    def material_nig(self) -> NIG:
+        return NIG(self.nig_tau, self.nig_kappa, self.nig_a, self.nig_b)
+
+    @torch.no_grad()
+    def gaussian_properties(self) -> dict[str, Float[Tensor, "n p"]]:
+        """Mixture predictive per Gaussian: mean, aleatoric, epistemic, total (variances), linear units.
+
+        Cached until the evidence tensor changes (lifting, densification, checkpoint load): the material
+        weights (dominance probabilities) cost a quadrature per Gaussian, too much for every rendered frame.
+        """
+        ev = self.dirichlet_evidence
+        key = (ev.data_ptr(), ev._version, tuple(ev.shape), ev.device, float(self.alpha0), float(self.lam))
+        cached = getattr(self, "_properties_cache", None)
+        if cached is None or cached[0] != key:
+            cached = (key, property_fields(self.dirichlet_alpha(), self.material_nig(), self.log_space))
+            self._properties_cache = cached
+        return cached[1]
+
+    def _uncertainty_index(self) -> int:
+        want = self.config.uncertainty_property
+        for i, key in enumerate(self.property_keys):
+            if want in (key, VIEWER_NAMES.get(key)):
+                return i
+        raise ValueError(f"uncertainty_property {want!r} is not one of {self.property_keys}")
+
+    @torch.no_grad()
+    def _property_channels(self) -> tuple[list[str], Float[Tensor, "n c"]]:
+        """Per-Gaussian values composited into the property / uncertainty outputs."""
+        fields = self.gaussian_properties()
+        names, cols = [], []
+        for i, key in enumerate(self.property_keys):
+            name = VIEWER_NAMES.get(key, key)
+            value = fields["mean"][:, i]
+            if key == "youngs_modulus":
+                value = torch.log10(value.clamp_min(1e-12))  # display: log10 Pa
+            names.append(name)
+            cols.append(value)
+        u = self._uncertainty_index()
+        for name, f in zip(UNCERTAINTY_OUTPUTS, ("aleatoric", "epistemic", "total")):
+            v = fields[f][:, u].clamp_min(0)
+            names.append(name)
+            cols.append(v.sqrt() if self.config.uncertainty_as_std else v)
+        return names, torch.stack(cols, dim=-1).float()
+
+    # ------------------------------------------------------------------ rendering
+    def get_empty_outputs(self, width: int, height: int, background: torch.Tensor) -> dict[str, Any]:  # type: ignore
+        out = SplatfactoModel.get_empty_outputs(width, height, background)
+        out["material"] = out["rgb"].clone()
+        out["material_id"] = out["accumulation"].clone()
+        if self.config.render_property_outputs:
+            for name in (*[VIEWER_NAMES.get(k, k) for k in self.property_keys], *UNCERTAINTY_OUTPUTS):
+                out[name] = out["accumulation"].clone()
+        return out
+
+    def get_outputs(self, camera: Cameras) -> dict[str, torch.Tensor | list]:
+        """RGB, depth, accumulation, background; training adds `material_logits` [H, W, K]; evaluation adds
+        `material` [H, W, 3] (legend colours), `material_id` [H, W, 1] (0 = background) and, if enabled, the
+        property outputs `density`, `friction`, `hardness`, `stiffness` (log10 Pa), `aleatoric`, `epistemic`,
+        `total_uncertainty`, each [H, W, 1]."""
+        if not isinstance(camera, Cameras):
+            CONSOLE.log("Called get_outputs with not a camera")
+            return {}
+        assert camera.shape[0] == 1, "PhysGSModel renders one camera at a time"
+        if self.training:
+            c2w = self.camera_optimizer.apply_to_camera(camera)
+        else:
+            c2w = camera.camera_to_worlds
+
+        crop_ids = None
+        if self.crop_box is not None and not self.training:
+            crop_ids = self.crop_box.within(self.means).squeeze()
+            if crop_ids.sum() == 0:
+                return self.get_empty_outputs(
+                    int(camera.width.item()), int(camera.height.item()), self.background_color.to(self.device)
+                )
+
+        def crop(t: Tensor) -> Tensor:
+            return t if crop_ids is None else t[crop_ids]
+
+        d = self._get_downscale_factor()
+        camera.rescale_output_resolution(1 / d)
+        Ks = camera.get_intrinsics_matrices().to(self.device)
+        W, H = int(camera.width.item()), int(camera.height.item())
+        self.last_size = (H, W)
+        camera.rescale_output_resolution(d)
+        viewmat = world_to_camera(c2w.to(self.device))
+
+        means = crop(self.means)
+        if self.config.sh_degree > 0:
+            sh_degree = min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
+            coeffs = torch.cat((crop(self.features_dc)[:, None, :], crop(self.features_rest)), dim=1)
+            dirs = means.detach() - c2w[0, :3, 3].to(self.device)
+            rgb_g = torch.clamp_min(eval_sh_colors(sh_degree, dirs, coeffs) + 0.5, 0.0)
+        else:
+            rgb_g = torch.sigmoid(crop(self.features_dc))
+        K = self.num_materials
+        channels = [rgb_g, crop(self.material_logits)]
+        prop_names: list[str] = []
+        lifted = bool(self.lifted_views > 0)
+        if not self.training:
+            if lifted:  # share of labelled pixels among those each Gaussian was seen in
+                channels.append(crop(self.labelled_fraction()).float())
+            if self.config.render_property_outputs:
+                prop_names, prop_g = self._property_channels()
+                channels.append(crop(prop_g))
+        with_depth = self.config.output_depth_during_training or not self.training
+        render, alpha, self.info = rasterize(
+            means=means,
+            quats=crop(self.quats),
+            scales=torch.exp(crop(self.scales)),
+            opacities=torch.sigmoid(crop(self.opacities)).squeeze(-1),
+            colors=torch.cat(channels, dim=-1),
+            viewmats=viewmat,
+            Ks=Ks,
+            width=W,
+            height=H,
+            packed=False,
+            near_plane=0.01,
+            far_plane=1e10,
+            render_mode="RGB+ED" if with_depth else "RGB",
+            sh_degree=None,
+            sparse_grad=False,
+            absgrad=self.strategy.absgrad,
+            rasterize_mode=self.config.rasterize_mode,
+            backend=self.config.rasterize_backend,
+        )
+        if self.training:
+            self.strategy.step_pre_backward(
+                self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info
+            )
+        render, alpha = render[0], alpha[0]  # [H, W, X], [H, W, 1]
+
+        background = self._get_background_color()
+        rgb = torch.clamp(render[..., :3] + (1 - alpha) * background, 0.0, 1.0)
+        if (
+            self.config.use_bilateral_grid
+            and self.training
+            and camera.metadata
+            and "cam_idx" in camera.metadata
+        ):
+            rgb = self._apply_bilateral_grid(rgb[None], camera.metadata["cam_idx"], H, W)[0]
+        logits = render[..., 3 : 3 + K]
+        depth = None
+        if with_depth:
+            depth = render[..., -1:]
+            depth = torch.where(alpha > 0, depth, depth.detach().max())
+
+        out: dict[str, Any] = {"rgb": rgb, "depth": depth, "accumulation": alpha}
+        if self.training:
+            out["background"] = background
+            out[LOGITS_KEY] = logits
+            return out
+
+        out["background"] = background.expand(H, W, 3) if background.shape[0] == 3 else background
+        extra = render[..., 3 + K :]
+        fg = alpha > self.config.material_alpha_thresh  # [H, W, 1]
+        known = fg
+        # after lifting, only where the Gaussians were seen in labelled pixels (label 0 stays unknown)
+        if lifted:
+            labelled = extra[..., :1] / alpha.clamp_min(1e-10)
+            known = fg & (labelled > self.config.material_min_labelled)
+            extra = extra[..., 1:]
+        label = torch.where(known[..., 0], logits.argmax(-1) + 1, 0)  # [H, W]
+        palette = torch.cat([background[None].to(self.material_colors), self.material_colors], dim=0)
+        out["material"] = palette[label]
+        out["material_id"] = label[..., None].float()
+        if prop_names:
+            values = extra[..., : len(prop_names)] / alpha.clamp_min(1e-10)
+            for i, name in enumerate(prop_names):
+                v = values[..., i : i + 1]
+                # background shows the foreground minimum, so the viewer's normalised colormap spans the object
+                fill = v[fg].min() if bool(fg.any()) else v.new_zeros(())
+                out[name] = torch.where(fg, v, fill)
+        return out
+
+    # ------------------------------------------------------------------ losses and metrics
+    def _batch_material(self, batch: dict[str, Any], height: int, width: int) -> tuple[Tensor, Tensor]:
+        """Label ids [H, W] (long) and confidences [H, W] in [0, 1] at the rendered resolution."""
+        d = self._get_downscale_factor()
+        labels = downscale_labels(batch["material"], d, height, width)[..., 0].to(self.device).long()
+        conf = (
+            downscale_labels(batch["material_confidence"], d, height, width)[..., 0].to(self.device).float()
+            / 255
+        )
+        if "mask" in batch:
+            mask = downscale_labels(batch["mask"], d, height, width)[..., 0].to(self.device).bool()
+            labels = torch.where(mask, labels, 0)
+        if labels.shape != (height, width):
+            raise RuntimeError(
+                f"material map {tuple(labels.shape)} does not match the render {(height, width)}"
+            )
+        return labels, conf
+
+    def get_loss_dict(self, outputs, batch, metrics_dict=None) -> dict[str, torch.Tensor]:
+        loss_dict = super().get_loss_dict(outputs, batch, metrics_dict)
+        if self.config.material_loss_weight > 0 and LOGITS_KEY in outputs and "material" in batch:
+            logits = outputs[LOGITS_KEY]
+            labels, conf = self._batch_material(batch, *logits.shape[:2])
+            valid = labels > 0
+            if bool(valid.any()):
+                ce = F.cross_entropy(logits[valid], labels[valid] - 1, reduction="none")
+                loss = (conf[valid] * ce).sum() / valid.sum()
+            else:
+                loss = logits.sum() * 0.0
+            loss_dict["material_loss"] = self.config.material_loss_weight * loss
+        return loss_dict
+
+    def _material_accuracy(self, pred: Tensor, labels: Tensor) -> float | None:
+        valid = labels > 0
+        if not bool(valid.any()):
+            return None
+        return float((pred[valid] == labels[valid]).float().mean())
+
+    def get_metrics_dict(self, outputs, batch) -> dict[str, torch.Tensor]:
+        metrics = super().get_metrics_dict(outputs, batch)
+        if LOGITS_KEY in outputs and "material" in batch:
+            logits = outputs[LOGITS_KEY]
+            labels, _ = self._batch_material(batch, *logits.shape[:2])
+            acc = self._material_accuracy(logits.argmax(-1) + 1, labels)
+            if acc is not None:
+                metrics["material_acc"] = torch.tensor(acc)
+        return metrics
+
+    def get_image_metrics_and_images(
+        self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]
+    ) -> tuple[dict[str, float], dict[str, torch.Tensor]]:
+        metrics, images = super().get_image_metrics_and_images(outputs, batch)
+        if "material_id" in outputs and "material" in batch:
+            pred = outputs["material_id"][..., 0].long()
+            labels, _ = self._batch_material(batch, *pred.shape)
+            acc = self._material_accuracy(pred, labels)
+            if acc is not None:
+                metrics["material_acc"] = acc
+            palette = torch.cat(
+                [outputs["background"][0, 0][None].to(self.material_colors), self.material_colors]
+            )
+            images["material"] = torch.cat([palette[labels], outputs["material"]], dim=1)
+        return metrics, images

@@ -1,0 +1,197 @@
+"""PhysGSModel on CPU: outputs, densification of the per-Gaussian tensors, lifting / prior, checkpoints, loss."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from gsplat.strategy.ops import duplicate, remove, split
+from nerfstudio.data.scene_box import SceneBox
+from nerfstudio.engine.optimizers import Optimizers
+from test_nerfstudio_fixtures import write_blob_scene
+
+from method_configs.physgs_config import physgs_lite_trainer_config
+from physgs_nerfstudio.bayes import vacuity
+from physgs_nerfstudio.nerfstudio import PhysGSDatamanagerConfig, PhysGSDataParserConfig, PhysGSModelConfig
+from physgs_nerfstudio.nerfstudio.model import EVIDENCE_KEY, LOGITS_KEY, WEIGHT_KEY, PhysGSModel
+
+OUTPUTS_1CH = ("density", "friction", "hardness", "stiffness", "aleatoric", "epistemic", "total_uncertainty",
+               "material_id", "depth", "accumulation")  # fmt: skip
+OUTPUTS_3CH = ("rgb", "material", "background")
+
+
+@pytest.fixture(scope="module")
+def blob_dm(tmp_path_factory):
+    root = tmp_path_factory.mktemp("blob")
+    write_blob_scene(root, num_views=6, size=32, skip_material_for=[5])
+    cfg = PhysGSDatamanagerConfig(
+        dataparser=PhysGSDataParserConfig(data=root, eval_mode="interval", eval_interval=3)
+    )
+    return cfg.setup(device="cpu")
+
+
+def make_model(dm, **config) -> PhysGSModel:
+    cfg = PhysGSModelConfig(sh_degree=1, num_downscales=0, **config)
+    meta = dm.train_dataparser_outputs.metadata
+    model = cfg.setup(
+        scene_box=SceneBox(torch.tensor([[-1.0, -1, -1], [1, 1, 1]])),
+        num_train_data=len(dm.train_dataset),
+        metadata=dm.train_dataset.metadata,
+        seed_points=(meta["points3D_xyz"], meta["points3D_rgb"]),
+    )
+    return model
+
+
+def attach_optimizers(model: PhysGSModel) -> Optimizers:
+    opt = Optimizers(physgs_lite_trainer_config().optimizers, model.get_param_groups())
+    model.step_cb(opt, 0)
+    return opt
+
+
+def test_outputs_on_cpu(blob_dm) -> None:
+    model = make_model(blob_dm)
+    K = model.num_materials
+    assert K == 2 and LOGITS_KEY in model.gauss_params and EVIDENCE_KEY in model.gauss_params
+    cam, batch = blob_dm.next_train(0)
+    model.train()
+    out = model.get_outputs(cam)
+    H, W = batch["image"].shape[:2]
+    assert out["rgb"].shape == (H, W, 3) and out["material_logits"].shape == (H, W, K)
+    model.eval()
+    with torch.no_grad():
+        out = model.get_outputs_for_camera(blob_dm.eval_dataset.cameras[0:1])
+    for key in OUTPUTS_1CH:
+        assert out[key].shape == (H, W, 1), key
+        assert torch.isfinite(out[key]).all(), key
+    for key in OUTPUTS_3CH:
+        assert out[key].shape == (H, W, 3), key
+    assert "material_logits" not in out  # not a viewer output (K channels)
+    # unlifted: every Gaussian holds the prior -> density is the prior mixture mean everywhere
+    props = model.gaussian_properties()
+    assert torch.allclose(props["mean"], props["mean"][:1].expand_as(props["mean"]))
+
+
+def test_loss_and_metrics(blob_dm) -> None:
+    model = make_model(blob_dm)
+    attach_optimizers(model)
+    model.train()
+    cam, batch = blob_dm.next_train(0)
+    out = model.get_outputs(cam)
+    losses = model.get_loss_dict(out, batch, model.get_metrics_dict(out, batch))
+    assert "material_loss" in losses and float(losses["material_loss"]) > 0
+    sum(losses.values()).backward()
+    assert model.material_logits.grad is not None and model.material_logits.grad.abs().sum() > 0
+    # a view without a material map: no material loss, no gradient into the logits
+    model.material_logits.grad = None
+    batch0 = dict(batch, material=torch.zeros_like(batch["material"]))
+    out = model.get_outputs(cam)
+    losses = model.get_loss_dict(out, batch0)
+    assert float(losses["material_loss"]) == 0.0
+    losses["material_loss"].backward()
+    assert model.material_logits.grad is None or model.material_logits.grad.abs().sum() == 0
+
+
+def test_densification_keeps_per_gaussian_tensors_in_sync(blob_dm) -> None:
+    model = make_model(blob_dm)
+    attach_optimizers(model)
+    n0, K = model.num_points, model.num_materials
+    with torch.no_grad():  # distinctive rows: row i carries i in every per-Gaussian extra
+        ids = torch.arange(n0, dtype=torch.float32)[:, None]
+        model.gauss_params[LOGITS_KEY].copy_(ids.expand(n0, K))
+        model.gauss_params[EVIDENCE_KEY].copy_(ids.expand(n0, K) + 0.5)
+        model.gauss_params[WEIGHT_KEY].copy_(ids + 0.25)
+    # one real training step so that the optimizers have state, then force the strategy's operations
+    model.train()
+    cam, batch = blob_dm.next_train(0)
+    out = model.get_outputs(cam)
+    sum(model.get_loss_dict(out, batch).values()).backward()
+    for o in model.optimizers.values():
+        o.step()
+    params, optim, state = model.gauss_params, model._strategy_optimizers(), {}
+    dup_mask = torch.zeros(n0, dtype=torch.bool)
+    dup_mask[:5] = True
+    duplicate(params, optim, state, dup_mask)
+    split_mask = torch.zeros(model.num_points, dtype=torch.bool)
+    split_mask[5:8] = True
+    split(params, optim, state, split_mask)
+    prune_mask = torch.zeros(model.num_points, dtype=torch.bool)
+    prune_mask[-1:] = True  # split children are appended as [a, b, c, a, b, c]: prunes the last c
+    remove(params, optim, state, prune_mask)
+    n1 = model.num_points
+    assert n1 == n0 + 5 + 3 - 1
+    for name, p in model.gauss_params.items():
+        assert p.shape[0] == n1, name
+    for name in ("means", LOGITS_KEY):
+        st = model.optimizers[name].state[model.gauss_params[name]]
+        assert st["exp_avg"].shape == model.gauss_params[name].shape
+    rows = model.material_logits[:, 0].round().long()
+    counts = torch.bincount(rows, minlength=n0)
+    assert torch.all(counts[:5] == 2)  # duplicated: original + clone carry the same logits
+    assert counts[5:8].tolist() == [2, 2, 1]  # split into two children (one pruned)
+    assert torch.all(counts[8:] == 1)
+    assert torch.equal(model.dirichlet_evidence[:, 0] - 0.5, model.material_logits[:, 0].detach())
+    assert torch.equal(model.gauss_params[WEIGHT_KEY][:, 0] - 0.25, model.material_logits[:, 0].detach())
+    # the model's own callback path (gsplat DefaultStrategy through step_post_backward) with forced growth
+    model.strategy.refine_start_iter, model.strategy.grow_grad2d = 0, -1.0
+    model.strategy.pause_refine_after_reset = 0
+    model.step_cb(Optimizers(physgs_lite_trainer_config().optimizers, model.get_param_groups()), 100)
+    out = model.get_outputs(cam)
+    sum(model.get_loss_dict(out, batch).values()).backward()
+    n_before = model.num_points
+    model.step_post_backward(100)
+    assert model.num_points > n_before
+    for name, p in model.gauss_params.items():
+        assert p.shape[0] == model.num_points, name
+    assert not model.dirichlet_evidence.requires_grad and model.material_logits.requires_grad
+
+
+def test_lifting_prior_for_unseen_and_checkpoint(blob_dm) -> None:
+    model = make_model(blob_dm)
+    n_scene = model.num_points
+    with torch.no_grad():  # 50 Gaussians far outside every camera's view
+        far = torch.randn(50, 3) * 0.1 + torch.tensor([0.0, 0.0, 40.0])
+        for name, p in list(model.gauss_params.items()):
+            extra = p[:50].clone() if name != "means" else far
+            model.gauss_params[name] = torch.nn.Parameter(
+                torch.cat([p, extra]), requires_grad=p.requires_grad
+            )
+    model.eval()
+    evidence = model.run_lifting(blob_dm)
+    assert int(model.lifted_views) == len(blob_dm.train_dataset) - sum(
+        int(d["material"].max()) == 0 for d in blob_dm.cached_train
+    )
+    alpha = model.dirichlet_alpha()
+    unseen = slice(n_scene, None)
+    assert torch.all(evidence[unseen] == 0)
+    assert torch.allclose(alpha[unseen], torch.full_like(alpha[unseen], model.alpha0))
+    assert torch.allclose(vacuity(alpha[unseen]), torch.ones(50))
+    seen = evidence[:n_scene].sum(-1) > 0.05
+    assert seen.float().mean() > 0.5
+    props = model.gaussian_properties()
+    epi = props["epistemic"]
+    strong = evidence[:n_scene].sum(-1) > 1.0
+    assert strong.sum() > 50
+    # never seen: the prior's epistemic (material ambiguity included), above every well-observed Gaussian's
+    assert torch.allclose(epi[unseen], epi[unseen][:1].expand(50, -1))
+    assert torch.all(epi[unseen][0] > epi[:n_scene][strong].max(0).values)
+    # lifted material agrees with the blob each Gaussian was seeded from (first half sphere=1, then box=2)
+    truth = torch.cat([torch.ones(n_scene // 2), 2 * torch.ones(n_scene - n_scene // 2)]).long()
+    pred = alpha[:n_scene].argmax(-1) + 1
+    assert (pred[seen] == truth[seen]).float().mean() > 0.9
+
+    # checkpoint: a model of another size restores the head exactly
+    state = {k: v.clone() for k, v in model.state_dict().items()}
+    other = make_model(blob_dm)
+    assert other.num_points != model.num_points
+    other.load_state_dict(state)
+    for key in (EVIDENCE_KEY, WEIGHT_KEY, LOGITS_KEY, "means"):
+        assert torch.equal(other.gauss_params[key], model.gauss_params[key]), key
+    assert int(other.lifted_views) == int(model.lifted_views)
+    assert torch.equal(other.dirichlet_alpha(), alpha)
+    assert not other.dirichlet_evidence.requires_grad
+
+
+def test_model_needs_the_legend() -> None:
+    with pytest.raises(ValueError, match="physgs perceive"):
+        PhysGSModelConfig().setup(
+            scene_box=SceneBox(torch.tensor([[-1.0, -1, -1], [1, 1, 1]])), num_train_data=1, metadata={}
+        )
