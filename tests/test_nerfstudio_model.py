@@ -55,7 +55,10 @@ def test_outputs_on_cpu(blob_dm) -> None:
     model.train()
     out = model.get_outputs(cam)
     H, W = batch["image"].shape[:2]
-    assert out["rgb"].shape == (H, W, 3) and out["material_logits"].shape == (H, W, K)
+    md = model.config.material_downscale  # step 0: a material step; logits are rendered md x smaller
+    assert out["rgb"].shape == (H, W, 3) and out["material_logits"].shape == (H // md, W // md, K)
+    model.step = 1  # not a material step: splatfacto's RGB pass only
+    assert "material_logits" not in model.get_outputs(cam)
     model.eval()
     with torch.no_grad():
         out = model.get_outputs_for_camera(blob_dm.eval_dataset.cameras[0:1])
@@ -195,3 +198,43 @@ def test_model_needs_the_legend() -> None:
         PhysGSModelConfig().setup(
             scene_box=SceneBox(torch.tensor([[-1.0, -1, -1], [1, 1, 1]])), num_train_data=1, metadata={}
         )
+
+
+class _ScaledConfidence:
+    """A datamanager view whose material confidences are scaled (labels unchanged)."""
+
+    def __init__(self, dm, factor: float):
+        self.dm, self.factor = dm, factor
+
+    def material_views(self, split: str):
+        cameras, cached = self.dm.material_views(split)
+        scaled = [dict(d, material_confidence=(d["material_confidence"].float() * self.factor).to(torch.uint8))
+                  for d in cached]  # fmt: skip
+        return cameras, scaled
+
+
+def test_labelled_fraction_ignores_confidence_and_old_checkpoints_fall_back(blob_dm) -> None:
+    from physgs_nerfstudio.export.field import PropertyField
+    from physgs_nerfstudio.nerfstudio.model import LABELLED_KEY
+
+    model = make_model(blob_dm)
+    model.eval()
+    full = model.run_lifting(blob_dm)
+    frac = model.labelled_fraction()[:, 0].clone()
+    seen = model.gauss_params[WEIGHT_KEY][:, 0] > 0.05
+    assert seen.sum() > 50 and torch.all((frac >= 0) & (frac <= 1))
+    # low-confidence answers: 3x less evidence, the same share of labelled pixels
+    weak = model.run_lifting(_ScaledConfidence(blob_dm, 0.3))
+    assert float(weak.sum()) == pytest.approx(0.3 * float(full.sum()), rel=0.05)
+    assert torch.allclose(model.labelled_fraction()[:, 0], frac, atol=1e-5)
+    pf = PropertyField.from_model(model)
+    assert pf.labelled is not None and torch.allclose(pf.labelled, frac, atol=1e-6)
+    assert torch.allclose(pf.evidence, weak.sum(-1))
+    # the blobs are labelled in every view with a map: most seen Gaussians are mostly seen in labelled pixels
+    assert float(frac[seen].median()) > 0.5
+    # a checkpoint from before labelled_weight still loads; the export then selects by geometry
+    state = {k: v.clone() for k, v in model.state_dict().items() if not k.endswith(LABELLED_KEY)}
+    other = make_model(blob_dm)
+    other.load_state_dict(state)
+    assert other.labelled_fraction_legacy
+    assert PropertyField.from_model(other).labelled is None

@@ -75,8 +75,13 @@ class PropertyField:
     """higher-order SH coefficients (nerfstudio `features_rest`, [N, (deg+1)^2 - 1, 3])"""
     property_keys: tuple[str, ...] = field(default_factory=_property_keys)
     simulated: bool = False
-    _pi: Tensor | None = field(default=None, init=False, repr=False, compare=False)
     """material posteriors come from the simulated VLM (always say so in outputs)"""
+    labelled: Float[Tensor, " n"] | None = None
+    """per Gaussian, the share of its (per-view normalised) blending weight that fell on pixels the material
+    maps label (PhysGSModel.labelled_fraction, in [0, 1]); None = unknown. Object selection uses it."""
+    evidence: Float[Tensor, " n"] | None = None
+    """per Gaussian total lifted Dirichlet evidence (sum over materials, >= 0); None = unknown"""
+    _pi: Tensor | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         n = self.means.shape[0]
@@ -102,6 +107,10 @@ class PropertyField:
         if self.sh_rest is not None and (self.sh_rest.dim() != 3 or self.sh_rest.shape[0] != n
                                          or self.sh_rest.shape[2] != 3):
             raise ValueError(f"PropertyField: sh_rest must be [N, R, 3], got {tuple(self.sh_rest.shape)}.")
+        for name in ("labelled", "evidence"):
+            t = getattr(self, name)
+            if t is not None and t.shape != (n,):
+                raise ValueError(f"PropertyField: {name} must be [N] = [{n}] or None, got {tuple(t.shape)}.")
         if not (math.isfinite(self.metres_per_unit) and self.metres_per_unit > 0):
             raise ValueError(f"PropertyField: metres_per_unit must be > 0, got {self.metres_per_unit}.")
         for t in self.thickness_m:
@@ -140,7 +149,7 @@ class PropertyField:
         """Per-material predictive mean in linear units (log-space: lognormal mean exp(tau + v/2)), float64."""
         nig = self.nig.to(torch.float64)
         v = nig.variance()
-        log_mask = torch.as_tensor(self.log_space, dtype=torch.bool).expand_as(nig.tau)
+        log_mask = torch.as_tensor(self.log_space, dtype=torch.bool, device=nig.tau.device).expand_as(nig.tau)
         return torch.where(log_mask, torch.exp(nig.tau + v / 2), nig.tau)
 
     def property_index(self, key: str) -> int:
@@ -153,14 +162,15 @@ class PropertyField:
         pick = lambda t: None if t is None else t[mask]
         return replace(self, means=self.means[mask], quats=self.quats[mask], scales=self.scales[mask],
                        opacities=self.opacities[mask], alpha=self.alpha[mask], sh_dc=pick(self.sh_dc),
-                       sh_rest=pick(self.sh_rest))  # fmt: skip
+                       sh_rest=pick(self.sh_rest), labelled=pick(self.labelled),
+                       evidence=pick(self.evidence))  # fmt: skip
 
     def to(self, device: torch.device | str) -> PropertyField:
         mv = lambda t: None if t is None else t.to(device)
         return replace(self, means=self.means.to(device), quats=self.quats.to(device),
                        scales=self.scales.to(device), opacities=self.opacities.to(device),
                        alpha=self.alpha.to(device), nig=self.nig.to(device), sh_dc=mv(self.sh_dc),
-                       sh_rest=mv(self.sh_rest))  # fmt: skip
+                       sh_rest=mv(self.sh_rest), labelled=mv(self.labelled), evidence=mv(self.evidence))  # fmt: skip
 
     def with_scale(self, scale: SceneScale) -> PropertyField:
         return replace(self, metres_per_unit=scale.metres_per_unit, scale_source=scale.source)
@@ -189,7 +199,10 @@ class PropertyField:
         ``dataparser_scale``: nerfstudio's pose scale (``dataparser_transforms.json``); ``scale`` /
         ``known_length`` as in :func:`.scale.resolve_scale`. Thickness per material: ``thickness_m`` of
         materials.json (the VLM's answer fused by perception) or, when null there, the material library's
-        typical value (``env`` or materials.json's ``env``); None = solid.
+        typical value (``env`` or materials.json's ``env``); None = solid. ``labelled`` and ``evidence``:
+        the model's ``labelled_fraction()`` and total lifted evidence once it has lifted the material maps
+        (None before, or when the checkpoint predates ``labelled_weight``: object selection then falls back
+        to geometry).
         """
         for attr in ("means", "quats", "scales", "opacities", "dirichlet_alpha", "legend"):
             if not hasattr(model, attr):
@@ -207,6 +220,15 @@ class PropertyField:
             nig = model.material_nig()
             sh_dc = model.features_dc.detach().float() if hasattr(model, "features_dc") else None
             sh_rest = model.features_rest.detach().float() if hasattr(model, "features_rest") else None
+            labelled = evidence = None
+            lifted = int(getattr(model, "lifted_views", 0)) > 0
+            if lifted and hasattr(model, "labelled_fraction"):
+                if getattr(model, "labelled_fraction_legacy", False):
+                    logger.warning("the checkpoint predates labelled_weight: no labelled fraction for object "
+                                   "selection (retrain or re-lift the run)")  # fmt: skip
+                else:
+                    labelled = model.labelled_fraction().detach().float().reshape(-1)
+                    evidence = model.dirichlet_evidence.detach().float().sum(-1)
         if sh_rest is not None and sh_rest.dim() == 3 and sh_rest.shape[1] == 0:
             sh_rest = None
         colors = [tuple(int(round(float(c) * 255)) for c in row) for row in legend.colors.reshape(-1, 3).tolist()]
@@ -218,6 +240,7 @@ class PropertyField:
             material_names=list(legend.names), material_colors=colors, log_space=tuple(legend.log_space),
             thickness_m=thickness, metres_per_unit=sc.metres_per_unit, scale_source=sc.source, sh_dc=sh_dc,
             sh_rest=sh_rest, property_keys=tuple(legend.property_keys), simulated=bool(legend.simulated),
+            labelled=labelled, evidence=evidence,
         )  # fmt: skip
 
     @classmethod

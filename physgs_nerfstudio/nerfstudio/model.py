@@ -19,10 +19,16 @@ gradient descent, good at pixel-sharp boundaries, with no calibrated uncertainty
 densification stops (`lifting_step`, default `stop_split_at`), at the last training iteration and on demand
 (`run_lifting(datamanager)`); before the first lifting every Gaussian shows the prior.
 
+Lifting also records, per Gaussian, its total (per-view normalised) blending weight `lifting_weight` [N, 1]
+and the part of it that fell on labelled pixels (label != 0, whatever the confidence) `labelled_weight`
+[N, 1]; their ratio `labelled_fraction()` tells Gaussians of the perceived object(s) from environment
+Gaussians the material maps leave unknown (`physgs export` selects the object with it). Confidence is kept
+out of it on purpose: a labelled pixel of a low-confidence answer is still a pixel of the labelled object.
+
 The `material` output shows the argmax of the rendered logits where the accumulated opacity exceeds
-`material_alpha_thresh` and, once lifted, where the composited labelled fraction (share of the Gaussians'
-blending weight that fell on labelled pixels, `lifting_weight`) exceeds `material_min_labelled`; elsewhere
-the background colour (label 0). `material_id` (float label, [H, W, 1]) carries the same map for metrics.
+`material_alpha_thresh` and, once lifted, where the composited labelled fraction exceeds
+`material_min_labelled`; elsewhere the background colour (label 0). `material_id` (float label, [H, W, 1])
+carries the same map for metrics.
 
 Rendering is one call of `physgs_nerfstudio.render.rasterize` (gsplat on CUDA, the pure-torch reference
 rasterizer on CPU) with per-Gaussian colours [N, 3 + K (+ property channels)]; view-dependent RGB is
@@ -63,7 +69,8 @@ PROPERTY_OUTPUTS = ("density", "friction", "hardness", "stiffness")
 UNCERTAINTY_OUTPUTS = ("aleatoric", "epistemic", "total_uncertainty")
 EVIDENCE_KEY = "dirichlet_evidence"
 WEIGHT_KEY = "lifting_weight"
-NON_TRAINABLE_KEYS = (EVIDENCE_KEY, WEIGHT_KEY)
+LABELLED_KEY = "labelled_weight"
+NON_TRAINABLE_KEYS = (EVIDENCE_KEY, WEIGHT_KEY, LABELLED_KEY)
 LOGITS_KEY = "material_logits"
 _SPLATFACTO_PARAMS = ("means", "scales", "quats", "features_dc", "features_rest", "opacities")
 
@@ -81,6 +88,12 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     background_color: Literal["random", "black", "white"] = "random"
     material_loss_weight: float = 0.1
     """Weight of the confidence-weighted cross-entropy between rendered logits and the label maps."""
+    material_every: int = 4
+    """Train the material logits every this many steps (their own render pass); the RGB pass is splatfacto's
+    own every step, so the head's cost is amortised (measured in benchmarks/gpu/bench_training.py)."""
+    material_downscale: int = 2
+    """The training render of the material logits is this many times smaller per side than the RGB render
+    (labels are piecewise constant, so a coarser supervision grid loses little)."""
     dirichlet_alpha0: float | None = None
     """Dirichlet prior concentration per material; None = `alpha0` of materials.json (1.0 if absent)."""
     dirichlet_lambda: float | None = None
@@ -104,7 +117,7 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     """Pixels with less accumulated opacity are background in the `material` output (label 0)."""
     material_min_labelled: float = 0.3
     """After lifting, pixels whose composited labelled fraction (share of the Gaussians' blending weight that fell
-    on labelled pixels, x confidence) is below this show no material (regions the maps leave unknown)."""
+    on labelled pixels) is below this show no material (regions the maps leave unknown)."""
     render_property_outputs: bool = True
     """Render the property / uncertainty outputs at evaluation and in the viewer."""
     rasterize_backend: Literal["auto", "gsplat", "reference"] = "auto"
@@ -214,6 +227,7 @@ class PhysGSModel(SplatfactoModel):
                 LOGITS_KEY: Parameter(torch.zeros(n, K)),
                 EVIDENCE_KEY: Parameter(torch.zeros(n, K), requires_grad=False),
                 WEIGHT_KEY: Parameter(torch.zeros(n, 1), requires_grad=False),
+                LABELLED_KEY: Parameter(torch.zeros(n, 1), requires_grad=False),
             }
         )
 
@@ -273,16 +287,29 @@ class PhysGSModel(SplatfactoModel):
         return self.gauss_params[EVIDENCE_KEY]
 
     def labelled_fraction(self) -> Float[Tensor, "n 1"]:
-        """Share of each Gaussian's lifted blending weight that fell on labelled pixels (x confidence);
-        0 for Gaussians never seen."""
+        """Share of each Gaussian's lifted (per-view normalised) blending weight that fell on labelled pixels
+        (label != 0, not weighted by confidence); 0 for Gaussians never seen. For a checkpoint written before
+        `labelled_weight` existed, the confidence-weighted share (``labelled_fraction_legacy`` is then True)."""
         w = self.gauss_params[WEIGHT_KEY].detach()
-        frac = self.dirichlet_evidence.detach().sum(-1, keepdim=True) / w.clamp_min(1e-12)
+        frac = self.gauss_params[LABELLED_KEY].detach() / w.clamp_min(1e-12)
         return torch.where(w > 0, frac, torch.zeros_like(frac)).clamp(0.0, 1.0)
+
+    @property
+    def labelled_fraction_legacy(self) -> bool:
+        return bool(getattr(self, "_labelled_legacy", False))
 
     def get_gaussian_param_groups(self) -> dict[str, list[Parameter]]:
         return {name: [self.gauss_params[name]] for name in (*_SPLATFACTO_PARAMS, LOGITS_KEY)}
 
     def load_state_dict(self, dict, **kwargs):  # type: ignore
+        key = f"gauss_params.{LABELLED_KEY}"
+        self._labelled_legacy = key not in dict and f"gauss_params.{EVIDENCE_KEY}" in dict
+        if self._labelled_legacy:  # checkpoint older than labelled_weight: its confidence-weighted stand-in
+            dict = {**dict, key: dict[f"gauss_params.{EVIDENCE_KEY}"].sum(-1, keepdim=True)}
+            CONSOLE.log(
+                f"[yellow]checkpoint has no {LABELLED_KEY}: labelled fraction falls back to the "
+                "confidence-weighted evidence share (re-lift or retrain for the exact one)"
+            )
         super().load_state_dict(dict, **kwargs)  # splatfacto resizes every gauss_params entry to the saved N
         for key in NON_TRAINABLE_KEYS:
             self.gauss_params[key].requires_grad_(False)
@@ -338,8 +365,9 @@ class PhysGSModel(SplatfactoModel):
 
         Evidence map of a view: confidence-weighted one-hot of its labels (label 0 contributes nothing);
         `lift_evidence` sums each Gaussian's blending weight times the map over all pixels, and its total
-        blending weight (`lifting_weight`), so that `labelled_fraction = sum_k evidence_k / lifting_weight`
-        tells Gaussians seen mostly in labelled pixels from those seen mostly in unknown (label 0) pixels.
+        blending weight (`lifting_weight`) and its weight on labelled pixels (`labelled_weight`, one more
+        channel of the same pass), so that `labelled_fraction = labelled_weight / lifting_weight` tells
+        Gaussians seen mostly in labelled pixels from those seen mostly in unknown (label 0) pixels.
         """
         from physgs_nerfstudio.lifting import label_evidence_maps, lift_evidence
 
@@ -351,12 +379,14 @@ class PhysGSModel(SplatfactoModel):
         opacities = torch.sigmoid(self.opacities.detach()).squeeze(-1)
         evidence = torch.zeros(self.num_points, K, device=self.device)
         weight = torch.zeros(self.num_points, 1, device=self.device)
+        labelled = torch.zeros(self.num_points, 1, device=self.device)
         used = 0
         for idx, data in enumerate(cached):
             labels = data["material"][..., 0].to(self.device).long()  # views without a map still count
             used += int(bool((labels > 0).any()))  # for every Gaussian's total weight (labelled_fraction)
             conf = data["material_confidence"][..., 0].to(self.device).float() / 255.0
             maps = label_evidence_maps(labels[None], conf[None], K)  # [1, H, W, K]
+            maps = torch.cat([maps, (labels > 0)[None, ..., None].to(maps)], -1)  # + labelled indicator
             cam = cameras[idx : idx + 1].to(self.device)
             cam.metadata = {"cam_idx": idx}
             c2w = self.camera_optimizer.apply_to_camera(cam)
@@ -366,24 +396,29 @@ class PhysGSModel(SplatfactoModel):
                 scales,
                 opacities,
                 world_to_camera(c2w),
-                cam.get_intrinsics_matrices(),
+                cam.get_intrinsics_matrices().to(self.device),
                 int(cam.width.item()),
                 int(cam.height.item()),
                 maps,
                 backend=self.config.rasterize_backend,
                 rasterize_mode=self.config.rasterize_mode,
             )
-            view_evidence = lifted.evidence.to(evidence)
+            view_evidence = lifted.evidence[:, :K].to(evidence)
+            view_labelled = lifted.evidence[:, K:].to(labelled)
             view_weight = lifted.visibility.to(weight)[:, None]
             if self.config.evidence_per_view == "view":
                 norm = view_weight.clamp_min(1.0)
                 view_evidence, view_weight = view_evidence / norm, view_weight / norm
+                view_labelled = view_labelled / norm
             evidence += view_evidence
             weight += view_weight
+            labelled += view_labelled
         evidence = evidence.clamp_min(0.0)
         evidence[evidence.sum(-1) < self.config.min_evidence] = 0.0
         self.gauss_params[EVIDENCE_KEY].data = evidence
         self.gauss_params[WEIGHT_KEY].data = weight
+        self.gauss_params[LABELLED_KEY].data = labelled.clamp_min(0.0)
+        self._labelled_legacy = False
         self.lifted_views.fill_(used)
         CONSOLE.log(
             f"PhysGS lifting: {used} views -> evidence on {(evidence.sum(-1) > 0).sum().item()}"
@@ -483,6 +518,8 @@ class PhysGSModel(SplatfactoModel):
         viewmat = world_to_camera(c2w.to(self.device))
 
         means = crop(self.means)
+        if self.training:
+            return self._training_outputs(camera, c2w, Ks, W, H, d)
         if self.config.sh_degree > 0:
             sh_degree = min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
             coeffs = torch.cat((crop(self.features_dc)[:, None, :], crop(self.features_rest)), dim=1)
@@ -570,10 +607,60 @@ class PhysGSModel(SplatfactoModel):
                 out[name] = torch.where(fg, v, fill)
         return out
 
+    def _training_outputs(self, camera: Cameras, c2w: Tensor, Ks: Tensor, W: int, H: int, d: int) -> dict[str, Any]:
+        """Training: splatfacto's RGB(+depth) pass (SH evaluated in the rasterizer), plus, every
+        `material_every` steps, a pass of the K material logits at 1/`material_downscale` resolution."""
+        viewmat = world_to_camera(c2w.to(self.device))
+        geometry = dict(
+            means=self.means,
+            quats=self.quats,
+            scales=torch.exp(self.scales),
+            opacities=torch.sigmoid(self.opacities).squeeze(-1),
+            viewmats=viewmat,
+            packed=False,
+            near_plane=0.01,
+            far_plane=1e10,
+            sparse_grad=False,
+            rasterize_mode=self.config.rasterize_mode,
+            backend=self.config.rasterize_backend,
+        )
+        if self.config.sh_degree > 0:
+            sh_degree = min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
+            colors = torch.cat((self.features_dc[:, None, :], self.features_rest), dim=1)
+        else:
+            sh_degree, colors = None, torch.sigmoid(self.features_dc)
+        with_depth = self.config.output_depth_during_training
+        render, alpha, self.info = rasterize(
+            colors=colors, Ks=Ks, width=W, height=H, render_mode="RGB+ED" if with_depth else "RGB",
+            sh_degree=sh_degree, absgrad=self.strategy.absgrad, **geometry,
+        )  # fmt: skip
+        self.strategy.step_pre_backward(self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info)
+        render, alpha = render[0], alpha[0]
+        background = self._get_background_color()
+        rgb = torch.clamp(render[..., :3] + (1 - alpha) * background, 0.0, 1.0)
+        if self.config.use_bilateral_grid and camera.metadata and "cam_idx" in camera.metadata:
+            rgb = self._apply_bilateral_grid(rgb[None], camera.metadata["cam_idx"], H, W)[0]
+        depth = None
+        if with_depth:
+            depth = torch.where(alpha > 0, render[..., 3:4], render[..., 3:4].detach().max())
+        out: dict[str, Any] = {"rgb": rgb, "depth": depth, "accumulation": alpha, "background": background}
+        every = max(1, self.config.material_every)
+        if self.config.material_loss_weight > 0 and self.step % every == 0:
+            md = max(1, self.config.material_downscale)
+            Wm, Hm = max(1, W // md), max(1, H // md)
+            Km = Ks.clone()
+            Km[:, :2] *= torch.tensor([Wm / W, Hm / H], device=Ks.device, dtype=Ks.dtype)[:, None]
+            logits, _, _ = rasterize(colors=self.material_logits, Ks=Km, width=Wm, height=Hm, render_mode="RGB",
+                                     **geometry)  # fmt: skip
+            out[LOGITS_KEY] = logits[0]
+        return out
+
     # ------------------------------------------------------------------ losses and metrics
     def _batch_material(self, batch: dict[str, Any], height: int, width: int) -> tuple[Tensor, Tensor]:
         """Label ids [H, W] (long) and confidences [H, W] in [0, 1] at the rendered resolution."""
-        d = self._get_downscale_factor()
+        # the render may be smaller than the image (training downscale, material_downscale): sample labels at
+        # the centre of each render pixel's block (nearest neighbour: labels must not be interpolated)
+        d = max(1, batch["material"].shape[0] // height)
         labels = downscale_labels(batch["material"], d, height, width)[..., 0].to(self.device).long()
         conf = (
             downscale_labels(batch["material_confidence"], d, height, width)[..., 0].to(self.device).float()

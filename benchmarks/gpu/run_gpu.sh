@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# One GPU session's measurements, in two parts that each fit a 10-minute command (see benchmarks/README.md).
+#   bash benchmarks/gpu/run_gpu.sh kernels   # rasterizer parity, lifting, mass integration, GPU tests
+#   bash benchmarks/gpu/run_gpu.sh training  # physgs vs splatfacto-big, then a full ns-train physgs run
+# Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
+# without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+OUT=${OUT:-$PWD/gpu_results}; mkdir -p "$OUT"
+if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
+SCENE=/tmp/physgs_gpu_scene
+make_scene() {
+  [ -f "$SCENE/materials.json" ] && return
+  python3 -m physgs_nerfstudio.cli synth --out "$SCENE" --object chair --views 60 --resolution 512 --overwrite
+  python3 -m physgs_nerfstudio.cli perceive --data "$SCENE" --vlm simulated --segmenter builtin \
+    --no-progress --max-concurrency 16
+}
+case "${1:-kernels}" in
+  kernels)
+    python3 benchmarks/gpu/bench_kernels.py --out "$OUT/kernels.json" 2>&1 | tee "$OUT/kernels.log"
+    python3 benchmarks/mass_integration.py --sizes 100000 1000000 2>&1 | tee "$OUT/mass_integration.txt"
+    python3 -m pytest -q -m gpu tests/ -p no:cacheprovider 2>&1 | tail -15 | tee "$OUT/gpu_tests.txt"
+    ;;
+  training)
+    make_scene 2>&1 | tail -20 | tee "$OUT/scene.log"
+    python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps 1500 --warmup 300 \
+      --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -20
+    ;;
+  full)
+    make_scene 2>&1 | tail -5
+    python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations 7000 --vis tensorboard \
+      --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -5 | tee "$OUT/full_train.log"
+    CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml)
+    python3 -m nerfstudio.scripts.eval --load-config "$CFG" --output-path "$OUT/full_eval.json" 2>&1 | tail -5
+    python3 -m physgs_nerfstudio.cli export --load-config "$CFG" --output-dir /tmp/physgs_export 2>&1 | tail -30 \
+      | tee "$OUT/full_export.log"
+    cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
+    ;;
+esac
