@@ -171,7 +171,9 @@ def test_lifting_prior_for_unseen_and_checkpoint(blob_dm) -> None:
     assert seen.float().mean() > 0.5
     props = model.gaussian_properties()
     epi = props["epistemic"]
-    strong = evidence[:n_scene].sum(-1) > 1.0
+    total = evidence[:n_scene].sum(-1)
+    # well observed AND consistently labelled (a Gaussian on a material boundary stays ambiguous, rightly)
+    strong = (total > 1.0) & (evidence[:n_scene].max(-1).values > 0.8 * total)
     assert strong.sum() > 50
     # never seen: the prior's epistemic (material ambiguity included), above every well-observed Gaussian's
     assert torch.allclose(epi[unseen], epi[unseen][:1].expand(50, -1))

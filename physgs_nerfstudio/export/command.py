@@ -157,8 +157,17 @@ class ExportCommand:
     fill: Literal["3d", "slices", "none"] = "3d"
     threshold: float = 0.5
     """occupancy threshold, a fraction of the opacity field's plateau"""
+    select: Literal["auto", "labelled", "largest", "all"] = "auto"
+    """which Gaussians make the object: labelled = those the material maps label (labelled fraction >=
+    min_labelled, evidence >= min_evidence), then their largest connected part; largest = the largest part of
+    all Gaussians; all = every part; auto = labelled when the run was lifted, else largest"""
+    min_labelled: float = 0.5
+    """select=labelled: minimum share of a Gaussian's blending weight that fell on labelled pixels"""
+    min_evidence: float = 0.05
+    """select=labelled: minimum total lifted evidence of a Gaussian"""
     bbox: tuple[float, float, float, float, float, float] | None = None
-    """object box (xmin ymin zmin xmax ymax zmax) in scene units (the viewer's crop frame); default: largest part"""
+    """object box (xmin ymin zmin xmax ymax zmax) in scene units (the viewer's crop frame), combined with
+    select; default: the Gaussians' extent"""
     scale: float | None = None
     """metres per dataset unit (default: the dataset is metric)"""
     known_length: tuple[float, float, float, float, float, float, float] | None = None
@@ -177,7 +186,9 @@ class ExportCommand:
     device: Literal["auto", "cpu", "cuda"] = "auto"
 
     def mass_config(self) -> MassConfig:
-        occ = OccupancyConfig(resolution=self.resolution, threshold=self.threshold, fill=self.fill, bbox=self.bbox)
+        occ = OccupancyConfig(resolution=self.resolution, threshold=self.threshold, fill=self.fill, bbox=self.bbox,
+                              select=self.select, min_labelled=self.min_labelled,
+                              min_evidence=self.min_evidence)  # fmt: skip
         return MassConfig(occupancy=occ, volume_model=self.volume_model, volume_models=dict(self.volume_models),
                           shell_surface=self.shell_surface, n_samples=self.n_samples, seed=self.seed,
                           level=self.level)  # fmt: skip

@@ -182,7 +182,7 @@ def _sheet_depth(pf: PropertyField, cfg: MassConfig, occ: Occupancy) -> float:
         return float(cfg.sheet_depth)
     _, thick = resolve_volume_models(pf, cfg)
     t_max = max([t for t in thick if t is not None], default=0.0) / pf.metres_per_unit
-    keep = pf.opacities >= cfg.occupancy.min_opacity
+    keep = occ.gaussians if occ.gaussians is not None else pf.opacities >= cfg.occupancy.min_opacity
     thin = pf.scales[keep].amin(-1).float()
     sigma = torch.sqrt(thin.median() ** 2 + occ.filter_sigma**2).item() if thin.numel() else occ.filter_sigma
     return 0.5 * t_max + 2.5 * sigma + 1.5 * occ.grid.voxel_size
@@ -360,7 +360,9 @@ def integrate_mass(
     geometry_info = {
         "grid_shape": list(occ.grid.shape), "voxel_size_m": occ.grid.voxel_size * mpu,
         "origin_scene": list(occ.grid.origin), "field_level": occ.level, "fill": oc.fill,
-        "threshold_mode": oc.threshold_mode, "threshold": oc.threshold, "select": oc.select,
+        "threshold_mode": oc.threshold_mode, "threshold": oc.threshold, "select": occ.select,
+        "select_config": oc.select, "min_labelled": oc.min_labelled, "min_evidence": oc.min_evidence,
+        "selected_gaussians": occ.num_selected,
         "bbox_scene": list(oc.bbox) if oc.bbox is not None else None, "shell_surface": geometry.shell_surface,
         "num_segments": n_seg, "segments": cfg.segments, "density_draw": cfg.density_draw,
         "thickness_spread": cfg.thickness_spread, "num_gaussians": pf.num_gaussians,

@@ -2,8 +2,15 @@
 
 Steps (all vectorised; scipy.ndimage on the boolean grid):
 
+0. Gaussians: those with opacity >= ``min_opacity``; with ``select="labelled"`` (the default ``auto`` when the
+   field carries the lifting's labelled fractions) only those the material maps label: labelled fraction
+   >= ``min_labelled`` and total lifted evidence >= ``min_evidence``. So the object is what perception
+   labelled, not the environment around it (the far background, a floor or table, floaters), which
+   geometry alone cannot tell from the object. Without labelled fractions ``auto`` is ``largest`` (logged).
 1. Domain: the user's bounding box (scene units), else the extent of the Gaussians (``extent_quantile``
-   trims far floaters) padded by their 3-sigma radius; ``resolution`` voxels along the longest side.
+   trims far floaters) padded by their 3-sigma radius; ``resolution`` voxels along the longest side. Without a bbox, steps 2-5 are
+   redone on the selected object's box (``refine_passes``), so the resolution is the object's, not the
+   floaters'.
 2. Opacity field ``F`` (:func:`.grid.splat`, anti-aliased by ``filter_voxels`` voxels).
 3. Threshold ``F >= level``. ``relative`` (default): ``level = threshold * Q`` with ``Q`` the
    ``reference_quantile`` of F over the voxels the Gaussians reach (F > 1% of its max), i.e. a fraction of
@@ -14,13 +21,15 @@ Steps (all vectorised; scipy.ndimage on the boolean grid):
    (closed surfaces only), ``slices`` = fill each 2-D slice along x, y and z and keep voxels filled in at
    least ``slice_votes`` of the three (closes surfaces with an unobserved side, e.g. a bottom on a table,
    but also fills open cavities such as a cup's inside), ``none``.
-5. Select the object: ``largest`` connected component (26-connectivity) of the filled set, or ``all``.
+5. Select the object: the largest connected component (26-connectivity) of the filled set (``labelled`` and
+   ``largest``), or every component (``all``).
 
 Results are cropped to the object (plus ``pad_voxels``).
 """
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -31,7 +40,12 @@ from scipy import ndimage
 from .field import PropertyField
 from .grid import VoxelGrid, gaussian_boxes, inverse_covariance6, splat
 
-__all__ = ["MaterialGrid", "Occupancy", "OccupancyConfig", "compute_occupancy", "volume_weights", "voxel_materials"]
+__all__ = ["MaterialGrid", "Occupancy", "OccupancyConfig", "compute_occupancy", "select_gaussians", "volume_weights",
+           "voxel_materials"]
+
+logger = logging.getLogger(__name__)
+
+SELECT_MODES = ("auto", "labelled", "largest", "all")
 
 
 @dataclass
@@ -48,7 +62,15 @@ class OccupancyConfig:
     fill: Literal["3d", "slices", "none"] = "3d"
     slice_votes: int = 2
     """with fill=slices: axes (of 3) whose 2-D slice fill must agree"""
-    select: Literal["largest", "all"] = "largest"
+    select: Literal["auto", "labelled", "largest", "all"] = "auto"
+    """labelled: Gaussians the material maps label, then their largest component; largest: the largest
+    component of all Gaussians; all: every component; auto: labelled when the field has labelled fractions,
+    else largest"""
+    min_labelled: float = 0.5
+    """select=labelled: minimum share of a Gaussian's blending weight on labelled pixels"""
+    min_evidence: float = 0.05
+    """select=labelled: minimum total lifted evidence (confidence-weighted views; one view at full confidence
+    counts 1)"""
     bbox: tuple[float, float, float, float, float, float] | None = None
     """(xmin, ymin, zmin, xmax, ymax, zmax) in scene units (the viewer's crop box frame); None = all Gaussians"""
     min_opacity: float = 0.01
@@ -59,6 +81,10 @@ class OccupancyConfig:
     """anti-aliasing filter sigma, in voxels"""
     cutoff_sigma: float = 3.0
     pad_voxels: int = 2
+    refine_passes: int = 3
+    """without bbox: rebuild the grid on the selected object's box at most this many times (compute_occupancy)"""
+    refine_below: float = 0.8
+    """rebuild while the object's box (with padding) is shorter than this fraction of the domain's longest side"""
     pair_budget: int = 1 << 21
     sheet_correction: bool = True
     """count layer voxels that separate a filled cavity from the outside as half inside (see volume_weights)"""
@@ -79,8 +105,14 @@ class OccupancyConfig:
             raise ValueError(f"threshold_mode must be relative|absolute, got {self.threshold_mode!r}.")
         if self.fill not in ("3d", "slices", "none"):
             raise ValueError(f"fill must be 3d|slices|none, got {self.fill!r}.")
-        if self.select not in ("largest", "all"):
-            raise ValueError(f"select must be largest|all, got {self.select!r}.")
+        if self.select not in SELECT_MODES:
+            raise ValueError(f"select must be one of {'|'.join(SELECT_MODES)}, got {self.select!r}.")
+        if not 0 <= self.min_labelled <= 1:
+            raise ValueError(f"OccupancyConfig.min_labelled must be in [0, 1], got {self.min_labelled}.")
+        if self.refine_passes < 0 or not 0 < self.refine_below <= 1:
+            raise ValueError("OccupancyConfig: refine_passes must be >= 0 and refine_below in (0, 1].")
+        if self.min_evidence < 0:
+            raise ValueError(f"OccupancyConfig.min_evidence must be >= 0, got {self.min_evidence}.")
         if self.bbox is not None:
             b = tuple(float(v) for v in self.bbox)
             if len(b) != 6 or not all(b[i] < b[i + 3] for i in range(3)):
@@ -103,6 +135,14 @@ class Occupancy:
     """filled object volume (superset of ``layer``)"""
     filter_sigma: float
     config: OccupancyConfig = field(repr=False, default_factory=OccupancyConfig)
+    select: str = "largest"
+    """the selection actually applied (``auto`` resolved, fallbacks included)"""
+    gaussians: torch.Tensor | None = field(default=None, repr=False)
+    """bool [N]: the Gaussians the object was built from (None = all with opacity >= min_opacity)"""
+
+    @property
+    def num_selected(self) -> int:
+        return int(self.gaussians.sum()) if self.gaussians is not None else -1
 
     @property
     def voxel_volume(self) -> float:
@@ -150,11 +190,35 @@ def _fill(occ: np.ndarray, cfg: OccupancyConfig) -> np.ndarray:
     return occ | (votes >= cfg.slice_votes)
 
 
-def compute_occupancy(pf: PropertyField, cfg: OccupancyConfig | None = None) -> Occupancy:
-    """Opacity field, threshold, fill and object selection (module doc)."""
-    cfg = cfg or OccupancyConfig()
+def select_gaussians(pf: PropertyField, cfg: OccupancyConfig) -> tuple[torch.Tensor, str]:
+    """(bool [N] mask of the Gaussians the object is built from, the select mode applied) (module doc, step 0)."""
     keep = pf.opacities >= cfg.min_opacity
-    grid = _domain(pf, keep, cfg)
+    mode = cfg.select
+    if mode == "auto":
+        mode = "labelled" if pf.labelled is not None else "largest"
+        if pf.labelled is None:
+            logger.info("object selection: the field has no labelled fractions (no lifting): using the largest "
+                        "component of all Gaussians")  # fmt: skip
+    if mode != "labelled":
+        return keep, mode
+    if pf.labelled is None:
+        raise ValueError("select='labelled' needs the lifting's labelled fractions (PropertyField.labelled); "
+                         "export a lifted PhysGS run or use select='largest' / a bbox.")  # fmt: skip
+    lab = keep & (pf.labelled.to(keep.device) >= cfg.min_labelled)
+    if pf.evidence is not None:
+        lab &= pf.evidence.to(keep.device) >= cfg.min_evidence
+    if not bool(lab.any()):
+        logger.warning("object selection: no Gaussian has labelled fraction >= %.3g and evidence >= %.3g; using "
+                       "the largest component of all Gaussians", cfg.min_labelled, cfg.min_evidence)  # fmt: skip
+        return keep, "largest"
+    logger.info("object selection: %d of %d Gaussians labelled by the material maps", int(lab.sum()),
+                int(keep.sum()))  # fmt: skip
+    return lab, "labelled"
+
+
+def _occupancy_on(pf: PropertyField, keep: torch.Tensor, grid: VoxelGrid, cfg: OccupancyConfig,
+                  mode: str) -> Occupancy:  # fmt: skip
+    """Steps 2-5 of the module doc on one grid, cropped to the selected object (+ ``pad_voxels``)."""
     filt = cfg.filter_voxels * grid.voxel_size
     idx = torch.nonzero(keep).squeeze(1)
     weight, _ = splat(grid, pf.means[idx], pf.quats[idx], pf.scales[idx], pf.opacities[idx],
@@ -174,7 +238,7 @@ def compute_occupancy(pf: PropertyField, cfg: OccupancyConfig | None = None) -> 
         raise ValueError(f"no voxel reaches the occupancy level {level:.4g} (field max {fmax:.4g}); lower threshold.")
     filled = _fill(occ, cfg)
     labels, n = ndimage.label(filled, structure=np.ones((3, 3, 3), dtype=bool))
-    if cfg.select == "largest" and n > 1:
+    if mode != "all" and n > 1:
         sizes = np.bincount(labels.ravel())
         sizes[0] = 0
         comp = labels == int(np.argmax(sizes))
@@ -189,8 +253,32 @@ def compute_occupancy(pf: PropertyField, cfg: OccupancyConfig | None = None) -> 
     return Occupancy(
         grid=grid.crop(lo, hi), field=np.ascontiguousarray(F[sl]), level=level,
         layer=np.ascontiguousarray(occ[sl] & comp), solid=np.ascontiguousarray(filled[sl] & comp),
-        filter_sigma=filt, config=cfg,
+        filter_sigma=filt, config=cfg, select=mode, gaussians=keep,
     )  # fmt: skip
+
+
+def compute_occupancy(pf: PropertyField, cfg: OccupancyConfig | None = None) -> Occupancy:
+    """Opacity field, threshold, fill and object selection (module doc).
+
+    Without a ``bbox`` the first domain spans every selected Gaussian, floaters included, so the object may
+    cover a small part of it; the grid is then rebuilt on the object's box (at most ``refine_passes`` times,
+    while the object's longest side is below ``refine_below`` of the domain's), so that ``resolution``
+    counts voxels along the object's longest side."""
+    cfg = cfg or OccupancyConfig()
+    keep, mode = select_gaussians(pf, cfg)
+    grid = _domain(pf, keep, cfg)
+    occ = _occupancy_on(pf, keep, grid, cfg, mode)
+    passes = 0
+    while cfg.bbox is None and passes < cfg.refine_passes:
+        og = occ.grid
+        lo = np.asarray(og.origin, dtype=np.float64)
+        hi = lo + np.asarray(og.shape) * og.voxel_size  # the object + pad_voxels of the current grid
+        if (hi - lo).max() >= cfg.refine_below * max(grid.shape) * grid.voxel_size:
+            break
+        grid = VoxelGrid.from_bounds(lo, hi, cfg.resolution)
+        occ = _occupancy_on(pf, keep, grid, cfg, mode)
+        passes += 1
+    return occ
 
 
 def volume_weights(occ: Occupancy) -> np.ndarray:
@@ -247,8 +335,8 @@ def voxel_materials(pf: PropertyField, occ: Occupancy, *, dilate: int = 2) -> Ma
     rows[tracked] = np.arange(m)
     device = pf.device
     lut = torch.from_numpy(rows.ravel()).to(device)
-    keep = pf.opacities >= cfg.min_opacity
-    # only Gaussians whose box touches the crop
+    keep = occ.gaussians if occ.gaussians is not None else pf.opacities >= cfg.min_opacity
+    # only the object's Gaussians whose box touches the crop
     inv6, cov_diag = inverse_covariance6(pf.quats, pf.scales, occ.filter_sigma)
     _, _, counts = gaussian_boxes(occ.grid, pf.means, cov_diag, cfg.cutoff_sigma)
     idx = torch.nonzero(keep & (counts > 0)).squeeze(1)

@@ -88,7 +88,9 @@ def write_voxel_grid(
         "scale_source": pf.scale_source,
         "simulated": pf.simulated,
         "occupancy": {"threshold": occ.config.threshold, "threshold_mode": occ.config.threshold_mode,
-                      "fill": occ.config.fill, "select": occ.config.select, "resolution": occ.config.resolution},
+                      "fill": occ.config.fill, "select": occ.select, "select_config": occ.config.select,
+                      "min_labelled": occ.config.min_labelled, "min_evidence": occ.config.min_evidence,
+                      "selected_gaussians": occ.num_selected, "resolution": occ.config.resolution},
     }  # fmt: skip
     out["meta"] = np.array(json.dumps(meta))
     path = Path(path)

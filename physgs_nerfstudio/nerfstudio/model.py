@@ -102,9 +102,13 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     """Gaussians with less total lifted evidence than this keep the exact prior (never seen)."""
     evidence_per_view: Literal["view", "pixels"] = "view"
     """How a view's lifted evidence counts in the Dirichlet. "view": divided by the Gaussian's blending weight in
-    that view when it exceeds one pixel, so each view is at most one (confidence-weighted) observation and the
-    concentration grows with the number of consistent views, not with the Gaussian's size on screen. "pixels":
-    the raw pixel sum (every covered pixel counts as an observation: far more confident)."""
+    that view, so every view that sees the Gaussian (weight above `min_view_weight`) is one confidence-weighted
+    observation, split over the labels of the pixels it covers: the concentration grows with the number of
+    consistent views, not with the Gaussian's size on screen. "pixels": the raw pixel sum (every covered pixel
+    counts as an observation: far more confident for large Gaussians, far less for sub-pixel ones)."""
+    min_view_weight: float = 0.05
+    """With evidence_per_view="view": a view counts for a Gaussian only if its total blending weight there (in
+    pixels) exceeds this; below it the Gaussian is treated as unseen in that view."""
     lifting_step: int | None = None
     """Step at which to lift the material maps onto the Gaussians; None = `stop_split_at` (densification end)."""
     lift_at_end: bool = True
@@ -407,7 +411,8 @@ class PhysGSModel(SplatfactoModel):
             view_labelled = lifted.evidence[:, K:].to(labelled)
             view_weight = lifted.visibility.to(weight)[:, None]
             if self.config.evidence_per_view == "view":
-                norm = view_weight.clamp_min(1.0)
+                seen = view_weight > self.config.min_view_weight
+                norm = torch.where(seen, view_weight, torch.full_like(view_weight, float("inf")))
                 view_evidence, view_weight = view_evidence / norm, view_weight / norm
                 view_labelled = view_labelled / norm
             evidence += view_evidence
@@ -680,12 +685,10 @@ class PhysGSModel(SplatfactoModel):
         if self.config.material_loss_weight > 0 and LOGITS_KEY in outputs and "material" in batch:
             logits = outputs[LOGITS_KEY]
             labels, conf = self._batch_material(batch, *logits.shape[:2])
-            valid = labels > 0
-            if bool(valid.any()):
-                ce = F.cross_entropy(logits[valid], labels[valid] - 1, reduction="none")
-                loss = (conf[valid] * ce).sum() / valid.sum()
-            else:
-                loss = logits.sum() * 0.0
+            # dense and sync-free (no boolean indexing): unknown pixels (label 0) get weight 0
+            valid = (labels > 0).to(conf)
+            ce = F.cross_entropy(logits.permute(2, 0, 1)[None], (labels - 1).clamp_min(0)[None], reduction="none")[0]
+            loss = (conf * valid * ce).sum() / valid.sum().clamp_min(1.0)
             loss_dict["material_loss"] = self.config.material_loss_weight * loss
         return loss_dict
 
@@ -700,9 +703,9 @@ class PhysGSModel(SplatfactoModel):
         if LOGITS_KEY in outputs and "material" in batch:
             logits = outputs[LOGITS_KEY]
             labels, _ = self._batch_material(batch, *logits.shape[:2])
-            acc = self._material_accuracy(logits.argmax(-1) + 1, labels)
-            if acc is not None:
-                metrics["material_acc"] = torch.tensor(acc)
+            valid = labels > 0  # a tensor metric: no host sync in the training step (NaN without labels)
+            hits = ((logits.argmax(-1) + 1) == labels) & valid
+            metrics["material_acc"] = hits.sum() / valid.sum()
         return metrics
 
     def get_image_metrics_and_images(
