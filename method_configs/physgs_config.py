@@ -99,6 +99,7 @@ def physgs_lite_trainer_config() -> TrainerConfig:
                 reset_alpha_every=1000,
                 cull_alpha_thresh=0.05,
                 material_loss_weight=0.2,
+                material_every=4,  # CPU-sized runs are short: supervise the material head more often
             ),
         ),
         optimizers=_optimizers(iters, material_lr=0.02),

@@ -62,7 +62,13 @@ def build_trainer(method: str, data: Path, steps: int, output_dir: Path, device:
     _seed_points_without_open3d()
     _no_lpips_download()
 
-    config = copy.deepcopy(all_methods[method])
+    # "physgs:material_every=8,material_downscale=2" sets model config fields (variants side by side)
+    name, _, overrides = method.partition(":")
+    config = copy.deepcopy(all_methods[name])
+    for item in filter(None, overrides.split(",")):
+        key, value = item.split("=")
+        field_type = type(getattr(config.pipeline.model, key))
+        setattr(config.pipeline.model, key, field_type(value))
     config.pipeline.datamanager.data = data
     config.pipeline.datamanager.dataparser.data = data
     config.max_num_iterations = steps

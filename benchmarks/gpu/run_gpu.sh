@@ -24,8 +24,13 @@ case "${1:-kernels}" in
     ;;
   training)
     make_scene 2>&1 | tail -20 | tee "$OUT/scene.log"
-    python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps 1500 --warmup 300 \
+    python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps 1500 --warmup 300 ${METHODS:+--methods $METHODS} \
       --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -20
+    ;;
+  profile)
+    make_scene 2>&1 | tail -3
+    (cd benchmarks/gpu && python3 profile_training.py --data "$SCENE") 2>&1 | grep -v Warning \
+      > "$OUT/profile.txt"; tail -5 "$OUT/profile.txt"
     ;;
   full)
     make_scene 2>&1 | tail -5

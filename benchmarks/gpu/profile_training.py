@@ -1,0 +1,58 @@
+"""Where a training step's time goes: torch.profiler over a few steps of each method (same loop as
+bench_training.py). Prints the top operators by CUDA and by CPU self time.
+
+    python3 benchmarks/gpu/profile_training.py --data SCENE [--methods splatfacto-big physgs]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import torch
+from torch.profiler import ProfilerActivity, profile
+
+from bench_training import build_trainer  # same directory
+
+
+def run(method: str, data: Path, warmup: int, steps: int, rows: int) -> None:
+    from nerfstudio.engine.callbacks import TrainingCallbackLocation
+
+    with tempfile.TemporaryDirectory() as tmp:
+        trainer = build_trainer(method, data, warmup + steps, Path(tmp))
+
+        def step_fn(step: int) -> None:
+            trainer.pipeline.train()
+            for cb in trainer.callbacks:
+                cb.run_callback_at_location(step, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+            trainer.train_iteration(step)
+            for cb in trainer.callbacks:
+                cb.run_callback_at_location(step, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
+
+        for step in range(warmup):
+            step_fn(step)
+        torch.cuda.synchronize()
+        with profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
+            for step in range(warmup, warmup + steps):
+                step_fn(step)
+            torch.cuda.synchronize()
+        print(f"===== {method}: {steps} steps after {warmup} =====")
+        print(prof.key_averages().table(sort_by="cuda_time_total", row_limit=rows, max_name_column_width=60))
+        print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=rows, max_name_column_width=60))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, required=True)
+    ap.add_argument("--methods", nargs="+", default=["splatfacto-big", "physgs"])
+    ap.add_argument("--warmup", type=int, default=300)
+    ap.add_argument("--steps", type=int, default=40)
+    ap.add_argument("--rows", type=int, default=18)
+    args = ap.parse_args()
+    for m in args.methods:
+        run(m, args.data, args.warmup, args.steps, args.rows)
+
+
+if __name__ == "__main__":
+    main()
