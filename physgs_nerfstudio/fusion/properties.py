@@ -62,6 +62,23 @@ def _finite_pos(v) -> bool:
         return False
 
 
+def property_row(props: dict, log_space: Sequence[bool]) -> list[float]:
+    """One record's ``properties`` as a row over PROPERTY_KEYS in the fused space: log for log-space
+    properties; NaN where missing, not a finite number, or not positive in log space."""
+    row = []
+    for key, use_log in zip(PROPERTY_KEYS, log_space):
+        try:
+            v = float(props.get(key, math.nan))
+        except (TypeError, ValueError):
+            v = math.nan
+        if not math.isfinite(v) or (use_log and v <= 0):
+            v = math.nan
+        elif use_log:
+            v = math.log(v)
+        row.append(v)
+    return row
+
+
 def observation_arrays(
     observations: Sequence[dict], names: Sequence[str], log_space: Sequence[bool]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float | None]]:
@@ -76,20 +93,9 @@ def observation_arrays(
             skipped += 1
             continue
         props = o.get("properties") or {}
-        row = []
-        for key, use_log in zip(PROPERTY_KEYS, log_space):
-            try:
-                v = float(props.get(key, math.nan))
-            except (TypeError, ValueError):
-                v = math.nan
-            if not math.isfinite(v) or (use_log and v <= 0):
-                v = math.nan
-            elif use_log:
-                v = math.log(v)
-            row.append(v)
         cls.append(i)
         conf.append(min(1.0, float(o["confidence"])))
-        vals.append(row)
+        vals.append(property_row(props, log_space))
         t = props.get("thickness_m")
         thick.append(
             float(t)

@@ -52,6 +52,7 @@ import torch
 
 from ..bayes import NIG, Moments, nig_posterior
 from ..fusion.maps import MapFusionConfig
+from ..fusion.properties import property_row
 from ..materials import PROPERTY_KEYS, MaterialLibrary, PriorConfig, load_library, log_space_flags
 
 logger = logging.getLogger(__name__)
@@ -235,19 +236,7 @@ class ActiveSelector:
             self.mask_evidence[i, k] += lw * p
             cls.append(k)
             conf.append(p)
-            props = r.get("properties") or {}
-            row = []
-            for key, use_log in zip(PROPERTY_KEYS, self._log):
-                try:
-                    v = float(props.get(key, math.nan))
-                except (TypeError, ValueError):
-                    v = math.nan
-                if not math.isfinite(v) or (use_log and v <= 0):
-                    v = math.nan
-                elif use_log:
-                    v = math.log(v)
-                row.append(v)
-            vals.append(row)
+            vals.append(property_row(r.get("properties") or {}, self._log))
         if cls:
             m = Moments.from_observations(
                 torch.as_tensor(cls),
@@ -383,19 +372,20 @@ def run_active_perception(
     from .pipeline import (
         _masks_for,
         _segmenter,
-        _write_run_summary,
+        budget_left,
         build_backend,
+        commit_answer,
+        failure_message,
+        finish_run,
         load_frames,
         load_image,
-        observation_records,
         run_fingerprint,
         select_views,
-        write_dataset_outputs,
     )
     from .prompts import PromptConfig, build_request
-    from .store import MaskDone, ObservationStore
+    from .store import ObservationStore
     from .validate import Validator
-    from .vlm import Usage, VLMError
+    from .vlm import VLMError
 
     active = active or ActiveConfig()
     if config.prompt != "triplet":
@@ -451,35 +441,22 @@ def run_active_perception(
         return int(selector.done.sum())
 
     def handle(view: str, mid: int, request, response) -> None:
-        if response.cached:
-            result.cache_hits += 1
-        else:
-            result.calls += 1
-            result.usage = Usage(
-                result.usage.prompt_tokens + response.usage.prompt_tokens,
-                result.usage.completion_tokens + response.usage.completion_tokens,
-                result.usage.total_tokens + response.usage.total_tokens,
-            )
-            if cost_of is not None:
-                result.cost_usd += float(cost_of(response.usage))
-        checked = validator(response.text, context=request.describe())
-        result.reasons += len(checked.reasons)
-        result.dropped_candidates += sum("dropped" in r for r in checked.reasons)
-        records = observation_records(request, checked.candidates, backend, response)
-        done = MaskDone(
-            view, mid, request.level, len(records), checked.reasons, response.cached, response.usage.to_dict()
+        done, records = commit_answer(
+            request,
+            response,
+            result=result,
+            validator=validator,
+            backend=backend,
+            store=store,
+            cost_of=cost_of,
         )
-        store.commit(done, records)
         selector.observe(view, mid, records)
-        result.new_observations += len(records)
         result.queried.append((view, mid))
         if on_commit is not None:
             on_commit(done)
 
     def money_left() -> bool:
-        if config.max_calls is not None and paid >= config.max_calls:
-            return False
-        return not (config.budget is not None and result.cost_usd >= config.budget)
+        return budget_left(config, paid, result.cost_usd)
 
     pool = ThreadPoolExecutor(max_workers=config.max_concurrency, thread_name_prefix="physgs-active")
     stop = ""
@@ -541,12 +518,8 @@ def run_active_perception(
                     try:
                         response = fut.result()
                     except Exception as err:  # noqa: BLE001  (a failed query must not lose the other answers)
-                        msg = (
-                            err
-                            if isinstance(err, VLMError)
-                            else f"{request.describe()}: {type(err).__name__}: {err}"
-                        )
-                        result.failed.append(str(msg))
+                        msg = failure_message(request, err)
+                        result.failed.append(msg)
                         logger.warning("%s", msg)
                         selector.mark_failed(view, mid)
                         continue
@@ -557,14 +530,7 @@ def run_active_perception(
     result.stop_reason = stop
     result.answered = answered()
     result.final_uncertainty = selector.uncertainty()
-    observations = store.observations()
-    result.observations = len(observations)
-    for o in observations:
-        result.material_counts[o["material"]] = result.material_counts.get(o["material"], 0) + 1
-    if config.write_outputs:
-        write_dataset_outputs(root, frames, observations, library, config, result, seg_fp)
-    result.seconds = time.time() - t0
-    _write_run_summary(root, config, result)
+    finish_run(root, frames, store, library, config, result, seg_fp, t0)
     _write_active_log(root, active, result, selector)
     if config.strict and result.failed:
         raise VLMError(f"{len(result.failed)} requests failed; first: {result.failed[0]}")

@@ -214,6 +214,8 @@ def _openai_config(config: PerceptionConfig) -> OpenAIConfig:
 
 
 def _segmenter(config: PerceptionConfig) -> Segmenter:
+    """The segmenter of ``config``'s ``segmenter``, ``builtin``, ``sam``, ``sam_checkpoint`` and
+    ``sam_model_type`` (the only fields read, so ``SingleImageConfig`` works too)."""
     sam = config.sam
     if config.sam_checkpoint is not None or config.sam_model_type != sam.model_type:
         from dataclasses import replace
@@ -282,6 +284,61 @@ def observation_records(
             }
         )
     return out
+
+
+def commit_answer(
+    request: VLMRequest,
+    response: VLMResponse,
+    *,
+    result: PerceptionResult,
+    validator: Validator,
+    backend: CachedBackend,
+    store: ObservationStore,
+    cost_of: Callable[[Usage], float] | None,
+) -> tuple[MaskDone, list[dict]]:
+    """Account one answer in ``result`` (cache hit, or uncached call with its usage and cost), validate it
+    and commit its observation records to ``store``; returns the commit and the records."""
+    if response.cached:
+        result.cache_hits += 1
+    else:
+        result.calls += 1
+        result.usage = Usage(
+            result.usage.prompt_tokens + response.usage.prompt_tokens,
+            result.usage.completion_tokens + response.usage.completion_tokens,
+            result.usage.total_tokens + response.usage.total_tokens,
+        )
+        if cost_of is not None:
+            result.cost_usd += float(cost_of(response.usage))
+    checked = validator(response.text, context=request.describe())
+    result.reasons += len(checked.reasons)
+    result.dropped_candidates += sum("dropped" in r for r in checked.reasons)
+    records = observation_records(request, checked.candidates, backend, response)
+    done = MaskDone(
+        request.view,
+        request.mask_id,
+        request.level,
+        len(records),
+        checked.reasons,
+        response.cached,
+        response.usage.to_dict(),
+    )
+    store.commit(done, records)
+    result.new_observations += len(records)
+    return done, records
+
+
+def failure_message(request: VLMRequest, err: Exception) -> str:
+    """What ``result.failed`` records for a query that raised: a VLMError's own message (it names the
+    request), anything else (a backend bug) prefixed with the request."""
+    return str(err) if isinstance(err, VLMError) else f"{request.describe()}: {type(err).__name__}: {err}"
+
+
+def budget_left(config: PerceptionConfig, paid: int, cost_usd: float) -> bool:
+    """Whether another uncached request may be sent after ``paid`` of them costing ``cost_usd`` so far
+    (``config.max_calls``, ``config.budget``)."""
+    if config.max_calls is not None and paid >= config.max_calls:
+        return False
+    return not (config.budget is not None and cost_usd >= config.budget)
 
 
 class _Progress:
@@ -372,32 +429,15 @@ def run_perception(
     paid_submitted = 0
 
     def handle(request: VLMRequest, response: VLMResponse) -> None:
-        if response.cached:
-            result.cache_hits += 1
-        else:
-            result.calls += 1
-            result.usage = Usage(
-                result.usage.prompt_tokens + response.usage.prompt_tokens,
-                result.usage.completion_tokens + response.usage.completion_tokens,
-                result.usage.total_tokens + response.usage.total_tokens,
-            )
-            if cost_of is not None:
-                result.cost_usd += float(cost_of(response.usage))
-        checked = validator(response.text, context=request.describe())
-        result.reasons += len(checked.reasons)
-        result.dropped_candidates += sum("dropped" in r for r in checked.reasons)
-        records = observation_records(request, checked.candidates, backend, response)
-        done = MaskDone(
-            request.view,
-            request.mask_id,
-            request.level,
-            len(records),
-            checked.reasons,
-            response.cached,
-            response.usage.to_dict(),
+        done, _ = commit_answer(
+            request,
+            response,
+            result=result,
+            validator=validator,
+            backend=backend,
+            store=store,
+            cost_of=cost_of,
         )
-        store.commit(done, records)
-        result.new_observations += len(records)
         if on_commit is not None:
             on_commit(done)
 
@@ -411,26 +451,14 @@ def run_perception(
                 request = in_flight.pop(fut)
                 try:
                     response = fut.result()
-                except VLMError as err:
-                    result.failed.append(str(err))
-                    logger.warning("%s", err)
-                    bar.advance(task_q)
-                    continue
-                except Exception as err:  # a backend bug must not lose the other answers
-                    msg = f"{request.describe()}: {type(err).__name__}: {err}"
+                except Exception as err:  # noqa: BLE001  (a backend bug must not lose the other answers)
+                    msg = failure_message(request, err)
                     result.failed.append(msg)
                     logger.warning("%s", msg)
                     bar.advance(task_q)
                     continue
                 handle(request, response)
                 bar.advance(task_q)
-
-    def budget_left() -> bool:
-        if config.max_calls is not None and paid_submitted >= config.max_calls:
-            return False
-        if config.budget is not None and result.cost_usd >= config.budget:
-            return False
-        return True
 
     names_for_prompt = list(library.names)
     total_masks = 0
@@ -474,7 +502,7 @@ def run_perception(
                             logger.warning("%s", err)
                         bar.advance(task_q)
                         continue
-                    if not budget_left():
+                    if not budget_left(config, paid_submitted, result.cost_usd):
                         result.skipped_budget += 1
                         bar.advance(task_q)
                         continue
@@ -487,14 +515,7 @@ def run_perception(
         # let requests already sent finish (their answers land in the cache), drop the queued ones
         pool.shutdown(wait=True, cancel_futures=True)
 
-    observations = store.observations()
-    result.observations = len(observations)
-    for o in observations:
-        result.material_counts[o["material"]] = result.material_counts.get(o["material"], 0) + 1
-    if config.write_outputs:
-        write_dataset_outputs(root, frames, observations, library, config, result, seg_fp)
-    result.seconds = time.time() - t0
-    _write_run_summary(root, config, result)
+    finish_run(root, frames, store, library, config, result, seg_fp, t0)
     if config.strict and result.failed:
         raise VLMError(f"{len(result.failed)} requests failed; first: {result.failed[0]}")
     return result
@@ -608,6 +629,28 @@ def write_dataset_outputs(
         update_transforms(root, paths)
     result.label_paths = {v: p[0] for v, p in paths.items()}
     result.confidence_paths = {v: p[1] for v, p in paths.items()}
+
+
+def finish_run(
+    root: Path,
+    frames: Sequence[dict],
+    store: ObservationStore,
+    library: MaterialLibrary,
+    config: PerceptionConfig,
+    result: PerceptionResult,
+    seg_fp: str,
+    t0: float,
+) -> None:
+    """After the queries: count the stored observations into ``result``, fuse and write the dataset outputs
+    (``config.write_outputs``), and write the run summary."""
+    observations = store.observations()
+    result.observations = len(observations)
+    for o in observations:
+        result.material_counts[o["material"]] = result.material_counts.get(o["material"], 0) + 1
+    if config.write_outputs:
+        write_dataset_outputs(root, frames, observations, library, config, result, seg_fp)
+    result.seconds = time.time() - t0
+    _write_run_summary(root, config, result)
 
 
 def _write_run_summary(root: Path, config: PerceptionConfig, result: PerceptionResult) -> None:

@@ -245,12 +245,9 @@ def simulated_backend(config: SingleImageConfig, staged: Sequence[StagedImage], 
 
 
 def build_segmenter(config: SingleImageConfig) -> Segmenter:
-    from ..perception.segment import make_segmenter
+    from ..perception.pipeline import _segmenter
 
-    sam = config.sam
-    if config.sam_checkpoint is not None or config.sam_model_type != sam.model_type:
-        sam = replace(sam, checkpoint=config.sam_checkpoint or sam.checkpoint, model_type=config.sam_model_type)
-    return make_segmenter(config.segmenter, builtin=config.builtin, sam=sam)
+    return _segmenter(config)
 
 
 def _image_masks(workspace: Path, s: StagedImage, seg_fp: str | None, prompt: str) -> list[Mask] | None:
