@@ -21,8 +21,9 @@ Steps (all vectorised; scipy.ndimage on the boolean grid):
    (closed surfaces only), ``slices`` = fill each 2-D slice along x, y and z and keep voxels filled in at
    least ``slice_votes`` of the three (closes surfaces with an unobserved side, e.g. a bottom on a table,
    but also fills open cavities such as a cup's inside), ``none``.
-5. Select the object: the largest connected component (26-connectivity) of the filled set (``labelled`` and
-   ``largest``), or every component (``all``).
+5. Select the object: the largest connected component (26-connectivity) of the filled set (``largest``),
+   every component with at least ``min_component`` of the largest one's voxels (``labelled``), or every
+   component (``all``).
 
 Results are cropped to the object (plus ``pad_voxels``).
 """
@@ -71,6 +72,10 @@ class OccupancyConfig:
     min_evidence: float = 0.05
     """select=labelled: minimum total lifted evidence (confidence-weighted views; one view at full confidence
     counts 1)"""
+    min_component: float = 0.05
+    """select=labelled: keep every connected component with at least this fraction of the largest one's voxels
+    (an object's parts need not touch at the grid's resolution, e.g. a chair's back and seat); the labelled
+    selection has already removed the unlabelled clutter that `largest` exists to drop"""
     bbox: tuple[float, float, float, float, float, float] | None = None
     """(xmin, ymin, zmin, xmax, ymax, zmax) in scene units (the viewer's crop box frame); None = all Gaussians"""
     min_opacity: float = 0.01
@@ -241,7 +246,10 @@ def _occupancy_on(pf: PropertyField, keep: torch.Tensor, grid: VoxelGrid, cfg: O
     if mode != "all" and n > 1:
         sizes = np.bincount(labels.ravel())
         sizes[0] = 0
-        comp = labels == int(np.argmax(sizes))
+        if mode == "labelled":  # clutter is already gone: keep every substantial part of the object
+            comp = (sizes >= cfg.min_component * sizes.max())[labels] & (labels > 0)
+        else:
+            comp = labels == int(np.argmax(sizes))
     else:
         comp = labels > 0
     # crop to the object + padding
