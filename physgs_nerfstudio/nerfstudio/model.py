@@ -374,63 +374,9 @@ class PhysGSModel(SplatfactoModel):
         channel of the same pass), so that `labelled_fraction = labelled_weight / lifting_weight` tells
         Gaussians seen mostly in labelled pixels from those seen mostly in unknown (label 0) pixels.
         """
-        from physgs_nerfstudio.lifting import label_evidence_maps, lift_evidence
+        from .lifting_pass import lift_material_maps
 
-        cameras, cached = datamanager.material_views("train")
-        K = self.num_materials
-        means = self.means.detach()
-        quats = self.quats.detach()
-        scales = torch.exp(self.scales.detach())
-        opacities = torch.sigmoid(self.opacities.detach()).squeeze(-1)
-        evidence = torch.zeros(self.num_points, K, device=self.device)
-        weight = torch.zeros(self.num_points, 1, device=self.device)
-        labelled = torch.zeros(self.num_points, 1, device=self.device)
-        used = 0
-        for idx, data in enumerate(cached):
-            labels = data["material"][..., 0].to(self.device).long()  # views without a map still count
-            used += int(bool((labels > 0).any()))  # for every Gaussian's total weight (labelled_fraction)
-            conf = data["material_confidence"][..., 0].to(self.device).float() / 255.0
-            maps = label_evidence_maps(labels[None], conf[None], K)  # [1, H, W, K]
-            maps = torch.cat([maps, (labels > 0)[None, ..., None].to(maps)], -1)  # + labelled indicator
-            cam = cameras[idx : idx + 1].to(self.device)
-            cam.metadata = {"cam_idx": idx}
-            c2w = self.camera_optimizer.apply_to_camera(cam)
-            lifted = lift_evidence(
-                means,
-                quats,
-                scales,
-                opacities,
-                world_to_camera(c2w),
-                cam.get_intrinsics_matrices().to(self.device),
-                int(cam.width.item()),
-                int(cam.height.item()),
-                maps,
-                backend=self.config.rasterize_backend,
-                rasterize_mode=self.config.rasterize_mode,
-            )
-            view_evidence = lifted.evidence[:, :K].to(evidence)
-            view_labelled = lifted.evidence[:, K:].to(labelled)
-            view_weight = lifted.visibility.to(weight)[:, None]
-            if self.config.evidence_per_view == "view":
-                seen = view_weight > self.config.min_view_weight
-                norm = torch.where(seen, view_weight, torch.full_like(view_weight, float("inf")))
-                view_evidence, view_weight = view_evidence / norm, view_weight / norm
-                view_labelled = view_labelled / norm
-            evidence += view_evidence
-            weight += view_weight
-            labelled += view_labelled
-        evidence = evidence.clamp_min(0.0)
-        evidence[evidence.sum(-1) < self.config.min_evidence] = 0.0
-        self.gauss_params[EVIDENCE_KEY].data = evidence
-        self.gauss_params[WEIGHT_KEY].data = weight
-        self.gauss_params[LABELLED_KEY].data = labelled.clamp_min(0.0)
-        self._labelled_legacy = False
-        self.lifted_views.fill_(used)
-        CONSOLE.log(
-            f"PhysGS lifting: {used} views -> evidence on {(evidence.sum(-1) > 0).sum().item()}"
-            f"/{self.num_points} Gaussians"
-        )
-        return evidence
+        return lift_material_maps(self, datamanager)
 
     def dirichlet_alpha(self) -> Float[Tensor, "n k"]:
         """Per-Gaussian Dirichlet posterior alpha0 + lambda * evidence (the prior where evidence is 0)."""

@@ -1,0 +1,359 @@
+"""Built-in weight-free segmenter: SLIC superpixels merged hierarchically by colour (scikit-image).
+
+Moved verbatim from :mod:`physgs_nerfstudio.perception.segment`, which re-exports
+:class:`BuiltinSegmenter` and :class:`BuiltinSegmenterConfig` (see its module docstring).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .segment import LEVELS, Mask, check_image, deduplicate, sort_masks
+
+# ---------------------------------------------------------------------------------------------------------
+# builtin (no weights)
+# ---------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class BuiltinSegmenterConfig:
+    """SLIC superpixels merged hierarchically by mean Lab colour (scikit-image), no learned weights."""
+
+    work_size: int = 512
+    """Images are segmented at this long side (downscaled, never upscaled); masks are upsampled back."""
+    n_segments: int = 600
+    """SLIC superpixels per image (the finest possible granularity)."""
+    compactness: float = 10.0
+    """SLIC compactness (higher: squarer superpixels, lower: follow colour edges more)."""
+    thresholds: tuple[float, float, float] = (9.0, 6.0, 3.0)
+    """Dissimilarity (CIE Lab Delta E, see ``colour_weight``) up to which adjacent regions are merged, for
+    the whole (background detection) / part / subpart levels."""
+    colour_weight: float = 0.0
+    """Region dissimilarity = colour_weight * mean-colour distance + (1 - colour_weight) * mean colour
+    step across the shared boundary (0: boundary strength only, which keeps shaded objects apart from a
+    similar background)."""
+    perturb: float = 1.5
+    """Stability = best IoU of a region with the regions merged at ``threshold * perturb`` (a heuristic
+    stand-in for SAM's stability score: how much the region survives a change of threshold)."""
+    min_area_frac: float = 0.002
+    """Masks smaller than this fraction of the image are dropped."""
+    min_area_px: int = 32
+    """... and smaller than this many pixels."""
+    min_solidity: float = 0.25
+    """Drop slivers: masks keeping less than this fraction of their area after a 3x3 erosion."""
+    border_frac: float = 0.15
+    """A coarse region holding at least this fraction of the image's border pixels is background."""
+    max_background_frac: float = 0.5
+    """Masks with more than this fraction of background pixels are dropped."""
+    min_predicted_iou: float = 0.2
+    """Drop masks whose boundary-contrast heuristic is below this."""
+    min_stability: float = 0.3
+    """Drop masks whose perturbed-threshold IoU is below this."""
+    dedup_iou: float = 0.85
+    """Masks overlapping a better mask by more than this IoU are dropped."""
+    max_masks_per_level: tuple[int, int, int] = (4, 16, 24)
+    """Cap per level (best score x area first); bounds the VLM calls per view."""
+    levels: tuple[str, ...] = LEVELS
+    """Levels to produce."""
+    seed: int = 0
+    """(SLIC is deterministic; kept for future randomised variants.)"""
+
+
+def _lab(image: np.ndarray) -> np.ndarray:
+    from skimage.color import rgb2lab
+
+    return rgb2lab(image).astype(np.float64)
+
+
+def _relabel(labels: np.ndarray) -> np.ndarray:
+    _, inv = np.unique(labels, return_inverse=True)
+    return inv.reshape(labels.shape).astype(np.int32)
+
+
+class _RegionMerger:
+    """Hierarchical region merging on a region adjacency graph (vectorised graph construction, heap-based
+    greedy merging: always merge the most similar adjacent pair next).
+
+    Dissimilarity of adjacent regions u, v (CIE Lab Delta E units):
+    ``colour_weight * |mean(u) - mean(v)| + (1 - colour_weight) * mean step across their shared boundary``,
+    where the step is the colour difference of the two pixels on either side of each boundary edge. The
+    boundary term keeps an object apart from a similar-coloured background when a visible edge separates
+    them; the mean-colour term merges smooth shading gradients.
+
+    ``merge(thresh)`` continues merging until no adjacent pair is closer than ``thresh``; ``labels()`` maps
+    the initial regions to the current ones; ``copy()`` forks the state."""
+
+    def __init__(self, labels: np.ndarray, features: np.ndarray, colour_weight: float = 0.5):
+        import heapq
+
+        n = int(labels.max()) + 1
+        flat = labels.reshape(-1)
+        self.base = labels
+        self.colour_weight = float(colour_weight)
+        self.count = np.bincount(flat, minlength=n).astype(np.float64)
+        self.sum = np.stack(
+            [
+                np.bincount(flat, weights=features[..., c].reshape(-1), minlength=n)
+                for c in range(features.shape[-1])
+            ],
+            1,
+        )
+        a = np.concatenate([labels[:, :-1].reshape(-1), labels[:-1, :].reshape(-1)])
+        b = np.concatenate([labels[:, 1:].reshape(-1), labels[1:, :].reshape(-1)])
+        step = np.concatenate(
+            [
+                np.linalg.norm(features[:, :-1] - features[:, 1:], axis=-1).reshape(-1),
+                np.linalg.norm(features[:-1, :] - features[1:, :], axis=-1).reshape(-1),
+            ]
+        )
+        sel = a != b
+        lo, hi, step = np.minimum(a[sel], b[sel]), np.maximum(a[sel], b[sel]), step[sel]
+        keys, inv = np.unique(lo.astype(np.int64) * n + hi, return_inverse=True)
+        bsum = np.bincount(inv, weights=step, minlength=len(keys))
+        bcnt = np.bincount(inv, minlength=len(keys)).astype(np.float64)
+        self.edges: list[dict[int, list[float]]] = [{} for _ in range(n)]
+        for key, s_, c_ in zip(keys.tolist(), bsum.tolist(), bcnt.tolist()):
+            u, v = divmod(key, n)
+            stats = [s_, c_]
+            self.edges[u][v] = stats
+            self.edges[v][u] = stats
+        self.parent = np.arange(n)
+        self.alive = self.count > 0
+        self.version = np.zeros(n, dtype=np.int64)
+        self.heap: list[tuple[float, int, int, int, int]] = []
+        for u in range(n):
+            for v in self.edges[u]:
+                if u < v:
+                    self.heap.append((self._dist(u, v), u, v, 0, 0))
+        heapq.heapify(self.heap)
+
+    def copy(self) -> _RegionMerger:
+        other = object.__new__(_RegionMerger)
+        other.base = self.base
+        other.colour_weight = self.colour_weight
+        other.count = self.count.copy()
+        other.sum = self.sum.copy()
+        other.edges = [{} for _ in self.edges]
+        for u, nb in enumerate(self.edges):
+            for v, stats in nb.items():
+                if u < v:
+                    st = list(stats)
+                    other.edges[u][v] = st
+                    other.edges[v][u] = st
+        other.parent = self.parent.copy()
+        other.alive = self.alive.copy()
+        other.version = self.version.copy()
+        other.heap = list(self.heap)
+        return other
+
+    def _dist(self, u: int, v: int) -> float:
+        colour = float(np.linalg.norm(self.sum[u] / self.count[u] - self.sum[v] / self.count[v]))
+        bs, bc = self.edges[u][v]
+        return self.colour_weight * colour + (1.0 - self.colour_weight) * (bs / max(bc, 1.0))
+
+    def merge(self, thresh: float) -> _RegionMerger:
+        import heapq
+
+        heap = self.heap
+        while heap:
+            w, u, v, vu, vv = heap[0]
+            if not (self.alive[u] and self.alive[v]) or self.version[u] != vu or self.version[v] != vv:
+                heapq.heappop(heap)
+                continue
+            if w >= thresh:
+                break
+            heapq.heappop(heap)
+            # merge v into u
+            self.sum[u] += self.sum[v]
+            self.count[u] += self.count[v]
+            self.alive[v] = False
+            self.parent[v] = u
+            self.version[u] += 1
+            del self.edges[u][v]
+            for x, stats in self.edges[v].items():
+                if x == u:
+                    continue
+                del self.edges[x][v]
+                if x in self.edges[u]:
+                    shared = self.edges[u][x]
+                    shared[0] += stats[0]
+                    shared[1] += stats[1]
+                else:
+                    self.edges[u][x] = stats
+                    self.edges[x][u] = stats
+            self.edges[v] = {}
+            for x in self.edges[u]:
+                a, b = (u, x) if u < x else (x, u)
+                heapq.heappush(heap, (self._dist(a, b), a, b, int(self.version[a]), int(self.version[b])))
+        return self
+
+    def labels(self) -> np.ndarray:
+        root = self.parent.copy()
+        while True:  # path compression, vectorised
+            nxt = root[root]
+            if np.array_equal(nxt, root):
+                break
+            root = nxt
+        return _relabel(root[self.base])
+
+
+def _border_pixels(labels: np.ndarray) -> np.ndarray:
+    return np.concatenate([labels[0], labels[-1], labels[1:-1, 0], labels[1:-1, -1]])
+
+
+def _background(labels: np.ndarray, border_frac: float) -> np.ndarray:
+    """bool [H, W]: union of the regions that hold >= border_frac of the border pixels."""
+    border = _border_pixels(labels)
+    counts = np.bincount(border, minlength=int(labels.max()) + 1)
+    bg_ids = np.flatnonzero(counts >= border_frac * len(border))
+    return np.isin(labels, bg_ids)
+
+
+def _contrast_score(mask: np.ndarray, lab: np.ndarray, ring: int) -> float:
+    """Boundary-contrast heuristic in [0, 1]: contrast / (contrast + spread), where contrast is the Lab
+    distance between the mask's mean colour and the mean colour of a ring just outside it, and spread the
+    mean Lab distance of the mask's pixels from their mean. A flat region on a different background
+    scores near 1; a region cut out of a uniform area scores near 0."""
+    import cv2
+
+    kernel = np.ones((2 * ring + 1, 2 * ring + 1), np.uint8)
+    dil = cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
+    outside = dil & ~mask
+    inside_px = lab[mask]
+    mu = inside_px.mean(0)
+    spread = float(np.linalg.norm(inside_px - mu, axis=1).mean())
+    if not outside.any():  # the mask is the whole image
+        return 0.5
+    contrast = float(np.linalg.norm(lab[outside].mean(0) - mu))
+    return contrast / (contrast + spread + 1e-6)
+
+
+def _best_iou_with_labels(mask: np.ndarray, labels: np.ndarray, area: int) -> float:
+    ids = labels[mask]
+    inter = np.bincount(ids, minlength=int(labels.max()) + 1).astype(np.float64)
+    sizes = np.bincount(labels.reshape(-1), minlength=len(inter)).astype(np.float64)
+    cand = np.flatnonzero(inter)
+    iou = inter[cand] / (area + sizes[cand] - inter[cand])
+    return float(iou.max()) if len(iou) else 0.0
+
+
+def _solidity(mask: np.ndarray) -> float:
+    import cv2
+
+    eroded = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    return float(eroded.sum()) / max(1, int(mask.sum()))
+
+
+class BuiltinSegmenter:
+    """Weight-free three-level segmenter (see module docstring; weaker than SAM).
+
+    SLIC superpixels are merged hierarchically while adjacent regions' mean CIE Lab colours differ by less
+    than a threshold; the fine / medium / coarse thresholds give the subpart / part / whole levels:
+
+    * whole: connected components of the foreground, where background = coarse regions holding a large
+      share of the image border (``border_frac``);
+    * part / subpart: regions at the medium / fine threshold that are mostly foreground.
+
+    Scores (heuristics, documented honestly): ``predicted_iou`` = boundary contrast ratio
+    (:func:`_contrast_score`); ``stability`` = best IoU of the region with the regions merged at
+    ``perturb`` times the threshold. Colour-based merging splits strongly textured or shaded parts and
+    merges neighbouring parts of similar colour, which SAM handles far better.
+    """
+
+    name = "builtin"
+
+    def __init__(self, config: BuiltinSegmenterConfig | None = None):
+        self.config = config or BuiltinSegmenterConfig()
+        for level in self.config.levels:
+            if level not in LEVELS:
+                raise ValueError(f"unknown level {level!r}; choose from {LEVELS}")
+
+    def fingerprint(self) -> str:
+        return f"builtin-slic-rag:{self.config!r}"
+
+    def segment(self, image: np.ndarray) -> list[Mask]:
+        from skimage.measure import label as cc_label
+        from skimage.segmentation import slic
+
+        cfg = self.config
+        image = check_image(image)
+        full_h, full_w = image.shape[:2]
+        scale = cfg.work_size / max(full_h, full_w)
+        if scale < 1:
+            import cv2
+
+            image = cv2.resize(
+                image,
+                (max(1, round(full_w * scale)), max(1, round(full_h * scale))),
+                interpolation=cv2.INTER_AREA,
+            )
+        h, w = image.shape[:2]
+        min_area = max(cfg.min_area_px, int(cfg.min_area_frac * h * w))
+        lab = _lab(image)
+        ring = max(2, int(round(3 * max(h, w) / 512)))
+
+        superpixels = _relabel(
+            slic(
+                image, n_segments=cfg.n_segments, compactness=cfg.compactness, start_label=0, convert2lab=True
+            )
+        )
+        # fine -> coarse, each level merged further from the previous one (a monotone hierarchy)
+        t_whole, t_part, t_sub = cfg.thresholds
+        merger = _RegionMerger(superpixels, lab, cfg.colour_weight)
+        by_level: dict[str, np.ndarray] = {}
+        perturbed: dict[str, np.ndarray] = {}
+        merger.merge(t_sub)
+        by_level["subpart"] = merger.labels()
+        perturbed["subpart"] = merger.copy().merge(t_sub * cfg.perturb).labels()
+        merger.merge(t_part)
+        by_level["part"] = merger.labels()
+        perturbed["part"] = merger.copy().merge(t_part * cfg.perturb).labels()
+        merger.merge(t_whole)
+        coarse = merger.labels()
+        coarse_perturbed = merger.merge(t_whole * cfg.perturb).labels()
+        background = _background(coarse, cfg.border_frac)
+        by_level["whole"] = cc_label(~background, connectivity=1).astype(np.int32)
+        perturbed["whole"] = cc_label(~_background(coarse_perturbed, cfg.border_frac), connectivity=1).astype(
+            np.int32
+        )
+
+        raw: list[Mask] = []
+        for li, level in enumerate(LEVELS):
+            if level not in cfg.levels:
+                continue
+            lbl = by_level[level]
+            sizes = np.bincount(lbl.reshape(-1))
+            bg_counts = np.bincount(lbl[background], minlength=len(sizes))
+            first = 1 if level == "whole" else 0  # whole: label 0 is the background
+            ids = [
+                i
+                for i in range(first, len(sizes))
+                if sizes[i] >= min_area and bg_counts[i] <= cfg.max_background_frac * sizes[i]
+            ]
+            level_masks = []
+            for i in ids:
+                m = lbl == i
+                area = int(sizes[i])
+                if _solidity(m) < cfg.min_solidity:
+                    continue
+                piou = _contrast_score(m, lab, ring)
+                stab = _best_iou_with_labels(m, perturbed[level], area)
+                if piou < cfg.min_predicted_iou or stab < cfg.min_stability:
+                    continue
+                level_masks.append(Mask(m, area, piou, stab, level))
+            level_masks.sort(key=lambda m: -m.score * m.area)
+            raw.extend(level_masks[: cfg.max_masks_per_level[li]])
+        masks = deduplicate(raw, cfg.dedup_iou)
+        if (h, w) != (full_h, full_w):
+            import cv2
+
+            up = []
+            for m in masks:
+                seg = cv2.resize(
+                    m.segmentation.astype(np.uint8), (full_w, full_h), interpolation=cv2.INTER_NEAREST
+                ).astype(bool)
+                up.append(Mask(seg, int(seg.sum()), m.predicted_iou, m.stability, m.level))
+            masks = up
+        return sort_masks(masks)
