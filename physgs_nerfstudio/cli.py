@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "materials": ("physgs_nerfstudio.info", "MaterialsCommand"),
     "export": ("physgs_nerfstudio.export.command", "ExportCommand"),
     "eval": ("physgs_nerfstudio.eval.command", "EvalCommand"),
+    "batch": ("physgs_nerfstudio.batch.command", "BatchCommand"),
     "info": ("physgs_nerfstudio.info", "InfoCommand"),
 }
 

@@ -91,6 +91,27 @@ class VLMBackend(Protocol):
     def query(self, request: VLMRequest) -> VLMResponse: ...
 
 
+class RateLimiter(Protocol):
+    """Shared request/token budget (``physgs batch`` injects one; docs/architecture.md, "Batch").
+    ``acquire(1, 0)`` blocks before each HTTP request; ``acquire(0, tokens)`` charges a response's tokens."""
+
+    def acquire(self, requests: int, tokens: int) -> None: ...
+
+
+class _NoRateLimit:
+    def acquire(self, requests: int, tokens: int) -> None:
+        return None
+
+
+rate_limiter: RateLimiter = _NoRateLimit()
+"""The limiter every OpenAIBackend built from now on uses (set with :func:`set_rate_limiter`)."""
+
+
+def set_rate_limiter(limiter: RateLimiter | None) -> None:
+    global rate_limiter
+    rate_limiter = limiter if limiter is not None else _NoRateLimit()
+
+
 class VLMError(RuntimeError):
     """A request failed for good (after retries); the message never contains the API key."""
 
@@ -259,6 +280,7 @@ class OpenAIBackend:
         self._lock = threading.Lock()
         self._slots = threading.BoundedSemaphore(max(1, cfg.max_concurrency))
         self._rng = random.Random(cfg.seed)
+        self.rate_limiter = rate_limiter
         # statistics (thread-safe through _lock)
         self.http_requests = 0
         self.retries = 0
@@ -330,6 +352,7 @@ class OpenAIBackend:
             while True:
                 json_mode = self._json_mode
                 retry_after: float | None = None
+                self.rate_limiter.acquire(1, 0)
                 try:
                     status, headers, body = self._post(self._payload(request, json_mode))
                 except (
@@ -355,6 +378,7 @@ class OpenAIBackend:
                                 )
                             ) from None
                         usage = Usage.from_dict(parsed.get("usage") if isinstance(parsed, dict) else None)
+                        self.rate_limiter.acquire(0, usage.total_tokens)
                         with self._lock:
                             self.usage = Usage(
                                 self.usage.prompt_tokens + usage.prompt_tokens,
