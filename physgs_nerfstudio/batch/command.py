@@ -106,6 +106,7 @@ class BatchCommand:
         from .summary import collect, print_summary, run_batch_eval, totals, write_summary
 
         console = console or Console()
+        self.output_dir = Path(self.output_dir).absolute()  # Ray workers and reruns may start elsewhere
         scene_set = discover(self.scenes, self.split)
         scenes = list(scene_set.scenes)
         stages = [s for s in STAGES if s in self.stages]

@@ -86,7 +86,7 @@ def discover(source: Path, split: str = "test") -> SceneSet:
     """The scenes named by ``source`` (see the module docstring); raises :class:`SceneListError`."""
     from ..eval.adapters.abo500 import WEIGHTS_FILE
 
-    source = Path(source)
+    source = Path(source).absolute()
     if not source.exists():
         raise SceneListError(f"--scenes {source}: no such file or folder; pass a dataset folder, a folder of "
                              "datasets, an ABO-500 folder or a text file of paths")
