@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 
 import pytest
-
 from perception_server import FakeServer, ok
+
 from physgs_nerfstudio.batch.command import BatchCommand
 from physgs_nerfstudio.batch.plan import EstimateRates, plan_scene
 from physgs_nerfstudio.batch.ratelimit import LocalRateLimiter, TokenBucket
@@ -24,7 +24,7 @@ from physgs_nerfstudio.batch.scenes import SceneListError, discover
 from physgs_nerfstudio.batch.state import load_state, save_state
 
 GOOD = ("bottle", "hammer", "mug")
-TINY = dict(method="physgs-lite", iterations=30, device="cpu", export_resolution=48, n_samples=300,
+TINY = dict(method="physgs-lite", iterations=10, device="cpu", export_resolution=48, n_samples=300,
             vlm="openai", api_key_env="", max_concurrency=2, progress=False)  # fmt: skip
 
 
@@ -164,7 +164,7 @@ def _copy(src: Path, dst: Path, broken: bool = False) -> Path:
     shutil.copytree(src, dst)
     if broken:
         shutil.copytree(src / "mug", dst / "broken")
-        first = sorted((dst / "broken" / "images").iterdir())[0]
+        first = min((dst / "broken" / "images").iterdir())
         first.write_bytes(b"not a png")
     return dst
 
@@ -183,7 +183,7 @@ def test_local_batch_killed_and_resumed_with_a_broken_scene(tiny_scenes, tmp_pat
     out = tmp_path / "out"
     with FakeServer() as srv:
         args = ["--scenes", str(scenes), "--output-dir", str(out), "--base-url", srv.base_url, "--method",
-                "physgs-lite", "--iterations", "30", "--device", "cpu", "--export-resolution", "48",
+                "physgs-lite", "--iterations", "10", "--device", "cpu", "--export-resolution", "48",
                 "--n-samples", "300", "--api-key-env", "", "--max-concurrency", "2", "--no-progress"]  # fmt: skip
         env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).parents[1]), os.environ.get("PYTHONPATH", "")])}
         proc = subprocess.Popen([sys.executable, "-m", "physgs_nerfstudio.cli", "batch", *args], env=env,

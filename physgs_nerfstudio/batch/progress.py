@@ -23,7 +23,7 @@ class BatchProgress:
                                       TimeElapsedColumn(), console=console, transient=False)  # fmt: skip
             self._overall = self._progress.add_task("scenes", total=len(names) * len(stages))
 
-    def __enter__(self) -> BatchProgress:
+    def __enter__(self):
         if self._progress is not None:
             self._progress.start()
         return self

@@ -10,13 +10,14 @@ Every worker must see the same paths: the datasets, ``--output-dir`` and the VLM
 
 from __future__ import annotations
 
-import time
+import logging
 from pathlib import Path
 
 from .runner import Policy, run_stage
 from .scenes import Scene
 from .stages import StageSettings
 
+logger = logging.getLogger(__name__)
 INSTALL_HINT = 'the Ray backend needs Ray: pip install "physgs-nerfstudio[ray]" (or pip install ray), or use --backend local'
 
 
@@ -95,8 +96,8 @@ def run_ray(scenes: list[Scene], stages: list[str], settings: StageSettings, out
         for ref in done:
             try:
                 ray.get(ref)
-            except Exception:  # noqa: BLE001 - a task that crashed its worker; the state file shows "running"
-                pass
+            except Exception as err:  # noqa: BLE001 - a task that crashed its worker; its state shows "running"
+                logger.warning("a Ray task ended with %s", type(err).__name__)
         refresh()
     stats = ray.get(limiter.stats.remote()) if limiter is not None else {}
     return stats

@@ -31,9 +31,9 @@ def needs_run(state: dict, stage: str, policy: Policy, run_id: str = "") -> tupl
     """(run it?, why) for ``stage`` of a scene in ``state``; a forced stage runs once per batch run ``run_id``."""
     rec = state.get("stages", {}).get(stage) or {}
     status = rec.get("status")
-    if any(STAGES.index(stage) >= STAGES.index(f) for f in policy.force if f in STAGES):
-        if state.get("forced", {}).get(stage) != run_id:
-            return True, "forced"
+    forced = any(STAGES.index(stage) >= STAGES.index(f) for f in policy.force if f in STAGES)
+    if forced and state.get("forced", {}).get(stage) != run_id:
+        return True, "forced"
     if status == "done":
         return False, "done"
     if status == "failed" and not policy.retry_failed and rec.get("attempts", 0) >= policy.max_attempts:
@@ -60,11 +60,10 @@ def run_stage(scene: Scene, stage: str, settings: st.StageSettings, output_dir: 
     if not todo:
         return {**state["stages"][stage], "skipped": why}
     prereq = _prerequisite(state, stage)
-    if prereq is not None and stage != "perceive":
-        # perceive can be skipped by --stages when the dataset already has materials.json
-        if not (stage == "train" and (scene.data / "materials.json").is_file() and prereq == "perceive"
-                and stage_status(state, "perceive") is None):  # fmt: skip
-            return {"status": "blocked", "error": f"waits for {prereq} ({stage_status(state, prereq) or 'not run'})"}
+    # perceive may be left out of --stages when the dataset already has materials.json
+    external = stage == "train" and stage_status(state, "perceive") is None and (scene.data / "materials.json").is_file()
+    if prereq is not None and not external:
+        return {"status": "blocked", "error": f"waits for {prereq} ({stage_status(state, prereq) or 'not run'})"}
     rec = state["stages"].get(stage, {})
     attempts = int(rec.get("attempts", 0)) + 1 if rec.get("status") in ("failed", "running") else 1
     rec = {"status": "running", "attempts": attempts, "started": time.time(), "reason": why}

@@ -141,7 +141,8 @@ def run_train(scene: Scene, settings: StageSettings, out: Path, gpu: int | None 
     log.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     with open(log, "w") as f:
-        proc = subprocess.run(train_command(scene, settings, out), env=env, stdout=f, stderr=subprocess.STDOUT)
+        proc = subprocess.run(train_command(scene, settings, out), env=env, stdout=f, stderr=subprocess.STDOUT,
+                              check=False)
     seconds = time.perf_counter() - t0
     config = run_dir(out, scene, settings.method) / "config.yml"
     if proc.returncode != 0:

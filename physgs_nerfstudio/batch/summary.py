@@ -11,7 +11,7 @@ from collections import Counter
 from pathlib import Path
 
 from .scenes import SceneSet
-from .state import STAGES, load_state, scene_dir
+from .state import STAGES, load_state
 
 
 def collect(output_dir: Path, names: list[str]) -> dict[str, dict]:
