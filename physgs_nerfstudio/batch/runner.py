@@ -86,7 +86,13 @@ def run_stage(scene: Scene, stage: str, settings: st.StageSettings, output_dir: 
             config = state["stages"].get("train", {}).get("outputs", {}).get("config")
             if config is None:
                 raise st.StageError("no trained config.yml recorded; run the train stage first", "missing input")
-            outputs, metrics = st.run_export(scene, settings, out, Path(config))
+            if gpu is not None and settings.device == "cuda":  # this worker's GPU (current device is per thread)
+                import torch
+
+                with torch.cuda.device(gpu):
+                    outputs, metrics = st.run_export(scene, settings, out, Path(config))
+            else:
+                outputs, metrics = st.run_export(scene, settings, out, Path(config))
         else:
             raise ValueError(f"unknown stage {stage!r}")
     except st.StageError as err:
