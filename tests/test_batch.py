@@ -147,6 +147,37 @@ def test_ray_backend_without_ray_says_how_to_install(tmp_path, monkeypatch):
         BatchCommand(scenes=tmp_path / "s", output_dir=tmp_path / "o", backend="ray", device="cpu").run()
 
 
+def test_local_backend_overlaps_next_perception_with_training_and_uses_each_gpu(monkeypatch):
+    import threading
+
+    from physgs_nerfstudio.batch import local
+    from physgs_nerfstudio.batch.scenes import Scene
+
+    events, lock = [], threading.Lock()
+
+    def fake_stage(scene, stage, settings, output_dir, policy, run_id, gpu=None):
+        with lock:
+            events.append(("start", scene.name, stage, gpu))
+        time.sleep(0.15 if stage == "train" else 0.05)
+        with lock:
+            events.append(("end", scene.name, stage, gpu))
+
+    monkeypatch.setattr(local, "run_stage", fake_stage)
+    scenes = [Scene(n, Path(n)) for n in ("a", "b", "c")]
+    local.run_local(scenes, ["perceive", "train", "export"], None, Path("o"), Policy(), "r", overlap_perception=True)
+    pos = {e[:3]: i for i, e in enumerate(events)}
+    for n in "abc":
+        assert pos[("end", n, "perceive")] < pos[("start", n, "train")] < pos[("end", n, "train")] < pos[("start", n, "export")]
+    assert pos[("start", "b", "perceive")] < pos[("end", "a", "train")]  # b is perceived while a trains
+    events.clear()
+    local.run_local(scenes, ["train", "export"], None, Path("o"), Policy(), "r", gpus=(0, 1))
+    gpus_used = {e[3] for e in events if e[2] == "train"}
+    assert gpus_used == {0, 1} and len([e for e in events if e[0] == "end"]) == 6
+    events.clear()
+    local.run_local(scenes, ["perceive", "train", "export"], None, Path("o"), Policy(), "r")  # sequential
+    assert [e[1:3] for e in events if e[0] == "start"] == [(n, s) for n in "abc" for s in ("perceive", "train", "export")]
+
+
 # ----------------------------------------------------------------------------------------------- end to end
 @pytest.fixture(scope="module")
 def tiny_scenes(tmp_path_factory):
