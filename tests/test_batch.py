@@ -147,6 +147,34 @@ def test_ray_backend_without_ray_says_how_to_install(tmp_path, monkeypatch):
         BatchCommand(scenes=tmp_path / "s", output_dir=tmp_path / "o", backend="ray", device="cpu").run()
 
 
+def test_batch_eval_scores_abo500_split_with_clamp(tmp_path):
+    from rich.console import Console
+
+    from physgs_nerfstudio.batch.summary import collect, run_batch_eval, totals
+
+    root = tmp_path / "abo_500"
+    for n in ("A1_x", "B2_y"):
+        _dataset(root / "scenes" / n)
+    (root / "filtered_product_weights.json").write_text(json.dumps({"A1": 2.0, "B2": 10.0}))
+    (root / "splits.json").write_text(json.dumps({"test": ["A1_x", "B2_y"]}))
+    out = tmp_path / "out"
+    for n, kg in (("A1_x", 3.0), ("B2_y", 250.0)):
+        rep = out / "scenes" / n / "export" / "report.json"
+        rep.parent.mkdir(parents=True)
+        rep.write_text(json.dumps({"mass": {"mean_kg": kg, "median_kg": kg, "n_samples": 8, "simulated": False,
+                                            "units": {"mass": "kg"}}}))  # fmt: skip
+        save_state(out, n, {"stages": {"export": {"status": "done", "metrics": {"device": "cuda", "export_seconds": 2.0}},
+                                       "train": {"status": "done", "metrics": {"device": "cuda", "train_seconds": 5.0}}}})  # fmt: skip
+    scene_set = discover(root, split="test")
+    states = collect(out, [s.name for s in scene_set.scenes])
+    result = run_batch_eval(out, scene_set, states, Console(quiet=True))
+    preds = {r.item: r.pred for r in result.items}
+    assert preds == {"A1_x": pytest.approx(3.0), "B2_y": pytest.approx(100.0)}  # clamped to [0.01, 100] kg
+    assert (out / "eval" / "eval.json").is_file() and (out / "eval" / "summary.csv").is_file()
+    tot = totals(states)
+    assert tot["gpu_seconds"] == pytest.approx(14.0) and tot["complete"] == 0  # perceive never ran
+
+
 def test_local_backend_overlaps_next_perception_with_training_and_uses_each_gpu(monkeypatch):
     import threading
 
