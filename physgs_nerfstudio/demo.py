@@ -121,22 +121,23 @@ class DemoCommand:
         return config
 
     def stage_export(self, console: Any, config: Path, truth_kg: float):
+        from dataclasses import replace
+
         from .export.command import ExportCommand
-        from .export.mass import MassReport, MaterialMass
         from .export.report import print_mass_table
+        from .mass import MassConfig, MassReport
 
         report_path = self.export_dir / "report.json"
         if report_path.exists() and "export" not in self.force:
             console.log(f"[4/4] export: {report_path} exists, skipped")
-            data = json.loads(report_path.read_text())["mass"]
-            data["materials"] = [MaterialMass(**m) for m in data["materials"]]
-            data["interval_kg"] = tuple(data["interval_kg"])
-            report = MassReport(**data)
+            report = MassReport.from_dict(json.loads(report_path.read_text())["mass"])
             print_mass_table(report, title=f"Mass of the generated {self.object}", truth_kg=truth_kg, console=console)
             return report
         console.log("[4/4] export: PLY, voxel grid, property maps, mass")
-        cmd = ExportCommand(load_config=config, output_dir=self.export_dir, resolution=self.export_resolution,
-                            n_samples=self.n_samples, seed=self.seed, truth_kg=truth_kg, views=(0,),
+        base = MassConfig()
+        mass = replace(base, geometry=replace(base.geometry, resolution=self.export_resolution),
+                       n_samples=self.n_samples, seed=self.seed)  # fmt: skip
+        cmd = ExportCommand(load_config=config, output_dir=self.export_dir, mass=mass, truth_kg=truth_kg, views=(0,),
                             device="cpu")  # fmt: skip
         return cmd.main().mass
 
