@@ -125,3 +125,39 @@ def test_scale_options():
     with pytest.raises(ValueError, match="coincide"):
         resolve_scale(1.0, known_length=(1, 1, 1, 1, 1, 1, 1.0))
     assert math.isclose(resolve_scale(1.0, scale=2.0, known_length=(0, 0, 0, 1, 0, 0, 3.0)).metres_per_unit, 3.0)
+
+
+@pytest.mark.parametrize("weights", ["dominant", "predictive"])
+def test_ply_material_prob_agrees_with_property_columns(tmp_path, weights):
+    """One weighting per file: the PLY's material probabilities, mixed over the materials' own predictive
+    means (an oracle independent of the writer's property code), give its property mean columns."""
+    from dataclasses import replace
+
+    means, scales, quats = solid_box((0.4, 0.3, 0.2), 0.05)
+    pf = field_from(means, 0.5 * scales, quats, densities=[300.0, 1200.0, 5000.0], confidence=0.0)
+    g = torch.Generator().manual_seed(1)
+    # ambiguous posteriors, where dominance and alpha / sum(alpha) differ a lot
+    pf = replace(pf, alpha=1.0 + 3.0 * torch.rand(pf.num_gaussians, 3, generator=g), material_weights=weights)
+    path = write_property_ply(pf, tmp_path / "w.ply", top_k=3)
+    v = PlyData.read(str(path))["vertex"]
+    probs = np.zeros((len(v.data), 3))
+    for j in range(3):
+        probs[np.arange(len(v.data)), v[f"material_top{j}"]] = v[f"material_top{j}_prob"]
+    np.testing.assert_allclose(probs.sum(1), 1.0, rtol=1e-5)
+    np.testing.assert_array_equal(v["material_prob"], v["material_top0_prob"])
+    m = pf.material_means().numpy()  # [K, P], linear units
+    for p, key in enumerate(pf.property_keys):
+        np.testing.assert_allclose(v[f"{key}_mean"], probs @ m[:, p], rtol=2e-4)
+    assert read_ply_legend(path)["material_weights"] == weights
+    # the two weightings really differ on this field, so the check above has teeth
+    other = replace(pf, material_weights="predictive" if weights == "dominant" else "dominant")
+    assert float((other.pi() - pf.pi()).abs().max()) > 0.05
+
+
+def test_voxel_properties_mix_the_field_weights(two_material_field, tmp_path):
+    """The voxel grid's property means are its own material_prob mixed over the materials' means."""
+    path = write_voxel_grid(two_material_field, tmp_path / "v.npz", OccupancyConfig(resolution=16))
+    d = load_voxel_grid(path)
+    solid = d["occupancy"].astype(bool)
+    m = two_material_field.material_means().numpy()
+    np.testing.assert_allclose(d["density_mean"][solid], d["material_prob"][solid] @ m[:, 0], rtol=2e-4)

@@ -114,6 +114,10 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     """Step at which to lift the material maps onto the Gaussians; None = `stop_split_at` (densification end)."""
     lift_at_end: bool = True
     """Lift again at the last training iteration (so the checkpoint's evidence matches the final Gaussians)."""
+    material_weights: Literal["dominant", "predictive"] = "dominant"
+    """How a Gaussian's Dirichlet posterior weights the materials' property posteriors, for the viewer outputs
+    and every `physgs export` writer (saved with the run's config): "dominant", the posterior that a material
+    is the Gaussian's dominant label (bayes.dominance_probability); "predictive", alpha / sum(alpha)."""
     uncertainty_property: Literal["density", "friction", "hardness", "stiffness"] = "density"
     """Property whose aleatoric / epistemic / total uncertainty the viewer outputs show."""
     uncertainty_as_std: bool = True
@@ -393,10 +397,12 @@ class PhysGSModel(SplatfactoModel):
         weights (dominance probabilities) cost a quadrature per Gaussian, too much for every rendered frame.
         """
         ev = self.dirichlet_evidence
-        key = (ev.data_ptr(), ev._version, tuple(ev.shape), ev.device, float(self.alpha0), float(self.lam))
+        weights = self.config.material_weights
+        key = (ev.data_ptr(), ev._version, tuple(ev.shape), ev.device, float(self.alpha0), float(self.lam), weights)
         cached = getattr(self, "_properties_cache", None)
         if cached is None or cached[0] != key:
-            cached = (key, property_fields(self.dirichlet_alpha(), self.material_nig(), self.log_space))
+            fields = property_fields(self.dirichlet_alpha(), self.material_nig(), self.log_space, material_weights=weights)
+            cached = (key, fields)
             self._properties_cache = cached
         return cached[1]
 
