@@ -1,4 +1,4 @@
-"""Per-entity mixture predictive over materials (paper eq. mixture_gaussian, DESIGN.md section 3).
+"""Per-entity mixture predictive over materials (paper eq. mixture_gaussian, docs/architecture.md, "`bayes/`").
 
 Entity e's property predictive is ``sum_i pi_ei N(tau_i, aleatoric_i + epistemic_i)`` (or, with
 ``df``, a mixture of the materials' Student-t NIG predictives). Its mean and variance are split by the

@@ -1,4 +1,4 @@
-"""Normal-Inverse-Gamma priors from the material library (DESIGN.md section 3).
+"""Normal-Inverse-Gamma priors from the material library (docs/architecture.md, "`bayes/`").
 
 Per material i and property k, in the fused space f (log for log-space properties, identity otherwise):
 

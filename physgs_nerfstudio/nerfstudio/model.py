@@ -1,4 +1,4 @@
-"""`PhysGSModel`: splatfacto-big plus a Bayesian physical-property head (paper section 3, DESIGN.md section 5).
+"""`PhysGSModel`: splatfacto-big plus a Bayesian physical-property head (paper section 3, docs/architecture.md, "The nerfstudio method").
 
 Per Gaussian g, on top of splatfacto's parameters:
 
