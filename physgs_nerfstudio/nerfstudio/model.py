@@ -63,15 +63,11 @@ from torch.nn import Parameter
 from physgs_nerfstudio.bayes import NIG, dirichlet_posterior, property_fields
 from physgs_nerfstudio.render import eval_sh_colors, rasterize
 
+from .keys import EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY, world_to_camera
 from .legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
 
 PROPERTY_OUTPUTS = ("density", "friction", "hardness", "stiffness")
 UNCERTAINTY_OUTPUTS = ("aleatoric", "epistemic", "total_uncertainty")
-EVIDENCE_KEY = "dirichlet_evidence"
-WEIGHT_KEY = "lifting_weight"
-LABELLED_KEY = "labelled_weight"
-NON_TRAINABLE_KEYS = (EVIDENCE_KEY, WEIGHT_KEY, LABELLED_KEY)
-LOGITS_KEY = "material_logits"
 _SPLATFACTO_PARAMS = ("means", "scales", "quats", "features_dc", "features_rest", "opacities")
 
 
@@ -159,17 +155,6 @@ class _LazyLPIPS:
             return torch.tensor(float("nan"))
         self.metric = self.metric.to(a.device)
         return self.metric(a, b)
-
-
-def world_to_camera(c2w: Float[Tensor, "C 3 4"]) -> Float[Tensor, "C 4 4"]:
-    """nerfstudio camera-to-world (OpenGL axes) -> gsplat world-to-camera (OpenCV axes)."""
-    flip = torch.tensor([1.0, -1.0, -1.0], device=c2w.device, dtype=c2w.dtype)
-    rot = c2w[:, :3, :3] * flip  # flip camera y and z axes
-    rot_t = rot.transpose(1, 2)
-    out = torch.eye(4, device=c2w.device, dtype=c2w.dtype).repeat(c2w.shape[0], 1, 1)
-    out[:, :3, :3] = rot_t
-    out[:, :3, 3:4] = -rot_t @ c2w[:, :3, 3:4]
-    return out
 
 
 def downscale_labels(t: Tensor, d: int, height: int, width: int) -> Tensor:
