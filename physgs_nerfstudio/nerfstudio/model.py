@@ -355,14 +355,7 @@ class PhysGSModel(SplatfactoModel):
     # ------------------------------------------------------------------ Bayesian head
     @torch.no_grad()
     def run_lifting(self, datamanager) -> Tensor:
-        """Lifts the training views' material maps onto the Gaussians (replaces `dirichlet_evidence`).
-
-        Evidence map of a view: confidence-weighted one-hot of its labels (label 0 contributes nothing);
-        `lift_evidence` sums each Gaussian's blending weight times the map over all pixels, and its total
-        blending weight (`lifting_weight`) and its weight on labelled pixels (`labelled_weight`, one more
-        channel of the same pass), so that `labelled_fraction = labelled_weight / lifting_weight` tells
-        Gaussians seen mostly in labelled pixels from those seen mostly in unknown (label 0) pixels.
-        """
+        """Lift the training views' material maps onto the Gaussians (`lifting_pass.lift_material_maps`)."""
         from .lifting_pass import lift_material_maps
 
         return lift_material_maps(self, datamanager)
