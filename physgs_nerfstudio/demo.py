@@ -83,14 +83,16 @@ class DemoCommand:
         return load_ground_truth(self.scene_dir)
 
     def stage_perceive(self, console: Any, env: str | None) -> None:
-        from .perception.pipeline import PerceptionConfig, run_perception
+        from .perception import PerceptionConfig, run_perception
+        from .perception.segment_builtin import BuiltinSegmenterConfig
+        from .perception.simulated import SimulatedConfig
 
         if (self.scene_dir / "materials.json").exists() and "perceive" not in self.force:
             console.log(f"[2/4] perception {SIM}: materials.json exists, skipped")
             return
         console.log(f"[2/4] perception with the built-in segmenter and the {SIM} (not a real VLM)")
-        cfg = PerceptionConfig(data=self.scene_dir, segmenter="builtin", vlm="simulated", env=env or "indoor",
-                               overwrite="perceive" in self.force)  # fmt: skip
+        cfg = PerceptionConfig(data=self.scene_dir, vlm=SimulatedConfig(), segmenter=BuiltinSegmenterConfig(),
+                               env=env or "indoor", overwrite="perceive" in self.force)  # fmt: skip
         res = run_perception(cfg)
         console.log(f"      {res.observations} observations on {res.masks} masks -> {', '.join(res.materials)} {SIM}")
 

@@ -10,7 +10,7 @@ origin scaled, nerfstudio's dataparser transform is not undone). Contents:
 * ``material_index`` int16: dominant material (legend index 0..K-1), -1 outside
 * ``material_prob`` float32 [X, Y, Z, K]: per-voxel material mixture (0 outside)
 * ``<key>_mean`` and ``<key>_total`` float32 per property key: mixture mean and total variance (units^2)
-  of the per-voxel predictive (``bayes.property_fields`` with the voxel's mixture), NaN outside
+  of the per-voxel predictive (``bayes.mixture_fields`` with the voxel's mixture), NaN outside
 * ``meta`` (JSON string): axis order, units, legend, property keys, metres_per_unit, scale_source, simulated,
   the geometry's settings and per part its structure posterior (hollow probability, wall thickness)
 """
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..bayes import property_fields
+from ..bayes import mixture_fields
 from .field import PropertyField
 from ..geometry import ObjectGeometry
 from .ply import PROPERTY_UNITS
@@ -48,9 +48,7 @@ def write_voxel_grid(pf: PropertyField, path: Path, geo: ObjectGeometry) -> Path
     prob[idx] = pi
     out["material_prob"] = prob
     nig = pf.nig.to(torch.float64)
-    # pi already holds the field's mixture weights: the "predictive" of pi is pi itself.
-    fields = property_fields(torch.from_numpy(np.clip(pi, 1e-12, None)), nig, pf.log_space,
-                             material_weights="predictive")  # fmt: skip
+    fields = mixture_fields(torch.from_numpy(pi), nig, pf.log_space)  # the voxel's mixture of pf.pi()
     for p, key in enumerate(pf.property_keys):
         for f in ("mean", "total"):
             arr = np.full(shape, np.nan, dtype=np.float32)

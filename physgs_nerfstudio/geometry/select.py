@@ -5,8 +5,9 @@
    ``P(object) = (a0 + inside) / (a0 + b0 + inside + outside)``. The floor, walls and background are outside
    the masks in the views that see them, so they come out near 0.
 2. Foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``) are grouped into 3-D clusters
-   (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side, cells dilated by
-   ``bridge_cells`` so that an object's parts a few millimetres apart stay one cluster).
+   (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side but no finer than
+   1.5 x the Gaussians' median nearest-neighbour spacing, cells dilated by ``bridge_cells`` so that an
+   object's parts a few millimetres apart stay one cluster).
 3. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
    camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
    the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
@@ -98,7 +99,12 @@ def capture_centre(views: Sequence[CaptureView]) -> np.ndarray:
 def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     lo = np.quantile(means, 0.002, axis=0)
     hi = np.quantile(means, 0.998, axis=0)
-    cell = max(float((hi - lo).max()) / cfg.cluster_cells, 1e-9)
+    from scipy.spatial import cKDTree
+
+    sub = means[:: max(1, len(means) // 100_000)]
+    nn = cKDTree(sub).query(sub, k=2)[0][:, 1] if len(sub) > 1 else np.zeros(1)
+    # cells no finer than the Gaussians' own spacing, so a sparse splat stays one cluster
+    cell = max(float((hi - lo).max()) / cfg.cluster_cells, 1.5 * float(np.median(nn)), 1e-9)
     lo = lo - 2 * cell
     idx = np.floor((means - lo) / cell).astype(np.int64)
     shape = np.maximum(idx.max(0) + 1, 1)

@@ -74,6 +74,10 @@ class SimulatedConfig:
     """Thickness answered for a part called hollow whose candidate material has none in the library."""
     seed: int = 0
 
+    def setup(self, data: Path, library: MaterialLibrary) -> SimulatedBackend:
+        """The simulated VLM answering from the generated scene at ``data`` (its ground truth)."""
+        return SimulatedBackend(data, library, self)
+
     def fingerprint(self) -> str:
         return json.dumps(
             {
@@ -207,6 +211,9 @@ class SimulatedBackend:
         self.model = SIMULATED_MODEL
         self.variant = self.config.fingerprint()
         self.calls = 0
+
+    def cost_usd(self, usage: Usage) -> float:
+        return 0.0
 
     def _truth_of(self, request: VLMRequest) -> tuple[str | None, dict | None]:
         if request.mask is None:
