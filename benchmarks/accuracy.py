@@ -497,11 +497,12 @@ def prepare_scene(cfg: BenchConfig, obj: str) -> Path:
 
 def perception_config(root: Path, cfg: BenchConfig, sim=None):
     from physgs_nerfstudio.perception import PerceptionConfig
+    from physgs_nerfstudio.perception.segment_builtin import BuiltinSegmenterConfig
     from physgs_nerfstudio.perception.simulated import SimulatedConfig
 
     return PerceptionConfig(
-        data=root, vlm="simulated", progress=False, write_outputs=False, max_concurrency=1,
-        simulated=sim or SimulatedConfig(seed=cfg.seed), segmenter="builtin",
+        data=root, vlm=sim or SimulatedConfig(seed=cfg.seed), segmenter=BuiltinSegmenterConfig(), progress=False,
+        write_outputs=False, max_concurrency=1,
     )
 
 

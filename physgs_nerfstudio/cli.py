@@ -27,16 +27,35 @@ def _load(name: str):
     return getattr(importlib.import_module(module), cls)
 
 
-def entrypoint() -> None:
-    import tyro
+def _upgrade(argv: list[str]) -> list[str]:
+    """The deprecated perception flags of `perceive` and `image`, rewritten (perception/legacy_flags.py)."""
+    import sys
 
+    if not argv or argv[0] not in ("perceive", "image"):
+        return argv
+    from physgs_nerfstudio.perception.legacy_flags import LegacyFlagError, upgrade_argv
+
+    try:
+        argv, notes = upgrade_argv(argv)
+    except LegacyFlagError as err:
+        raise SystemExit(f"physgs {argv[0]}: {err}") from None
+    for note in notes:
+        print(f"physgs {argv[0]}: {note}", file=sys.stderr)
+    return argv
+
+
+def entrypoint(argv: list[str] | None = None) -> None:
+    import sys
     from typing import Annotated, Union
+
+    import tyro
 
     options = tuple(Annotated[_load(name), tyro.conf.subcommand(name)] for name in COMMANDS)
     config = tyro.cli(
         Union[options],  # type: ignore[valid-type]
         prog="physgs",
         description="PhysGS for nerfstudio: physical properties with uncertainty on Gaussian splats.",
+        args=_upgrade(list(sys.argv[1:] if argv is None else argv)),
     )
     config.main()
 

@@ -83,14 +83,16 @@ class DemoCommand:
         return load_ground_truth(self.scene_dir)
 
     def stage_perceive(self, console: Any, env: str | None) -> None:
-        from .perception.pipeline import PerceptionConfig, run_perception
+        from .perception import PerceptionConfig, run_perception
+        from .perception.segment_builtin import BuiltinSegmenterConfig
+        from .perception.simulated import SimulatedConfig
 
         if (self.scene_dir / "materials.json").exists() and "perceive" not in self.force:
             console.log(f"[2/4] perception {SIM}: materials.json exists, skipped")
             return
         console.log(f"[2/4] perception with the built-in segmenter and the {SIM} (not a real VLM)")
-        cfg = PerceptionConfig(data=self.scene_dir, segmenter="builtin", vlm="simulated", env=env or "indoor",
-                               overwrite="perceive" in self.force)  # fmt: skip
+        cfg = PerceptionConfig(data=self.scene_dir, vlm=SimulatedConfig(), segmenter=BuiltinSegmenterConfig(),
+                               env=env or "indoor", overwrite="perceive" in self.force)  # fmt: skip
         res = run_perception(cfg)
         console.log(f"      {res.observations} observations on {res.masks} masks -> {', '.join(res.materials)} {SIM}")
 
@@ -121,22 +123,23 @@ class DemoCommand:
         return config
 
     def stage_export(self, console: Any, config: Path, truth_kg: float):
+        from dataclasses import replace
+
         from .export.command import ExportCommand
-        from .export.mass import MassReport, MaterialMass
         from .export.report import print_mass_table
+        from .mass import MassConfig, MassReport
 
         report_path = self.export_dir / "report.json"
         if report_path.exists() and "export" not in self.force:
             console.log(f"[4/4] export: {report_path} exists, skipped")
-            data = json.loads(report_path.read_text())["mass"]
-            data["materials"] = [MaterialMass(**m) for m in data["materials"]]
-            data["interval_kg"] = tuple(data["interval_kg"])
-            report = MassReport(**data)
+            report = MassReport.from_dict(json.loads(report_path.read_text())["mass"])
             print_mass_table(report, title=f"Mass of the generated {self.object}", truth_kg=truth_kg, console=console)
             return report
         console.log("[4/4] export: PLY, voxel grid, property maps, mass")
-        cmd = ExportCommand(load_config=config, output_dir=self.export_dir, resolution=self.export_resolution,
-                            n_samples=self.n_samples, seed=self.seed, truth_kg=truth_kg, views=(0,),
+        base = MassConfig()
+        mass = replace(base, geometry=replace(base.geometry, resolution=self.export_resolution),
+                       n_samples=self.n_samples, seed=self.seed)  # fmt: skip
+        cmd = ExportCommand(load_config=config, output_dir=self.export_dir, mass=mass, truth_kg=truth_kg, views=(0,),
                             device="cpu")  # fmt: skip
         return cmd.main().mass
 

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from physgs_nerfstudio.perception.replay import ReplayConfig
+from physgs_nerfstudio.perception.simulated import SimulatedConfig
 from physgs_nerfstudio.materials import load_library
 from physgs_nerfstudio.perception import PerceptionConfig, run_perception
 from physgs_nerfstudio.perception.active import ActiveConfig, ActiveSelector, run_active_perception
@@ -117,7 +119,7 @@ def test_property_term_decreases_with_observations(library):
 
 
 def _config(root, **kw):
-    return PerceptionConfig(data=root, vlm="simulated", progress=False, max_concurrency=2, **kw)
+    return PerceptionConfig(data=root, vlm=SimulatedConfig(), progress=False, max_concurrency=2, **kw)
 
 
 def test_run_active_budget_resume_and_outputs(tmp_path, library):
@@ -152,7 +154,7 @@ def test_run_active_stop_uncertainty_and_replay(tmp_path, library):
     # fill the cache, then replay answers everything from it without calling the simulator
     run_active_perception(_config(root, overwrite=True), ActiveConfig(budget=4), segmenter=seg, library=library)
     rep = run_active_perception(
-        PerceptionConfig(data=root, vlm="replay", replay_source="simulated", progress=False, overwrite=True),
+        PerceptionConfig(data=root, vlm=ReplayConfig(source="simulated"), progress=False, overwrite=True),
         ActiveConfig(budget=4), segmenter=seg, library=library,
     )
     assert rep.answered == 4 and rep.calls == 0 and rep.cache_hits == 4
@@ -169,9 +171,9 @@ def test_perceive_command_active_flags(tmp_path):
 
     assert ExportedActiveConfig is ActiveConfig and exported_run is run_active_perception
     root = make_scene(tmp_path / "scene", num_views=2)
-    cmd = tyro.cli(PerceiveCommand, args=["--data", str(root), "--vlm", "simulated", "--no-progress", "--active",
+    cmd = tyro.cli(PerceiveCommand, args=["--data", str(root), "--no-progress", "--active",
                                           "--query-budget", "3", "--stop-uncertainty", "0.01",
-                                          "--active-batch-size", "2"])
+                                          "--active-batch-size", "2", "vlm:simulated"])
     assert cmd.active_config() == ActiveConfig(budget=3, stop_uncertainty=0.01, batch_size=2)
     res = cmd.run()
     assert res.answered == 3 and len(res.queried) == 3 and res.stop_reason.startswith("query budget")
@@ -186,12 +188,15 @@ def test_perceive_command_active_flags(tmp_path):
     console.print(summary_table(res))
     assert "active: masks answered / candidates" in console.export_text()
     # without --active the same command is the exhaustive run (it resumes the 3 answered masks)
-    full = tyro.cli(PerceiveCommand, args=["--data", str(root), "--vlm", "simulated", "--no-progress"]).run()
+    from physgs_nerfstudio.cli import _upgrade  # the deprecated spelling still works
+
+    full = tyro.cli(PerceiveCommand, args=_upgrade(["perceive", "--data", str(root), "--vlm", "simulated",
+                                                    "--no-progress"])[1:]).run()
     assert not hasattr(full, "stop_reason") and full.resumed_masks == 3
     with pytest.raises(ValueError, match="only apply with --active"):
-        PerceiveCommand(data=root, vlm="simulated", query_budget=3)
+        PerceiveCommand(data=root, vlm=SimulatedConfig(), query_budget=3)
     with pytest.raises(ValueError, match="batch_size"):
-        PerceiveCommand(data=root, vlm="simulated", active=True, active_batch_size=0)
+        PerceiveCommand(data=root, vlm=SimulatedConfig(), active=True, active_batch_size=0)
 
 
 def test_save_masks_round_trips_an_empty_mask_list(tmp_path):

@@ -34,9 +34,9 @@ def test_demo_end_to_end(tmp_path, capsys):
     assert sum(m["volume_share"] for m in mass["materials"]) == pytest.approx(1.0, abs=1e-6)
     # the object is what perception labelled, not the environment the splat also reconstructs
     geo = mass["geometry"]
-    assert geo["select"] == "labelled" and 0 < geo["selected_gaussians"] < geo["num_gaussians"]
+    assert 0 < geo["selected_gaussians"] < geo["num_gaussians"]
     # the mug (~0.45 kg, ~0.13 m across with its handle): a mug-sized object and mass, not a room's
-    side = max(geo["grid_shape"]) * geo["voxel_size_m"]
+    side = max(geo["grid"]["shape"]) * geo["voxel_size_m"]
     assert 0.05 < side < 0.3, side
     # within 10x: the tiny setting (8 views, 48 px, 30 iterations) is coarse, and with some seeds perception
     # labels the mug in few views (seed 2: 0.09 kg); selecting the environment instead gave ~64 kg

@@ -11,8 +11,11 @@ import pytest
 from perception_scene import make_scene
 from perception_server import FakeServer
 
+from physgs_nerfstudio.perception.simulated import SimulatedConfig
+from physgs_nerfstudio.perception.vlm import OpenAIConfig
 from physgs_nerfstudio.perception import PerceptionConfig, run_perception
-from physgs_nerfstudio.perception.segment import BuiltinSegmenter, mask_iou_matrix
+from physgs_nerfstudio.perception.segment import mask_iou_matrix
+from physgs_nerfstudio.perception.segment_builtin import BuiltinSegmenter
 from physgs_nerfstudio.perception.store import ObservationStore, StoreMismatch
 
 KEY = "sk-pipeline-SECRET-abcdef0123456789"
@@ -26,12 +29,8 @@ def _config(root, srv, **kw):
     kw = {"max_concurrency": 2, **kw}
     return PerceptionConfig(
         data=root,
-        vlm="openai",
-        base_url=srv.base_url,
-        model="m",
-        api_key_env="PHYSGS_PIPE_KEY",
+        vlm=OpenAIConfig(base_url=srv.base_url, model="m", api_key_env="PHYSGS_PIPE_KEY", timeout_s=5.0),
         progress=False,
-        timeout_s=5.0,
         **kw,
     )
 
@@ -121,7 +120,7 @@ def test_simulated_on_generated_scene_matches_ground_truth(tmp_path):
 
     root = synth.generate_scene(synth.SynthConfig(out=tmp_path / "mug", object="mug", views=4, seed=0))
     before = json.loads((root / "transforms.json").read_text())
-    result = run_perception(PerceptionConfig(data=root, vlm="simulated", progress=False))
+    result = run_perception(PerceptionConfig(data=root, vlm=SimulatedConfig(), progress=False))
     acc = material_map_accuracy(root)
     print(
         f"simulated VLM on a generated mug: foreground accuracy {acc.foreground_accuracy:.3f}, "
@@ -142,7 +141,7 @@ def test_simulated_on_generated_scene_matches_ground_truth(tmp_path):
     _check_transforms(before, after, root)
     assert (root / "transforms.json.bak").is_file()
     # a rerun makes no call and changes nothing
-    again = run_perception(PerceptionConfig(data=root, vlm="simulated", progress=False))
+    again = run_perception(PerceptionConfig(data=root, vlm=SimulatedConfig(), progress=False))
     assert again.calls == 0 and again.resumed_masks == result.masks
     assert json.loads((root / "materials.json").read_text())["materials"] == mats["materials"]
 

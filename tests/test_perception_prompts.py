@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from physgs_nerfstudio.perception.prompts import PromptConfig, build_request, isolated_panel, triplet_image
-from physgs_nerfstudio.perception.segment import SamSegmenter, SamSegmenterConfig
+from physgs_nerfstudio.perception.segment_sam import SamSegmenter, SamSegmenterConfig
 
 
 def _img():
@@ -95,7 +95,7 @@ def test_sam_filtering_dedup_and_levels(monkeypatch, tmp_path):
         SamAutomaticMaskGenerator=Gen, sam_model_registry={"vit_b": lambda checkpoint: Model()}
     )
     monkeypatch.setitem(sys.modules, "segment_anything", fake)
-    with pytest.raises(FileNotFoundError, match="--sam-checkpoint"):
+    with pytest.raises(FileNotFoundError, match="--segmenter.checkpoint"):
         SamSegmenter(SamSegmenterConfig(checkpoint=tmp_path / "missing.pth", model_type="vit_b")).segment(
             np.zeros((H, W, 3), np.uint8)
         )

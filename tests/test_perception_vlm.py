@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from perception_server import FakeServer, ok
 
+from physgs_nerfstudio.perception.replay import ReplayConfig
 from physgs_nerfstudio.perception.cache import ResponseCache
 from physgs_nerfstudio.perception.prompts import PromptConfig, build_request
 from physgs_nerfstudio.perception.vlm import (
@@ -140,7 +141,7 @@ def test_cache_prevents_repeat_calls_and_replay(request_, monkeypatch, tmp_path,
         second = be.query(request_)
     assert len(srv.requests) == 1 and not first.cached and second.cached and first.text == second.text
     assert first.key == second.key and len(first.key) == 64
-    replay = CachedBackend(None, cache, name="openai", model="test-model")
+    replay = CachedBackend(ReplayConfig(model="test-model").setup(), cache)
     assert replay.query(request_).text == first.text
     other = build_request(
         "images/f1.png",

@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
+from physgs_nerfstudio.perception.replay import ReplayConfig
+from physgs_nerfstudio.perception.vlm import OpenAIConfig
+from physgs_nerfstudio.perception.config import PerceptionConfig
 from physgs_nerfstudio.materials import PROPERTY_KEYS, from_canonical, load_library
 from physgs_nerfstudio.perception.cache import ResponseCache
 from physgs_nerfstudio.perception.simulated import SimulatedBackend, SimulatedConfig
@@ -22,6 +26,11 @@ from physgs_nerfstudio.synth import SynthConfig, generate_scene
 H = W = 128
 
 
+
+def _pc(**kw) -> PerceptionConfig:
+    """Perception settings of a single-image run (its data is the output directory)."""
+    return PerceptionConfig(data=Path("."), progress=False, **kw)
+
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("si_scene") / "mug"
@@ -33,8 +42,8 @@ def run(scene, tmp_path_factory):
     out = tmp_path_factory.mktemp("si_out") / "run"
     # a folder of images; the simulated VLM is told to be right 90% of the time (with one view and a handful
     # of masks per part, fusion cannot undo a wrong answer for a part's only mask)
-    cfg = SingleImageConfig(path=scene / "images", output_dir=out, vlm="simulated", ground_truth=scene, progress=False, dpi=60,
-                            simulated=SimulatedConfig(p_correct=0.9))
+    cfg = SingleImageConfig(path=scene / "images", output_dir=out, ground_truth=scene, dpi=60,
+                            perception=_pc(vlm=SimulatedConfig(p_correct=0.9)))
     return cfg, run_single_image(cfg)
 
 
@@ -132,7 +141,7 @@ def test_rerun_makes_no_new_vlm_call(run, tmp_path):
     assert again.perception.resumed_masks == first.perception.masks > 0
     # a fresh output directory sharing the response cache: every answer is a cache hit
     fresh = SingleImageConfig(**{**cfg.__dict__, "figures": False, "output_dir": tmp_path / "fresh",
-                                 "cache_dir": cfg.output_dir / "perception" / "cache"})
+                                 "perception": replace(cfg.perception, cache_dir=cfg.output_dir / "perception" / "cache")})
     res = run_single_image(fresh)
     assert res.perception.calls == 0 and res.perception.cache_hits == first.perception.masks
     for a, b in zip(first.images, res.images):
@@ -149,6 +158,9 @@ class _Flaky:
     def __init__(self, inner, garbage: int, error: int):
         self.inner, self.garbage, self.error = inner, garbage, error
 
+    def cost_usd(self, usage) -> float:
+        return 0.0
+
     def query(self, request):
         if request.mask_id == self.garbage:
             return VLMResponse(text="I believe this is some kind of metal {not json", simulated=True)
@@ -159,8 +171,8 @@ class _Flaky:
 
 def test_bad_vlm_response_for_one_mask_does_not_abort(scene, tmp_path):
     out = tmp_path / "flaky"
-    cfg = SingleImageConfig(path=scene / "images" / "frame_00000.png", output_dir=out, vlm="simulated", ground_truth=scene,
-                            progress=False, figures=False)
+    cfg = SingleImageConfig(path=scene / "images" / "frame_00000.png", output_dir=out, ground_truth=scene,
+                            figures=False, perception=_pc(vlm=SimulatedConfig()))
     library = load_library("indoor")
     inner = ViewAliasBackend(SimulatedBackend(scene, library), {"images/frame_00000.png": "images/frame_00000.png"})
     backend = CachedBackend(_Flaky(inner, garbage=1, error=2), ResponseCache(tmp_path / "cache"))
@@ -215,14 +227,14 @@ def test_fusion_levels_hardness_scale_and_prior_on_a_hand_made_image():
 
 def test_input_errors(scene, tmp_path):
     with pytest.raises(ValueError, match="ground-truth"):
-        SingleImageConfig(path=scene / "images", vlm="simulated")
+        SingleImageConfig(path=scene / "images", perception=_pc(vlm=SimulatedConfig()))
     with pytest.raises(InputError, match="does not exist"):
-        run_single_image(SingleImageConfig(path=tmp_path / "missing.png", output_dir=tmp_path / "o", vlm="replay", progress=False))
+        run_single_image(SingleImageConfig(path=tmp_path / "missing.png", output_dir=tmp_path / "o", perception=_pc(vlm=ReplayConfig())))
     stranger = tmp_path / "photos" / "holiday.png"
     stranger.parent.mkdir()
     shutil.copy(scene / "images" / "frame_00000.png", stranger)
     with pytest.raises(InputError, match="not a frame of the generated scene"):
-        run_single_image(SingleImageConfig(path=stranger, output_dir=tmp_path / "o2", vlm="simulated", ground_truth=scene, progress=False))
+        run_single_image(SingleImageConfig(path=stranger, output_dir=tmp_path / "o2", ground_truth=scene, perception=_pc(vlm=SimulatedConfig())))
     with pytest.raises(ValueError, match="unknown property"):
         SingleImageConfig(path=stranger, properties=("colour",))
 
@@ -232,15 +244,15 @@ def test_changed_image_in_the_same_output_dir_is_refused(scene, tmp_path):
     photo.parent.mkdir()
     shutil.copy(scene / "images" / "frame_00000.png", photo)
     cache = tmp_path / "cache"
-    cfg = SingleImageConfig(path=photo, output_dir=tmp_path / "o", vlm="replay", replay_source="simulated", cache_dir=cache,
-                            progress=False, figures=False)
+    cfg = SingleImageConfig(path=photo, output_dir=tmp_path / "o", figures=False,
+                            perception=_pc(vlm=ReplayConfig(source="simulated"), cache_dir=cache))
     first = run_single_image(cfg)  # empty cache: every mask is a replay miss, reported, not fatal
     assert first.perception.calls == 0 and len(first.perception.failed) == first.perception.masks > 0
     assert first.images[0].covered_fraction == 0.0
     Image.fromarray(np.asarray(Image.open(photo))[:, ::-1].copy()).save(photo)  # another picture, same name
     with pytest.raises(InputError, match="--overwrite"):
         run_single_image(cfg)
-    cfg.overwrite = True
+    cfg.perception.overwrite = True
     assert run_single_image(cfg).images[0].masks > 0
 
 
@@ -249,8 +261,9 @@ def test_tyro_parses_the_command(scene):
 
     from physgs_nerfstudio.single_image.command import ImageCommand
 
-    cmd = tyro.cli(ImageCommand, args=[str(scene / "images"), "--vlm", "simulated", "--ground-truth", str(scene),
-                                       "--properties", "friction", "stiffness", "--hardness-scale", "A"])
+    cmd = tyro.cli(ImageCommand, args=[str(scene / "images"), "--ground-truth", str(scene),
+                                       "--properties", "friction", "stiffness", "--hardness-scale", "A", "vlm:simulated"])
+    assert isinstance(cmd.perception.vlm, SimulatedConfig)
     assert cmd.properties == ("kinetic_friction", "youngs_modulus") and cmd.hardness_scale == "A"
 
 
@@ -262,8 +275,8 @@ def test_command_with_an_openai_compatible_endpoint(scene, tmp_path, capsys):
     photo = tmp_path / "photo.png"
     shutil.copy(scene / "images" / "frame_00000.png", photo)
     with FakeServer() as server:
-        cmd = ImageCommand(path=photo, output_dir=tmp_path / "o", vlm="openai", model="local-vlm", base_url=server.base_url,
-                           api_key_env="", properties=("friction",), figures=False, progress=False)
+        cmd = ImageCommand(path=photo, output_dir=tmp_path / "o", properties=("friction",), figures=False,
+                           perception=_pc(vlm=OpenAIConfig(model="local-vlm", base_url=server.base_url, api_key_env="")))
         cmd.main()
         assert len(server.requests) > 0 and all(body["model"] == "local-vlm" for body in server.requests)
     out = capsys.readouterr().out

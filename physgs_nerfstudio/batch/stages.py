@@ -91,14 +91,24 @@ def _scene_env(scene: Scene, settings: StageSettings) -> str:
 def run_perceive(scene: Scene, settings: StageSettings, out: Path, overwrite: bool = False) -> tuple[dict, dict]:
     """`physgs perceive` in this process (built-in segmenter). Writes materials.json and the material maps
     into the dataset folder, as `physgs perceive` does."""
-    from ..perception.pipeline import PerceptionConfig, run_perception
+    from ..perception import PerceptionConfig, run_perception
+    from ..perception.replay import ReplayConfig
+    from ..perception.segment_builtin import BuiltinSegmenterConfig
+    from ..perception.simulated import SimulatedConfig
+    from ..perception.vlm import OpenAIConfig
 
-    cfg = PerceptionConfig(data=scene.data, segmenter="builtin", vlm=settings.vlm, model=settings.model,
-                           base_url=settings.base_url, api_key_env=settings.api_key_env,
+    if settings.vlm == "openai":
+        vlm = OpenAIConfig(base_url=settings.base_url, model=settings.model, api_key_env=settings.api_key_env,
+                           max_concurrency=settings.max_concurrency,
+                           usd_per_1k_prompt_tokens=settings.usd_per_1k_prompt_tokens,
+                           usd_per_1k_completion_tokens=settings.usd_per_1k_completion_tokens)  # fmt: skip
+    elif settings.vlm == "replay":
+        vlm = ReplayConfig(source="openai", model=settings.model)
+    else:
+        vlm = SimulatedConfig()
+    cfg = PerceptionConfig(data=scene.data, vlm=vlm, segmenter=BuiltinSegmenterConfig(),
                            env=_scene_env(scene, settings), cache_dir=Path(settings.cache_dir) if settings.cache_dir else None,
                            max_concurrency=settings.max_concurrency, max_views=settings.max_views, progress=False,
-                           usd_per_1k_prompt_tokens=settings.usd_per_1k_prompt_tokens,
-                           usd_per_1k_completion_tokens=settings.usd_per_1k_completion_tokens,
                            overwrite=overwrite)  # fmt: skip
     try:
         res = run_perception(cfg)
@@ -162,8 +172,10 @@ def run_train(scene: Scene, settings: StageSettings, out: Path, gpu: int | None 
 def run_export(scene: Scene, settings: StageSettings, out: Path, config: Path) -> tuple[dict, dict]:
     """`physgs export` in this process -> OUT/scenes/<scene>/export/ (report.json with the mass)."""
     import math
+    from dataclasses import replace
 
     from ..export.command import ExportCommand
+    from ..mass import MassConfig
 
     truth = None
     gt = scene.data / "ground_truth.json"
@@ -171,9 +183,11 @@ def run_export(scene: Scene, settings: StageSettings, out: Path, config: Path) -
         truth = json.loads(gt.read_text()).get("total_mass_kg")
     t0 = time.perf_counter()
     try:
-        result = ExportCommand(load_config=Path(config), output_dir=export_dir(out), resolution=settings.export_resolution,
-                               n_samples=settings.n_samples, seed=settings.seed, truth_kg=truth, views=(0,),
-                               device=settings.device).main()  # fmt: skip
+        base = MassConfig()
+        mass_cfg = replace(base, geometry=replace(base.geometry, resolution=settings.export_resolution),
+                           n_samples=settings.n_samples, seed=settings.seed)  # fmt: skip
+        result = ExportCommand(load_config=Path(config), output_dir=export_dir(out), mass=mass_cfg, truth_kg=truth,
+                               views=(0,), device=settings.device).main()  # fmt: skip
     except (OSError, ValueError, RuntimeError) as err:
         raise StageError(f"export: {_one_line(err)}", "export failed") from None
     seconds = time.perf_counter() - t0

@@ -1,4 +1,4 @@
-"""Per-entity mixture predictive over materials (paper eq. mixture_gaussian, DESIGN.md section 3).
+"""Per-entity mixture predictive over materials (paper eq. mixture_gaussian, docs/architecture.md, "`bayes/`").
 
 Entity e's property predictive is ``sum_i pi_ei N(tau_i, aleatoric_i + epistemic_i)`` (or, with
 ``df``, a mixture of the materials' Student-t NIG predictives). Its mean and variance are split by the
@@ -36,6 +36,7 @@ from .nig import NIG, student_t_logpdf
 __all__ = [
     "component_scale",
     "material_mixture_weights",
+    "mixture_fields",
     "mixture_cdf",
     "mixture_interval",
     "mixture_logpdf",
@@ -310,8 +311,8 @@ def property_fields(
     (benchmarks/accuracy.py, 12 objects x 16 views): object mass APE 0.208 with predictive weights, worse
     than a single view (0.152); 0.020 with dominance weights (equal to using each part's most probable
     material once evidence is plentiful). The dominance weights keep the Bayesian mixture (split when
-    evidence is balanced, epistemic from material ambiguity) but concentrate as evidence accumulates. Pass ``"predictive"`` when ``alpha`` already holds mixture
-    weights (e.g. probabilities averaged over Gaussians) rather than Dirichlet concentrations.
+    evidence is balanced, epistemic from material ambiguity) but concentrate as evidence accumulates. When the
+    weights are already chosen (e.g. probabilities averaged over Gaussians), call :func:`mixture_fields`.
 
     For a linear property the module-doc formulas apply
     directly. For a log-space property (the NIG lives in natural-log units) each component is the
@@ -335,8 +336,16 @@ def property_fields(
     Returns:
         dict with ``mean``, ``aleatoric``, ``epistemic``, ``total``, each ``[N, P]`` in alpha's dtype.
     """
-    where = "property_fields"
-    alpha = _check_fields_inputs(alpha, nig, log_space, where)
+    alpha = _check_fields_inputs(alpha, nig, log_space, "property_fields")
+    return mixture_fields(material_mixture_weights(alpha, material_weights), nig, log_space)
+
+
+def mixture_fields(
+    pi: Float[Tensor, "n k"], nig: NIG, log_space: Sequence[bool]
+) -> dict[str, Float[Tensor, "n p"]]:
+    """The moments of :func:`property_fields` for mixture weights ``pi`` that are already chosen (rows
+    summing to 1: e.g. a Gaussian's dominance probabilities, or a voxel's opacity-weighted mean of them)."""
+    pi = _check_fields_inputs(pi, nig, log_space, "mixture_fields")
     f64 = torch.float64
     nig64 = nig.to(f64)
     ale = nig64.aleatoric()
@@ -354,10 +363,9 @@ def property_fields(
     s = torch.where(s > 0, s, torch.ones_like(s))
     c = (m / s).mean(0)
     m_sc = m / s - c
-    dt = alpha.dtype
-    dev = alpha.device
+    dt = pi.dtype
+    dev = pi.device
     m_sc_t, m2_t, va_t, ve_t = (t.to(device=dev, dtype=dt) for t in (m_sc, m_sc * m_sc, va / s**2, ve / s**2))
-    pi = material_mixture_weights(alpha, material_weights)
     mean_sc = pi @ m_sc_t
     between = (pi @ m2_t - mean_sc * mean_sc).clamp_min(0)
     s_t = s.to(device=dev, dtype=dt)

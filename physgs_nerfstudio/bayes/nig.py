@@ -7,7 +7,7 @@ likelihood is N(psi_m | mu, sigma^2)^{p_m}. With the weighted sufficient statist
 
     W = sum p_m,   S = sum p_m psi_m,   Q = sum p_m psi_m^2       (over observations of material i)
 
-the posterior is closed form (:func:`nig_posterior`, DESIGN.md section 3):
+the posterior is closed form (:func:`nig_posterior`, docs/architecture.md, "`bayes/`"):
 
     kappa = kappa0 + W;  tau = (kappa0 tau0 + S) / kappa;  a = a0 + W / 2;
     b = b0 + (Q - S^2/W) / 2 + kappa0 W (S/W - tau0)^2 / (2 kappa)        (b = b0 when W = 0)
@@ -287,7 +287,7 @@ class Moments:
 
 
 def nig_posterior(prior: NIG, moments: Moments) -> NIG:
-    """Closed-form NIG posterior from weighted statistics (DESIGN.md section 3).
+    """Closed-form NIG posterior from weighted statistics (docs/architecture.md, "`bayes/`").
 
     Computed in float64 and returned in the promoted dtype of ``prior`` and ``moments``. The scatter term
     ``Q - S^2/W`` is evaluated as ``Q - S * (S/W)`` and tiny negatives from rounding are clamped to 0.

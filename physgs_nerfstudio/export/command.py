@@ -3,14 +3,14 @@
 nerfstudio's own ``ns-export`` is a closed tyro union of exporters (nerfstudio/scripts/exporter.py) with no
 plugin hook, so PhysGS exports live in ``physgs export``; ``ns-export gaussian-splat --load-config ...``
 still writes the plain splat of the same run. From Python: ``ExportCommand(load_config=...).main()``, or
-:func:`run_export` on any :class:`PropertyField`.
+:func:`run_export` on a :class:`LoadedRun`.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -18,15 +18,16 @@ import torch
 
 from .field import PropertyField
 from .maps import View, save_property_maps, viewmat_from_c2w
-from .mass import MassConfig, MassReport, integrate_mass, mass_geometry
-from .occupancy import OccupancyConfig
+from ..geometry import CaptureView, GeometryConfig, MaskObservation, ObjectGeometry, load_capture, load_observations
+from ..geometry import reconstruct_object
+from ..mass import MassConfig, MassReport, integrate_mass, library_thickness
 from .ply import write_property_ply
 from .report import print_mass_table, write_report
 from .voxel import write_voxel_grid
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ExportCommand", "ExportResult", "load_run", "run_export", "views_from_cameras"]
+__all__ = ["ExportCommand", "ExportResult", "LoadedRun", "load_run", "object_geometry", "run_export", "views_from_cameras"]
 
 Output = Literal["ply", "voxels", "maps", "mass"]
 
@@ -54,14 +55,29 @@ def views_from_cameras(cameras: Any, indices: Sequence[int], max_width: int = 48
     return views
 
 
+@dataclass
+class LoadedRun:
+    """A trained run as the exporters need it."""
+
+    field: PropertyField
+    cameras: Any
+    """training Cameras (scene frame) or None"""
+    views: list[CaptureView]
+    """the training cameras with their object masks (:func:`physgs_nerfstudio.geometry.load_capture`)"""
+    observations: list[MaskObservation]
+    data_dir: Path | None
+
+
 def load_run(
     config_path: Path,
     *,
     scale: float | None = None,
     known_length: Sequence[float] | None = None,
     env: str | None = None,
-) -> tuple[PropertyField, Any]:
-    """(PropertyField, training Cameras or None) of a trained run, through nerfstudio's ``eval_setup``."""
+    max_view_width: int | None = 640,
+) -> LoadedRun:
+    """Load a trained run through nerfstudio's ``eval_setup``: its property field, cameras, object masks and
+    perception's per-mask answers."""
     from nerfstudio.utils.eval_utils import eval_setup
 
     from .scale import read_dataparser_scale
@@ -72,34 +88,49 @@ def load_run(
     config, pipeline, _, _ = eval_setup(config_path, test_mode="inference")
     dp_scale = read_dataparser_scale(config.get_base_dir())
     pf = PropertyField.from_model(pipeline.model, dp_scale, scale=scale, known_length=known_length, env=env)
-    cameras = None
     dm = pipeline.datamanager
-    for getter in (lambda: dm.train_dataparser_outputs.cameras, lambda: dm.train_dataset.cameras):
-        try:
-            cameras = getter()
-            break
-        except AttributeError:
-            continue
-    return pf, cameras
+    dpo = getattr(dm, "train_dataparser_outputs", None)
+    cameras = dpo.cameras if dpo is not None else getattr(getattr(dm, "train_dataset", None), "cameras", None)
+    views: list[CaptureView] = []
+    observations: list[MaskObservation] = []
+    data_dir = Path(config.pipeline.datamanager.data) if getattr(config.pipeline.datamanager, "data", None) else None
+    if data_dir is not None and data_dir.suffix == ".json":
+        data_dir = data_dir.parent
+    if dpo is not None and data_dir is not None and (data_dir / "transforms.json").exists():
+        labels = dpo.metadata.get("material_filenames")
+        views = load_capture(dpo.cameras, dpo.image_filenames, data_dir, label_paths=labels,
+                             max_width=max_view_width)  # fmt: skip
+        observations = load_observations(data_dir)
+    return LoadedRun(pf, cameras, views, observations, data_dir)
+
+
+def object_geometry(run: LoadedRun, cfg: GeometryConfig, progress: Any = None) -> ObjectGeometry:
+    """Carve the object of a loaded run (:func:`physgs_nerfstudio.geometry.reconstruct_object`)."""
+    if not run.views:
+        raise ValueError("the run has no training cameras with object masks (transforms.json of the dataset not "
+                         "found): mass and voxels need them; export --outputs ply maps instead.")  # fmt: skip
+    pf = run.field
+    return reconstruct_object(pf, pf.pi(), run.views, run.observations, library_thickness(pf), cfg,
+                              material_names=pf.material_names, progress=progress)  # fmt: skip
 
 
 def run_export(
-    pf: PropertyField,
+    run: LoadedRun,
     output_dir: Path,
     *,
     mass: MassConfig | None = None,
     outputs: Sequence[Output] = ("ply", "voxels", "maps", "mass"),
     views: Sequence[View] = (),
-    voxel_resolution: int | None = None,
     top_k: int = 3,
     truth_kg: float | None = None,
     title: str | None = None,
     quiet: bool = False,
 ) -> ExportResult:
-    """Write the chosen outputs of ``pf`` into ``output_dir`` and print the mass table."""
+    """Write the chosen outputs of ``run`` into ``output_dir`` and print the mass table."""
     from rich.console import Console
 
     console = Console(quiet=quiet)
+    pf = run.field
     out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
     mass = mass or MassConfig()
@@ -109,20 +140,17 @@ def run_export(
     if "ply" in outputs:
         files["ply"] = [write_property_ply(pf, out / "property_field.ply", top_k=top_k)]
         console.log(f"PLY: {files['ply'][0]} ({pf.num_gaussians} Gaussians)")
-    geometry = None
     report = None
-    if "mass" in outputs:
-        geometry = mass_geometry(pf, mass)
-        report = integrate_mass(pf, mass, geometry=geometry)
-    if "voxels" in outputs:
-        occ_cfg = mass.occupancy
-        reuse = geometry.occupancy if geometry is not None and voxel_resolution in (None, occ_cfg.resolution) else None
-        if voxel_resolution is not None and voxel_resolution != occ_cfg.resolution:
-            from dataclasses import replace
-
-            occ_cfg = replace(occ_cfg, resolution=voxel_resolution)
-        files["voxels"] = [write_voxel_grid(pf, out / "voxels.npz", occ_cfg, occupancy=reuse)]
-        console.log(f"voxel grid: {files['voxels'][0]}")
+    if "mass" in outputs or "voxels" in outputs:
+        with console.status("object geometry") as status:
+            geo = object_geometry(run, mass.geometry, progress=lambda s: status.update(f"object geometry: {s}"))
+        console.log(f"object geometry: {geo.selection.num_selected} Gaussians selected, {int(geo.solid.sum())} "
+                    f"solid voxels, {geo.num_parts} parts, {len(geo.variant_names)} carving variants")  # fmt: skip
+        if "mass" in outputs:
+            report = integrate_mass(pf, geo, mass)
+        if "voxels" in outputs:
+            files["voxels"] = [write_voxel_grid(pf, out / "voxels.npz", geo)]
+            console.log(f"voxel grid: {files['voxels'][0]}")
     if "maps" in outputs and views:
         files["maps"] = save_property_maps(pf, views, out / "maps")
         console.log(f"property maps: {len(files['maps'])} view(s) in {out / 'maps'}")
@@ -137,6 +165,9 @@ def run_export(
     return ExportResult(files, report)
 
 
+_DEPRECATED = "(deprecated spelling of --mass.{}; kept for existing scripts)"
+
+
 @dataclass
 class ExportCommand:
     """Export a trained PhysGS run: property PLY, voxel grid, property maps and the mass (mean, interval)."""
@@ -145,36 +176,12 @@ class ExportCommand:
     """config.yml of the `ns-train physgs` / `physgs-lite` run"""
     output_dir: Path = Path("export")
     outputs: tuple[Output, ...] = ("ply", "voxels", "maps", "mass")
-    resolution: int = 128
-    """voxels along the longest side of the object's box (mass)"""
-    voxel_resolution: int | None = None
-    """resolution of voxels.npz (default: the mass resolution)"""
-    volume_model: Literal["auto", "solid", "shell"] = "auto"
-    """auto: materials with a wall thickness (materials.json / library) are shells, the others solid"""
-    volume_models: dict[str, str] = field(default_factory=dict)
-    """per material name: solid | shell"""
-    shell_surface: Literal["auto", "mid", "outer"] = "auto"
-    fill: Literal["3d", "slices", "none"] = "3d"
-    threshold: float = 0.5
-    """occupancy threshold, a fraction of the opacity field's plateau"""
-    select: Literal["auto", "labelled", "largest", "all"] = "auto"
-    """which Gaussians make the object: labelled = those the material maps label (labelled fraction >=
-    min_labelled, evidence >= min_evidence), then their largest connected part; largest = the largest part of
-    all Gaussians; all = every part; auto = labelled when the run was lifted, else largest"""
-    min_labelled: float = 0.5
-    """select=labelled: minimum share of a Gaussian's blending weight that fell on labelled pixels"""
-    min_evidence: float = 0.05
-    """select=labelled: minimum total lifted evidence of a Gaussian"""
-    bbox: tuple[float, float, float, float, float, float] | None = None
-    """object box (xmin ymin zmin xmax ymax zmax) in scene units (the viewer's crop frame), combined with
-    select; default: the Gaussians' extent"""
+    mass: MassConfig = field(default_factory=MassConfig)
+    """the object's geometry (selection, carving, parts, structure) and the Monte Carlo"""
     scale: float | None = None
     """metres per dataset unit (default: the dataset is metric)"""
     known_length: tuple[float, float, float, float, float, float, float] | None = None
     """x1 y1 z1 x2 y2 z2 distance_m: two points in dataset coordinates and their true distance"""
-    n_samples: int = 4000
-    seed: int = 0
-    level: float = 0.9
     views: tuple[int, ...] = (0,)
     """training camera indices to render property maps for"""
     max_map_width: int = 480
@@ -184,22 +191,43 @@ class ExportCommand:
     truth_kg: float | None = None
     """ground-truth mass, if known: printed and checked against the interval"""
     device: Literal["auto", "cpu", "cuda"] = "auto"
+    resolution: int | None = None
+    """(deprecated spelling of --mass.geometry.resolution)"""
+    bbox: tuple[float, float, float, float, float, float] | None = None
+    """(deprecated spelling of --mass.geometry.select.bbox)"""
+    n_samples: int | None = None
+    """(deprecated spelling of --mass.n-samples)"""
+    seed: int | None = None
+    """(deprecated spelling of --mass.seed)"""
+    level: float | None = None
+    """(deprecated spelling of --mass.level)"""
+    volume_model: Literal["auto", "solid", "shell"] | None = None
+    """(deprecated spelling of --mass.structure: auto | solid | hollow)"""
 
     def mass_config(self) -> MassConfig:
-        occ = OccupancyConfig(resolution=self.resolution, threshold=self.threshold, fill=self.fill, bbox=self.bbox,
-                              select=self.select, min_labelled=self.min_labelled,
-                              min_evidence=self.min_evidence)  # fmt: skip
-        return MassConfig(occupancy=occ, volume_model=self.volume_model, volume_models=dict(self.volume_models),
-                          shell_surface=self.shell_surface, n_samples=self.n_samples, seed=self.seed,
-                          level=self.level)  # fmt: skip
+        """``mass`` with the deprecated flat flags applied."""
+        m = self.mass
+        g = m.geometry
+        if self.resolution is not None:
+            g = replace(g, resolution=self.resolution)
+        if self.bbox is not None:
+            g = replace(g, select=replace(g.select, bbox=self.bbox))
+        kw: dict[str, Any] = {"geometry": g}
+        for name in ("n_samples", "seed", "level"):
+            if getattr(self, name) is not None:
+                kw[name] = getattr(self, name)
+        if self.volume_model is not None:
+            kw["structure"] = {"shell": "hollow"}.get(self.volume_model, self.volume_model)
+        return replace(m, **kw)
 
     def main(self) -> ExportResult:
-        pf, cameras = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env)
+        run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env)
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
-        pf = pf.to(device)
+        run.field = run.field.to(device)
+        cameras = run.cameras
         views = views_from_cameras(cameras, self.views, self.max_map_width) if cameras is not None else []
         if "maps" in self.outputs and cameras is None:
             logger.warning("no training cameras found in the run: property maps skipped")
-        return run_export(pf, self.output_dir, mass=self.mass_config(), outputs=self.outputs, views=views,
-                          voxel_resolution=self.voxel_resolution, top_k=self.top_k, truth_kg=self.truth_kg,
+        return run_export(run, self.output_dir, mass=self.mass_config(), outputs=self.outputs, views=views,
+                          top_k=self.top_k, truth_kg=self.truth_kg,
                           title=f"Mass of {self.load_config.parent.name}")  # fmt: skip

@@ -26,8 +26,8 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-from ..bayes import NIG, property_fields
-from ..bayes.mixture import material_mixture_weights
+from ..bayes import NIG, mixture_fields
+from ..bayes.mixture import MaterialWeights, material_mixture_weights
 from .scale import SceneScale, read_dataparser_scale, resolve_scale
 
 logger = logging.getLogger(__name__)
@@ -81,6 +81,10 @@ class PropertyField:
     maps label (PhysGSModel.labelled_fraction, in [0, 1]); None = unknown. Object selection uses it."""
     evidence: Float[Tensor, " n"] | None = None
     """per Gaussian total lifted Dirichlet evidence (sum over materials, >= 0); None = unknown"""
+    material_weights: MaterialWeights = "dominant"
+    """how ``alpha`` becomes the per-Gaussian material weights that every writer uses (PLY columns, voxels,
+    maps, mass): "dominant" (dominance probability) or "predictive" (alpha / sum(alpha)); a trained model's
+    own ``material_weights`` (PhysGSModelConfig) when built by :meth:`from_model`."""
     _pi: Tensor | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -135,15 +139,18 @@ class PropertyField:
         return self.means.device
 
     def pi(self) -> Float[Tensor, "n k"]:
-        """Per-Gaussian material mixture weights: the posterior that each material is the Gaussian's dominant
-        label (``bayes.dominance_probability``), the weights ``fields()`` uses too. Computed once."""
+        """Per-Gaussian material mixture weights chosen by ``material_weights`` (default: the posterior that
+        each material is the Gaussian's dominant label, ``bayes.dominance_probability``). Computed once; every
+        writer and ``fields()`` use these weights, so one file never mixes two weightings."""
         if self._pi is None or self._pi.shape != self.alpha.shape:
-            self._pi = material_mixture_weights(self.alpha)
+            self._pi = material_mixture_weights(self.alpha, self.material_weights)
         return self._pi
 
-    def fields(self) -> dict[str, Float[Tensor, "n p"]]:
-        """Per-Gaussian mixture predictive (mean, aleatoric, epistemic, total variance), linear units."""
-        return property_fields(self.alpha, self.nig.to(self.alpha.device), self.log_space)
+    def fields(self, rows: slice | Tensor | None = None) -> dict[str, Float[Tensor, "n p"]]:
+        """Per-Gaussian mixture predictive (mean, aleatoric, epistemic, total variance), linear units, with the
+        weights of :meth:`pi` (``rows``: only those Gaussians)."""
+        pi = self.pi() if rows is None else self.pi()[rows]
+        return mixture_fields(pi, self.nig.to(self.alpha.device), self.log_space)
 
     def material_means(self) -> Float[Tensor, "k p"]:
         """Per-material predictive mean in linear units (log-space: lognormal mean exp(tau + v/2)), float64."""
@@ -241,6 +248,7 @@ class PropertyField:
             thickness_m=thickness, metres_per_unit=sc.metres_per_unit, scale_source=sc.source, sh_dc=sh_dc,
             sh_rest=sh_rest, property_keys=tuple(legend.property_keys), simulated=bool(legend.simulated),
             labelled=labelled, evidence=evidence,
+            material_weights=getattr(getattr(model, "config", None), "material_weights", "dominant"),
         )  # fmt: skip
 
     @classmethod

@@ -12,10 +12,11 @@ Splat attributes (3DGS convention):
 
 PhysGS attributes:
   ``material_id`` (uint8: materials.json id, 1..K), ``material_index`` (uint8: 0..K-1 into the legend),
-  ``material_prob`` (pi of the dominant material), ``material_top{j}`` (uint8 index, j = 0..top_k-1) and
+  ``material_prob`` (weight of the most probable material), ``material_top{j}`` (uint8 index, j = 0..top_k-1) and
   ``material_top{j}_prob``, ``material_entropy`` (nats), ``alpha_sum`` (Dirichlet strength), and per property
   key ``<key>_mean`` (units below) and ``<key>_aleatoric``, ``<key>_epistemic``, ``<key>_total``
-  (variances of the per-Gaussian mixture predictive, units squared).
+  (variances of the per-Gaussian mixture predictive, units squared). Every material and property column
+  uses the same per-Gaussian weights, ``PropertyField.pi()`` (``material_weights`` in the header).
 
 Header: ``comment physgs <json>`` holds the legend (id, index, name, colour, thickness_m), property keys,
 units, metres_per_unit, scale_source and ``simulated``; the same JSON is in ``obj_info``.
@@ -55,6 +56,7 @@ def _header_meta(pf: PropertyField, top_k: int) -> dict[str, Any]:
         "scale_source": pf.scale_source,
         "simulated": pf.simulated,
         "top_k": top_k,
+        "material_weights": pf.material_weights,
     }
 
 
@@ -98,17 +100,14 @@ def write_property_ply(pf: PropertyField, path: Path, *, top_k: int = 3, chunk: 
     top_p = np.zeros((n, top_k), np.float32)
     entropy = np.zeros(n, np.float32)
     fields = {f: np.zeros((n, P), np.float32) for f in ("mean", "aleatoric", "epistemic", "total")}
-    nig = pf.nig.to(pf.alpha.device)
-    from ..bayes import property_fields
-
+    weights = pf.pi()  # the one weighting of the file: material columns and property columns alike
     for s in range(0, n, chunk):
-        a = pf.alpha[s : s + chunk]
-        pi = a / a.sum(-1, keepdim=True)
+        pi = weights[s : s + chunk]
         p, i = torch.topk(pi, top_k, dim=-1)
         top_i[s : s + chunk] = i.cpu().numpy().astype(np.uint8)
         top_p[s : s + chunk] = p.cpu().numpy()
         entropy[s : s + chunk] = (-(pi * torch.log(pi.clamp_min(1e-30))).sum(-1)).cpu().numpy()
-        for f, v in property_fields(a, nig, pf.log_space).items():
+        for f, v in pf.fields(slice(s, s + chunk)).items():
             fields[f][s : s + chunk] = v.cpu().numpy()
     put("material_id", top_i[:, 0] + 1, "u1")
     put("material_index", top_i[:, 0], "u1")

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .mass import MassReport
+from ..mass import MassReport
 
 __all__ = ["mass_table", "print_mass_table", "write_report"]
 
@@ -41,7 +41,7 @@ def mass_table(report: MassReport, title: str | None = None, truth_kg: float | N
     for m in report.materials:
         if m.volume_share < 1e-3 and m.mass_share < 1e-3:
             continue
-        model = m.volume_model if m.thickness_m is None else f"shell {m.thickness_m * 1000:.3g} mm"
+        model = m.volume_model if m.thickness_m is None else f"{m.volume_model} {m.thickness_m * 1000:.3g} mm"
         table.add_row(m.name, model, f"{100 * m.volume_share:.1f}%", _fmt(m.density_mean), _fmt(m.mass_mean_kg),
                       f"[{_fmt(m.mass_interval_kg[0])}, {_fmt(m.mass_interval_kg[1])}]")  # fmt: skip
     table.add_section()

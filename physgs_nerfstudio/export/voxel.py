@@ -5,14 +5,14 @@ Arrays are indexed ``[i, j, k]`` = ``[x, y, z]`` (C order); voxel (i, j, k) has 
 ``origin_m``/``voxel_size_m`` in metres (scene units x ``metres_per_unit``; the origin is the scene
 origin scaled, nerfstudio's dataparser transform is not undone). Contents:
 
-* ``occupancy`` uint8: 1 inside the object (filled, selected component), 0 outside
-* ``volume_fraction`` float32: fraction of the voxel inside the object (0.5 on thin sheets; mass weights)
+* ``occupancy`` uint8: 1 inside the object's carved solid (the nominal carving, :mod:`physgs_nerfstudio.geometry`)
+* ``part_id`` int32: the voxel's 3-D part (index into ``meta["parts"]``, solid or hollow per part), -1 outside
 * ``material_index`` int16: dominant material (legend index 0..K-1), -1 outside
 * ``material_prob`` float32 [X, Y, Z, K]: per-voxel material mixture (0 outside)
 * ``<key>_mean`` and ``<key>_total`` float32 per property key: mixture mean and total variance (units^2)
-  of the per-voxel predictive (``bayes.property_fields`` with the voxel's mixture), NaN outside
-* ``opacity_field`` float32: the splatted opacity field, ``field_level``: its occupancy threshold
-* ``meta`` (JSON string): axis order, units, legend, property keys, metres_per_unit, scale_source, simulated
+  of the per-voxel predictive (``bayes.mixture_fields`` with the voxel's mixture), NaN outside
+* ``meta`` (JSON string): axis order, units, legend, property keys, metres_per_unit, scale_source, simulated,
+  the geometry's settings and per part its structure posterior (hollow probability, wall thickness)
 """
 
 from __future__ import annotations
@@ -24,32 +24,23 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..bayes import property_fields
+from ..bayes import mixture_fields
 from .field import PropertyField
-from .occupancy import Occupancy, OccupancyConfig, compute_occupancy, volume_weights, voxel_materials
+from ..geometry import ObjectGeometry
 from .ply import PROPERTY_UNITS
 
 __all__ = ["load_voxel_grid", "write_voxel_grid"]
 
 
-def write_voxel_grid(
-    pf: PropertyField,
-    path: Path,
-    cfg: OccupancyConfig | None = None,
-    *,
-    occupancy: Occupancy | None = None,
-    store_field: bool = True,
-) -> Path:
-    """Write the object's voxel grid (module doc); ``occupancy`` reuses one computed at the same config."""
-    occ = occupancy if occupancy is not None else compute_occupancy(pf, cfg or OccupancyConfig())
-    mats = voxel_materials(pf, occ)
-    shape = occ.grid.shape
+def write_voxel_grid(pf: PropertyField, path: Path, geo: ObjectGeometry) -> Path:
+    """Write the object's carved voxel grid (module doc) from :func:`physgs_nerfstudio.geometry.reconstruct_object`."""
+    shape = geo.grid.shape
     K = pf.num_materials
-    idx = np.nonzero(occ.solid)
-    pi = mats.pi[mats.rows[idx]]  # [M, K]
+    idx = np.nonzero(geo.solid)
+    pi = geo.mixture[idx]  # [M, K]
     out: dict[str, Any] = {}
-    out["occupancy"] = occ.solid.astype(np.uint8)
-    out["volume_fraction"] = volume_weights(occ)
+    out["occupancy"] = geo.solid.astype(np.uint8)
+    out["part_id"] = np.where(geo.solid, geo.parts, -1).astype(np.int32)
     mat = np.full(shape, -1, dtype=np.int16)
     mat[idx] = np.argmax(pi, axis=1).astype(np.int16)
     out["material_index"] = mat
@@ -57,26 +48,21 @@ def write_voxel_grid(
     prob[idx] = pi
     out["material_prob"] = prob
     nig = pf.nig.to(torch.float64)
-    # pi already holds mixture weights: 'predictive' of pi is pi itself.
-    fields = property_fields(torch.from_numpy(np.clip(pi, 1e-12, None)), nig, pf.log_space,
-                             material_weights="predictive")
+    fields = mixture_fields(torch.from_numpy(pi), nig, pf.log_space)  # the voxel's mixture of pf.pi()
     for p, key in enumerate(pf.property_keys):
         for f in ("mean", "total"):
             arr = np.full(shape, np.nan, dtype=np.float32)
             arr[idx] = fields[f][:, p].numpy()
             out[f"{key}_{f}"] = arr
-    if store_field:
-        out["opacity_field"] = occ.field.astype(np.float32)
     mpu = pf.metres_per_unit
-    origin = np.asarray(occ.grid.origin, dtype=np.float64)
+    origin = np.asarray(geo.grid.origin, dtype=np.float64)
     out["origin_scene"] = origin
-    out["voxel_size_scene"] = np.float64(occ.grid.voxel_size)
+    out["voxel_size_scene"] = np.float64(geo.grid.voxel_size)
     out["origin_m"] = origin * mpu
-    out["voxel_size_m"] = np.float64(occ.grid.voxel_size * mpu)
+    out["voxel_size_m"] = np.float64(geo.grid.voxel_size * mpu)
     out["metres_per_unit"] = np.float64(mpu)
-    out["field_level"] = np.float64(occ.level)
     meta = {
-        "format": "physgs-voxels/1",
+        "format": "physgs-voxels/2",
         "axis_order": "xyz",
         "index": "array[i, j, k] = voxel at x, y, z index; centre = origin + (index + 0.5) * voxel_size",
         "units": {**{k: PROPERTY_UNITS.get(k, "?") for k in pf.property_keys}, "origin_m": "m",
@@ -87,10 +73,8 @@ def write_voxel_grid(
         "metres_per_unit": mpu,
         "scale_source": pf.scale_source,
         "simulated": pf.simulated,
-        "occupancy": {"threshold": occ.config.threshold, "threshold_mode": occ.config.threshold_mode,
-                      "fill": occ.config.fill, "select": occ.select, "select_config": occ.config.select,
-                      "min_labelled": occ.config.min_labelled, "min_evidence": occ.config.min_evidence,
-                      "selected_gaussians": occ.num_selected, "resolution": occ.config.resolution},
+        "geometry": geo.summary(),
+        "parts": geo.structure.to_list(),
     }  # fmt: skip
     out["meta"] = np.array(json.dumps(meta))
     path = Path(path)

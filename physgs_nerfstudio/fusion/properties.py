@@ -1,4 +1,4 @@
-"""Scene-level property fusion: per material, a NIG posterior for each property (DESIGN.md section 3).
+"""Scene-level property fusion: per material, a NIG posterior for each property (docs/architecture.md, "`bayes/`").
 
 Observations (records of ``observations.jsonl``) of material i contribute their property values with
 weight = confidence; NaN (or a missing key) means "not reported" and leaves that property's statistics

@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 
 from . import hardness as _hardness
+from .keys import PROPERTY_KEYS
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..bayes.nig import NIG
@@ -56,7 +57,6 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-PROPERTY_KEYS: tuple[str, ...] = ("density", "kinetic_friction", "shore_hardness", "youngs_modulus")
 BUILTIN_ENVS: tuple[str, ...] = ("indoor", "outdoor")
 
 _ENTRY_KEYS = {"name", "category", "aliases", "color", "thickness_m", "confusable", "source", *PROPERTY_KEYS}

@@ -1,4 +1,4 @@
-"""Normal-Inverse-Gamma priors from the material library (DESIGN.md section 3).
+"""Normal-Inverse-Gamma priors from the material library (docs/architecture.md, "`bayes/`").
 
 Per material i and property k, in the fused space f (log for log-space properties, identity otherwise):
 
@@ -16,14 +16,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Any
 
 import torch
 
-from .library import PROPERTY_KEYS
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .library import Material
+from .keys import PROPERTY_KEYS
 
 __all__ = ["DEFAULT_LOG_SPACE", "PriorConfig", "log_space_flags", "prior_params"]
 
@@ -69,7 +66,7 @@ def log_space_flags(config: PriorConfig | None = None) -> tuple[bool, ...]:
     return tuple(bool(cfg.log_space.get(k, DEFAULT_LOG_SPACE[k])) for k in PROPERTY_KEYS)
 
 
-def prior_params(materials: Sequence[Material], config: PriorConfig | None = None) -> dict[str, torch.Tensor]:
+def prior_params(materials: Sequence[Any], config: PriorConfig | None = None) -> dict[str, torch.Tensor]:
     """NIG prior tensors ``{"tau", "kappa", "a", "b"}``, each [K, P] float64 (K = len(materials),
     P = len(PROPERTY_KEYS)), in the fused space. ValueError if a log-space property has a range <= 0."""
     cfg = config if config is not None else PriorConfig()

@@ -1,5 +1,6 @@
 """The lifting pass of `PhysGSModel` (`PhysGSModel.run_lifting`): training views' material maps onto the
-Gaussians. Moved verbatim from `model.py` (``self`` -> ``model``); `PhysGSModel.run_lifting` calls it.
+Gaussians. `PhysGSModel.run_lifting` calls it with itself as ``model``; the tensor names come from the
+leaf module `keys.py`, so this module does not import `model.py`.
 """
 
 from __future__ import annotations
@@ -8,11 +9,11 @@ import torch
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor
 
-from .model import EVIDENCE_KEY, LABELLED_KEY, WEIGHT_KEY, PhysGSModel, world_to_camera
+from .keys import EVIDENCE_KEY, LABELLED_KEY, WEIGHT_KEY, world_to_camera
 
 
 @torch.no_grad()
-def lift_material_maps(model: PhysGSModel, datamanager) -> Tensor:
+def lift_material_maps(model, datamanager) -> Tensor:
     """Lifts the training views' material maps onto the Gaussians (replaces `dirichlet_evidence`).
 
     Evidence map of a view: confidence-weighted one-hot of its labels (label 0 contributes nothing);

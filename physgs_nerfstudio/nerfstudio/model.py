@@ -1,4 +1,4 @@
-"""`PhysGSModel`: splatfacto-big plus a Bayesian physical-property head (paper section 3, DESIGN.md section 5).
+"""`PhysGSModel`: splatfacto-big plus a Bayesian physical-property head (paper section 3, docs/architecture.md, "The nerfstudio method").
 
 Per Gaussian g, on top of splatfacto's parameters:
 
@@ -63,15 +63,11 @@ from torch.nn import Parameter
 from physgs_nerfstudio.bayes import NIG, dirichlet_posterior, property_fields
 from physgs_nerfstudio.render import eval_sh_colors, rasterize
 
+from .keys import EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY, world_to_camera
 from .legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
 
 PROPERTY_OUTPUTS = ("density", "friction", "hardness", "stiffness")
 UNCERTAINTY_OUTPUTS = ("aleatoric", "epistemic", "total_uncertainty")
-EVIDENCE_KEY = "dirichlet_evidence"
-WEIGHT_KEY = "lifting_weight"
-LABELLED_KEY = "labelled_weight"
-NON_TRAINABLE_KEYS = (EVIDENCE_KEY, WEIGHT_KEY, LABELLED_KEY)
-LOGITS_KEY = "material_logits"
 _SPLATFACTO_PARAMS = ("means", "scales", "quats", "features_dc", "features_rest", "opacities")
 
 
@@ -114,6 +110,10 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     """Step at which to lift the material maps onto the Gaussians; None = `stop_split_at` (densification end)."""
     lift_at_end: bool = True
     """Lift again at the last training iteration (so the checkpoint's evidence matches the final Gaussians)."""
+    material_weights: Literal["dominant", "predictive"] = "dominant"
+    """How a Gaussian's Dirichlet posterior weights the materials' property posteriors, for the viewer outputs
+    and every `physgs export` writer (saved with the run's config): "dominant", the posterior that a material
+    is the Gaussian's dominant label (bayes.dominance_probability); "predictive", alpha / sum(alpha)."""
     uncertainty_property: Literal["density", "friction", "hardness", "stiffness"] = "density"
     """Property whose aleatoric / epistemic / total uncertainty the viewer outputs show."""
     uncertainty_as_std: bool = True
@@ -155,17 +155,6 @@ class _LazyLPIPS:
             return torch.tensor(float("nan"))
         self.metric = self.metric.to(a.device)
         return self.metric(a, b)
-
-
-def world_to_camera(c2w: Float[Tensor, "C 3 4"]) -> Float[Tensor, "C 4 4"]:
-    """nerfstudio camera-to-world (OpenGL axes) -> gsplat world-to-camera (OpenCV axes)."""
-    flip = torch.tensor([1.0, -1.0, -1.0], device=c2w.device, dtype=c2w.dtype)
-    rot = c2w[:, :3, :3] * flip  # flip camera y and z axes
-    rot_t = rot.transpose(1, 2)
-    out = torch.eye(4, device=c2w.device, dtype=c2w.dtype).repeat(c2w.shape[0], 1, 1)
-    out[:, :3, :3] = rot_t
-    out[:, :3, 3:4] = -rot_t @ c2w[:, :3, 3:4]
-    return out
 
 
 def downscale_labels(t: Tensor, d: int, height: int, width: int) -> Tensor:
@@ -366,14 +355,7 @@ class PhysGSModel(SplatfactoModel):
     # ------------------------------------------------------------------ Bayesian head
     @torch.no_grad()
     def run_lifting(self, datamanager) -> Tensor:
-        """Lifts the training views' material maps onto the Gaussians (replaces `dirichlet_evidence`).
-
-        Evidence map of a view: confidence-weighted one-hot of its labels (label 0 contributes nothing);
-        `lift_evidence` sums each Gaussian's blending weight times the map over all pixels, and its total
-        blending weight (`lifting_weight`) and its weight on labelled pixels (`labelled_weight`, one more
-        channel of the same pass), so that `labelled_fraction = labelled_weight / lifting_weight` tells
-        Gaussians seen mostly in labelled pixels from those seen mostly in unknown (label 0) pixels.
-        """
+        """Lift the training views' material maps onto the Gaussians (`lifting_pass.lift_material_maps`)."""
         from .lifting_pass import lift_material_maps
 
         return lift_material_maps(self, datamanager)
@@ -393,10 +375,12 @@ class PhysGSModel(SplatfactoModel):
         weights (dominance probabilities) cost a quadrature per Gaussian, too much for every rendered frame.
         """
         ev = self.dirichlet_evidence
-        key = (ev.data_ptr(), ev._version, tuple(ev.shape), ev.device, float(self.alpha0), float(self.lam))
+        weights = self.config.material_weights
+        key = (ev.data_ptr(), ev._version, tuple(ev.shape), ev.device, float(self.alpha0), float(self.lam), weights)
         cached = getattr(self, "_properties_cache", None)
         if cached is None or cached[0] != key:
-            cached = (key, property_fields(self.dirichlet_alpha(), self.material_nig(), self.log_space))
+            fields = property_fields(self.dirichlet_alpha(), self.material_nig(), self.log_space, material_weights=weights)
+            cached = (key, fields)
             self._properties_cache = cached
         return cached[1]
 

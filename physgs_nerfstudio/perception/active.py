@@ -31,9 +31,10 @@ the beliefs are updated and the scores recomputed. The run stops when ``budget``
 (counting those of earlier runs: the store is shared with ``run_perception`` and resumable), when no
 candidate is left, or when the largest score without the exploration term falls below ``stop_uncertainty``.
 
-``ActiveSelector`` is the policy alone (no I/O, used by the benchmark); ``run_active_perception`` wires it to
-the backends, cache, observation store and dataset outputs of :mod:`.pipeline`, so openai / replay /
-simulated all work and observations.jsonl has the same format.
+``ActiveSelector`` is the policy alone (no I/O, used by the benchmark); ``ActiveScheduler`` makes it the
+scheduler of a :class:`~.pipeline.PerceptionRun` (``run_active_perception``), so the backends, cache,
+observation store and dataset outputs are those of the exhaustive run, openai / replay / simulated all work
+and observations.jsonl has the same format.
 """
 
 from __future__ import annotations
@@ -41,11 +42,10 @@ from __future__ import annotations
 import json
 import logging
 import math
-import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -53,7 +53,9 @@ import torch
 from ..bayes import NIG, Moments, nig_posterior
 from ..fusion.maps import MapFusionConfig
 from ..fusion.properties import property_row
-from ..materials import PROPERTY_KEYS, MaterialLibrary, PriorConfig, load_library, log_space_flags
+from ..materials import PROPERTY_KEYS, MaterialLibrary, PriorConfig, log_space_flags
+from .config import PerceptionConfig
+from .pipeline import Outcome, PerceptionResult, PerceptionRun, Query, load_image
 
 logger = logging.getLogger(__name__)
 
@@ -333,11 +335,8 @@ class ActiveSelector:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# I/O: the same backends, cache, store and outputs as run_perception
+# the scheduler of an active PerceptionRun (same backends, cache, store and outputs as run_perception)
 # ---------------------------------------------------------------------------------------------------------
-
-
-from .pipeline import PerceptionConfig, PerceptionResult
 
 
 @dataclass
@@ -352,6 +351,81 @@ class ActiveResult(PerceptionResult):
     final_uncertainty: float = float("nan")
 
 
+class ActiveScheduler:
+    """Batches chosen by :class:`ActiveSelector` (module docstring) for a :class:`~.pipeline.PerceptionRun`.
+
+    State: ``selector`` (the beliefs), ``masks`` (per view, its masks), ``stop`` (why the run ended).
+    """
+
+    def __init__(self, config: ActiveConfig | None = None):
+        self.config = config or ActiveConfig()
+
+    def initialize_state(self, run: PerceptionRun) -> dict[str, Any]:
+        """Segment every view, build the selector and feed it the answers of earlier runs."""
+        masks, stacks, levels, feats = {}, {}, {}, {}
+        for view in run.views:
+            image = load_image(run.root, view)
+            ms = masks[view] = run.masks(view, image)
+            stacks[view] = np.stack([m.segmentation for m in ms]) if ms else np.zeros((0,) + image.shape[:2], bool)
+            levels[view] = [m.level for m in ms]
+            feats[view] = mask_features(image, [m.segmentation for m in ms])
+            run.result.masks += len(ms)
+        run.result.candidates = run.result.masks
+        cfg = run.config
+        selector = ActiveSelector(run.views, stacks, levels, feats, run.library, self.config, cfg.fusion, cfg.prior)
+        by_mask: dict[tuple[str, int], list[dict]] = {}
+        for o in run.store.observations():
+            by_mask.setdefault((str(o["view"]), int(o["mask_id"])), []).append(o)
+        for view, mid in run.store.done():
+            if view in masks:
+                selector.observe(view, mid, by_mask.get((view, mid), []))
+                run.result.resumed_masks += 1
+        return {"selector": selector, "masks": masks, "stop": ""}
+
+    def _stop_reason(self, run: PerceptionRun, selector: ActiveSelector) -> str:
+        budget, floor = self.config.budget, self.config.stop_uncertainty
+        if selector.remaining() == 0:
+            return "every mask answered"
+        if budget is not None and int(selector.done.sum()) >= budget:
+            return f"query budget of {budget} reached"
+        if floor is not None and selector.uncertainty() < floor:
+            return f"uncertainty below {floor}"
+        if not run.budget_left():
+            return "call/cost budget reached"
+        return ""
+
+    def step_batch(self, run: PerceptionRun, state: dict[str, Any]) -> list[Query]:
+        selector: ActiveSelector = state["selector"]
+        state["stop"] = self._stop_reason(run, selector)
+        if state["stop"]:
+            return []
+        n = self.config.batch_size
+        if self.config.budget is not None:
+            n = min(n, self.config.budget - int(selector.done.sum()))
+        picked = selector.select(n)
+        if not picked:
+            state["stop"] = "no candidate left"
+        run.add_to_progress(len(picked))
+        images = {view: load_image(run.root, view) for view in {v for v, _ in picked}}
+        return [run.query(view, mid, state["masks"][view][mid], images[view]) for view, mid in picked]
+
+    def step_answer(self, run: PerceptionRun, state: dict[str, Any], outcome: Outcome) -> None:
+        query, records = outcome
+        if records is None:  # failed, replay miss or over budget: not asked again in this run
+            state["selector"].mark_failed(query.view, query.mask_id)
+            return
+        state["selector"].observe(query.view, query.mask_id, records)
+        run.result.queried.append((query.view, query.mask_id))
+
+    def step_finish(self, run: PerceptionRun, state: dict[str, Any]) -> None:
+        selector: ActiveSelector = state["selector"]
+        result = run.result
+        result.stop_reason = state["stop"]
+        result.answered = int(selector.done.sum())
+        result.final_uncertainty = selector.uncertainty()
+        _write_active_log(run.root, self.config, result, selector)
+
+
 def run_active_perception(
     config: PerceptionConfig,
     active: ActiveConfig | None = None,
@@ -361,182 +435,18 @@ def run_active_perception(
     library: MaterialLibrary | None = None,
     on_commit: Callable | None = None,
 ) -> ActiveResult:
-    """Active-mode perception: segment every view, then query the masks chosen by :class:`ActiveSelector`
+    """Active-mode perception: segment every view, then ask the masks chosen by :class:`ActiveSelector`
     until the budget is spent or the uncertainty is low, committing answers to the same resumable
     observation store as :func:`.pipeline.run_perception`; then fuse and write the dataset outputs like it.
 
     ``config.max_calls`` / ``config.budget`` (USD) still cap uncached calls; ``active.budget`` caps the number
     of answered masks (cache hits and earlier runs included).
     """
-    from .cache import ResponseCache
-    from .pipeline import (
-        _masks_for,
-        _segmenter,
-        budget_left,
-        build_backend,
-        commit_answer,
-        failure_message,
-        finish_run,
-        load_frames,
-        load_image,
-        run_fingerprint,
-        select_views,
-    )
-    from .prompts import PromptConfig, build_request
-    from .store import ObservationStore
-    from .validate import Validator
-    from .vlm import VLMError
-
-    active = active or ActiveConfig()
     if config.prompt != "triplet":
         raise ValueError("active querying chooses masks, so it needs --prompt triplet")
-    t0 = time.time()
-    root = Path(config.data)
-    _, all_frames = load_frames(root)
-    frames = select_views(all_frames, config.max_views)
-    library = library or load_library(config.env, extra_files=config.library_files)
-    cache = ResponseCache(config.cache_dir or root / "perception" / "cache")
-    backend = backend or build_backend(config, library, cache)
-    segmenter = segmenter or _segmenter(config)
-    seg_fp = segmenter.fingerprint()
-    store = ObservationStore(
-        root, run_fingerprint(config, seg_fp, backend, library), overwrite=config.overwrite
-    )
-    validator = Validator(library, config.validation)
-    prompt_cfg = PromptConfig(**{**asdict(config.prompt_options), "kind": config.prompt})
-    result = ActiveResult(
-        root,
-        [f["file_path"] for f in frames],
-        simulated=backend.simulated,
-        backend=backend.name,
-        model=backend.model,
-    )
-
-    views = [f["file_path"] for f in frames]
-    all_masks, stacks, levels, feats = {}, {}, {}, {}
-    for view in views:
-        image = load_image(root, view)
-        ms = _masks_for(root, view, image, segmenter, seg_fp, "triplet")
-        all_masks[view] = ms
-        stacks[view] = (
-            np.stack([m.segmentation for m in ms]) if ms else np.zeros((0,) + image.shape[:2], bool)
-        )
-        levels[view] = [m.level for m in ms]
-        feats[view] = mask_features(image, [m.segmentation for m in ms])
-        result.masks += len(ms)
-    result.candidates = result.masks
-    selector = ActiveSelector(views, stacks, levels, feats, library, active, config.fusion, config.prior)
-    by_mask: dict[tuple[str, int], list[dict]] = {}
-    for o in store.observations():
-        by_mask.setdefault((str(o["view"]), int(o["mask_id"])), []).append(o)
-    for view, mid in store.done():
-        if view in all_masks:
-            selector.observe(view, mid, by_mask.get((view, mid), []))
-            result.resumed_masks += 1
-
-    cost_of = getattr(backend.inner, "cost_usd", None)
-    paid = 0
-
-    def answered() -> int:
-        return int(selector.done.sum())
-
-    def handle(view: str, mid: int, request, response) -> None:
-        done, records = commit_answer(
-            request,
-            response,
-            result=result,
-            validator=validator,
-            backend=backend,
-            store=store,
-            cost_of=cost_of,
-        )
-        selector.observe(view, mid, records)
-        result.queried.append((view, mid))
-        if on_commit is not None:
-            on_commit(done)
-
-    def money_left() -> bool:
-        return budget_left(config, paid, result.cost_usd)
-
-    pool = ThreadPoolExecutor(max_workers=config.max_concurrency, thread_name_prefix="physgs-active")
-    stop = ""
-    try:
-        while True:
-            if selector.remaining() == 0:
-                stop = "every mask answered"
-                break
-            if active.budget is not None and answered() >= active.budget:
-                stop = f"query budget of {active.budget} reached"
-                break
-            if active.stop_uncertainty is not None and selector.uncertainty() < active.stop_uncertainty:
-                stop = f"uncertainty below {active.stop_uncertainty}"
-                break
-            if not money_left():
-                stop = "call/cost budget reached"
-                break
-            n = active.batch_size
-            if active.budget is not None:
-                n = min(n, active.budget - answered())
-            batch = selector.select(n)
-            if not batch:
-                stop = "no candidate left"
-                break
-            in_flight: dict[Future, tuple[str, int, object]] = {}
-            for view, mid in batch:
-                mask = all_masks[view][mid]
-                image = load_image(root, view)
-                request = build_request(
-                    view,
-                    mid,
-                    mask.level,
-                    image,
-                    mask.segmentation,
-                    list(library.names),
-                    library.env,
-                    prompt_cfg,
-                )
-                hit = backend.lookup(request)
-                if hit is not None:
-                    handle(view, mid, request, hit)
-                    continue
-                if backend.replay or not money_left():
-                    if backend.replay:
-                        try:
-                            backend.query(request)
-                        except VLMError as err:
-                            result.failed.append(str(err))
-                    else:
-                        result.skipped_budget += 1
-                    selector.mark_failed(view, mid)
-                    continue
-                paid += 1
-                in_flight[pool.submit(backend.query, request)] = (view, mid, request)
-            while in_flight:
-                finished, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    view, mid, request = in_flight.pop(fut)
-                    try:
-                        response = fut.result()
-                    except Exception as err:  # noqa: BLE001  (a failed query must not lose the other answers)
-                        msg = failure_message(request, err)
-                        result.failed.append(msg)
-                        logger.warning("%s", msg)
-                        selector.mark_failed(view, mid)
-                        continue
-                    handle(view, mid, request, response)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-
-    result.stop_reason = stop
-    result.answered = answered()
-    result.final_uncertainty = selector.uncertainty()
-    finish_run(root, frames, store, library, config, result, seg_fp, t0)
-    _write_active_log(root, active, result, selector)
-    if config.strict and result.failed:
-        raise VLMError(f"{len(result.failed)} requests failed; first: {result.failed[0]}")
-    return result
-
-
+    run = PerceptionRun(config, backend=backend, segmenter=segmenter, library=library, on_commit=on_commit,
+                        result_type=ActiveResult)  # fmt: skip
+    return run.run(ActiveScheduler(active))
 def _write_active_log(
     root: Path, active: ActiveConfig, result: ActiveResult, selector: ActiveSelector
 ) -> None:

@@ -5,7 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from .pipeline import PerceptionConfig, PerceptionResult
+from .config import PerceptionConfig
+from .legacy_flags import HELP as DEPRECATED_HELP
+from .pipeline import PerceptionResult
 
 if TYPE_CHECKING:
     from .active import ActiveConfig
@@ -61,7 +63,11 @@ class PerceiveCommand(PerceptionConfig):
     With ``--active`` only the masks the current beliefs say are most informative are asked (perception.active:
     material entropy, property epistemic variance, unseen views), until ``--query-budget`` masks are answered
     or the best remaining score is below ``--stop-uncertainty``; answers go to the same resumable store, so an
-    exhaustive run afterwards only asks the rest."""
+    exhaustive run afterwards only asks the rest.
+
+    The VLM and the segmenter are subcommands, after the other options:
+    physgs perceive --data D vlm:simulated; physgs perceive --data D vlm:openai --vlm.model gpt-5
+    segmenter:sam --segmenter.checkpoint sam_vit_h.pth."""
 
     active: bool = False
     """Active querying instead of asking every mask of every view."""
@@ -86,12 +92,14 @@ class PerceiveCommand(PerceptionConfig):
         if self.active:
             self.active_config()  # validate the flags before any work
 
+    __doc__ = (__doc__ or "") + "\n\n    " + DEPRECATED_HELP
+
     def run(self) -> PerceptionResult:
         """Run exhaustive or (``active``) active perception; returns the run's result."""
         if self.active:
             from .active import run_active_perception
 
-            return run_active_perception(self, self.active_config())
+            return run_active_perception(self, self.active_config())  # type: ignore[arg-type]
         from .pipeline import run_perception
 
         return run_perception(self)

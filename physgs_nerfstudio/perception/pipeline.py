@@ -2,11 +2,15 @@
 fusion -> material maps in the dataset. Reusable as ``run_perception(config) -> PerceptionResult``
 (``physgs perceive``, ``physgs demo`` and single-image mode call it).
 
-Per frame, in order: segment (masks are saved under ``perception/masks/`` and reused, so mask ids stay
-stable across resumed runs), build one prompt per mask not yet recorded, answer from the cache in the main
-thread when possible, else submit to a thread pool of ``max_concurrency`` workers; answers are validated
-and committed to the store in the main thread as they complete. A killed or failed run can simply be run
-again: done masks are skipped, and answers received before the kill are in the cache.
+One :class:`PerceptionRun` is built per run (dataset, library, cached backend, segmenter, store, validator)
+and answers batches of queries through its single dispatcher :meth:`PerceptionRun.ask` (cache lookup,
+budget, submit to a pool of ``max_concurrency`` workers, failure); answers are validated and committed to
+the store in the main thread as they complete. Which queries are asked, in which order, is the job of a
+scheduler with a small explicit state (``initialize_state``, ``step_batch``, ``step_answer``,
+``step_finish``): :class:`ExhaustiveScheduler` asks every mask of every frame in dataset order;
+``active.ActiveScheduler`` the most informative ones. Masks are saved under ``perception/masks/`` and
+reused, so mask ids stay stable across resumed runs. A killed or failed run can simply be run again: done
+masks are skipped, and answers received before the kill are in the cache.
 """
 
 from __future__ import annotations
@@ -16,102 +20,27 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from concurrent.futures import Future, ThreadPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Protocol
 
 import numpy as np
 
-from ..fusion.maps import MapFusionConfig
-from ..materials import PROPERTY_KEYS, MaterialLibrary, PriorConfig, load_library
+from ..materials import PROPERTY_KEYS, MaterialLibrary, load_library
 from .cache import ResponseCache
+from .config import PerceptionConfig
 from .prompts import SCHEMA_VERSION, PromptConfig, VLMRequest, build_request
-from .segment import (
-    BuiltinSegmenterConfig,
-    Mask,
-    SamSegmenterConfig,
-    Segmenter,
-    load_masks,
-    make_segmenter,
-    save_masks,
-)
-from .simulated import SIMULATED_MODEL, SimulatedBackend, SimulatedConfig
+from .segment import Mask, Segmenter, load_masks, save_masks
 from .store import MaskDone, ObservationStore
-from .validate import Candidate, ValidationConfig, Validator
-from .vlm import CachedBackend, OpenAIBackend, OpenAIConfig, Usage, VLMError, VLMResponse
+from .validate import Candidate, Validator
+from .vlm import CachedBackend, Usage, VLMError, VLMResponse
 
 logger = logging.getLogger(__name__)
 
 MASK_DIR = "perception/masks"
 
-
-@dataclass
-class PerceptionConfig:
-    """Masks -> VLM -> validated observations -> Bayesian fusion -> material maps, for a nerfstudio dataset."""
-
-    data: Path
-    """Nerfstudio dataset directory (with transforms.json)."""
-    segmenter: Literal["builtin", "sam"] = "builtin"
-    """builtin: weight-free SLIC superpixel masks merged by colour (weaker than SAM); sam: segment-anything (pip install -e ".[sam]")."""
-    sam_checkpoint: Path | None = None
-    """SAM checkpoint file (required with --segmenter sam)."""
-    sam_model_type: str = "vit_h"
-    """vit_h | vit_l | vit_b, matching the checkpoint."""
-    vlm: Literal["openai", "replay", "simulated"] = "openai"
-    """openai: any OpenAI-compatible endpoint; replay: cached answers only; simulated: generated scenes only."""
-    model: str = "gpt-5"
-    """Model name sent to the endpoint (and part of the cache key)."""
-    base_url: str = "https://api.openai.com/v1"
-    """OpenAI-compatible endpoint root, e.g. http://localhost:8000/v1 (vLLM) or http://localhost:11434/v1 (Ollama)."""
-    api_key_env: str = "OPENAI_API_KEY"
-    """Name of the environment variable holding the API key ('' for keyless local servers)."""
-    replay_source: Literal["openai", "simulated"] = "openai"
-    """With --vlm replay: which backend filled the cache."""
-    env: str = "indoor"
-    """Material library: indoor | outdoor | path to a library YAML."""
-    library_files: tuple[Path, ...] = ()
-    """Extra library YAML files merged into --env."""
-    max_views: int | None = None
-    """Use at most this many frames (evenly spaced); None: all."""
-    max_concurrency: int = 4
-    """VLM requests in flight at once."""
-    budget: float | None = None
-    """Stop issuing new (uncached) requests once the estimated cost reaches this many USD (needs the
-    --usd-per-1k-* rates); None: no limit. Unqueried masks are done by a later run."""
-    max_calls: int | None = None
-    """At most this many uncached requests in this run; None: no limit."""
-    prompt: Literal["triplet", "baseline"] = "triplet"
-    """triplet: per-mask full | overlay | isolated prompt (PhysGS); baseline: raw image only, one per frame."""
-    cache_dir: Path | None = None
-    """Response cache directory; default <data>/perception/cache."""
-    overwrite: bool = False
-    """Start over even if observations.jsonl exists (old files kept as .bak)."""
-    strict: bool = False
-    """Raise at the end if any request failed (default: report failures and fuse what arrived)."""
-    legend: Literal["observed", "library"] = "observed"
-    """Materials in materials.json: the observed ones, or the whole library."""
-    write_outputs: bool = True
-    """Write materials.json, the per-frame maps and transforms.json entries."""
-    progress: bool = True
-    """Show progress bars."""
-    timeout_s: float = 120.0
-    max_retries: int = 5
-    json_mode: bool = True
-    """Ask for response_format json_object (switched off automatically if the server rejects it)."""
-    usd_per_1k_prompt_tokens: float = 0.0
-    usd_per_1k_completion_tokens: float = 0.0
-    builtin: BuiltinSegmenterConfig = field(default_factory=BuiltinSegmenterConfig)
-    sam: SamSegmenterConfig = field(default_factory=SamSegmenterConfig)
-    prompt_options: PromptConfig = field(default_factory=PromptConfig)
-    simulated: SimulatedConfig = field(default_factory=SimulatedConfig)
-    validation: ValidationConfig = field(default_factory=ValidationConfig)
-    fusion: MapFusionConfig = field(default_factory=MapFusionConfig)
-    prior: PriorConfig = field(default_factory=PriorConfig)
-
-    def __post_init__(self) -> None:
-        if self.max_concurrency < 1:
-            raise ValueError("max_concurrency must be >= 1")
+__all__ = ["PerceptionConfig", "PerceptionResult", "PerceptionRun", "ExhaustiveScheduler", "run_perception"]
 
 
 @dataclass
@@ -179,53 +108,6 @@ def load_image(root: Path, file_path: str) -> np.ndarray:
         return np.asarray(im.convert("RGB"), dtype=np.uint8)
 
 
-def build_backend(config: PerceptionConfig, library: MaterialLibrary, cache: ResponseCache) -> CachedBackend:
-    if config.vlm == "openai":
-        inner = OpenAIBackend(_openai_config(config))
-        return CachedBackend(inner, cache)
-    if config.vlm == "simulated":
-        return CachedBackend(SimulatedBackend(config.data, library, config.simulated), cache)
-    if config.vlm == "replay":
-        if config.replay_source == "simulated":
-            return CachedBackend(
-                None,
-                cache,
-                name="simulated",
-                model=SIMULATED_MODEL,
-                variant=config.simulated.fingerprint(),
-                simulated=True,
-            )
-        return CachedBackend(None, cache, name="openai", model=config.model, variant="", simulated=False)
-    raise ValueError(f"unknown VLM backend {config.vlm!r}; choose openai, replay or simulated")
-
-
-def _openai_config(config: PerceptionConfig) -> OpenAIConfig:
-    return OpenAIConfig(
-        base_url=config.base_url,
-        model=config.model,
-        api_key_env=config.api_key_env,
-        timeout_s=config.timeout_s,
-        max_retries=config.max_retries,
-        max_concurrency=config.max_concurrency,
-        json_mode=config.json_mode,
-        usd_per_1k_prompt_tokens=config.usd_per_1k_prompt_tokens,
-        usd_per_1k_completion_tokens=config.usd_per_1k_completion_tokens,
-    )
-
-
-def _segmenter(config: PerceptionConfig) -> Segmenter:
-    """The segmenter of ``config``'s ``segmenter``, ``builtin``, ``sam``, ``sam_checkpoint`` and
-    ``sam_model_type`` (the only fields read, so ``SingleImageConfig`` works too)."""
-    sam = config.sam
-    if config.sam_checkpoint is not None or config.sam_model_type != sam.model_type:
-        from dataclasses import replace
-
-        sam = replace(
-            sam, checkpoint=config.sam_checkpoint or sam.checkpoint, model_type=config.sam_model_type
-        )
-    return make_segmenter(config.segmenter, builtin=config.builtin, sam=sam)
-
-
 def _jsonable(obj):
     if is_dataclass(obj):
         return {k: _jsonable(v) for k, v in asdict(obj).items()}
@@ -286,47 +168,6 @@ def observation_records(
     return out
 
 
-def commit_answer(
-    request: VLMRequest,
-    response: VLMResponse,
-    *,
-    result: PerceptionResult,
-    validator: Validator,
-    backend: CachedBackend,
-    store: ObservationStore,
-    cost_of: Callable[[Usage], float] | None,
-) -> tuple[MaskDone, list[dict]]:
-    """Account one answer in ``result`` (cache hit, or uncached call with its usage and cost), validate it
-    and commit its observation records to ``store``; returns the commit and the records."""
-    if response.cached:
-        result.cache_hits += 1
-    else:
-        result.calls += 1
-        result.usage = Usage(
-            result.usage.prompt_tokens + response.usage.prompt_tokens,
-            result.usage.completion_tokens + response.usage.completion_tokens,
-            result.usage.total_tokens + response.usage.total_tokens,
-        )
-        if cost_of is not None:
-            result.cost_usd += float(cost_of(response.usage))
-    checked = validator(response.text, context=request.describe())
-    result.reasons += len(checked.reasons)
-    result.dropped_candidates += sum("dropped" in r for r in checked.reasons)
-    records = observation_records(request, checked.candidates, backend, response)
-    done = MaskDone(
-        request.view,
-        request.mask_id,
-        request.level,
-        len(records),
-        checked.reasons,
-        response.cached,
-        response.usage.to_dict(),
-    )
-    store.commit(done, records)
-    result.new_observations += len(records)
-    return done, records
-
-
 def failure_message(request: VLMRequest, err: Exception) -> str:
     """What ``result.failed`` records for a query that raised: a VLMError's own message (it names the
     request), anything else (a backend bug) prefixed with the request."""
@@ -369,175 +210,20 @@ class _Progress:
     def add(self, description: str, total: int | None) -> int | None:
         return self._p.add_task(description, total=total) if self._p is not None else None
 
-    def advance(self, task, n: int = 1, total: int | None = None) -> None:
-        if self._p is not None and task is not None:
-            if total is not None:
-                self._p.update(task, total=total)
+    def advance(self, task, n: int = 1) -> None:
+        if self._p is not None and task is not None and n:
             self._p.advance(task, n)
 
-    def set_total(self, task, total: int) -> None:
+    def grow(self, task, n: int) -> None:
+        """``n`` more steps in the task's total."""
         if self._p is not None and task is not None:
-            self._p.update(task, total=total)
+            total = next(t.total for t in self._p.tasks if t.id == task) or 0
+            self._p.update(task, total=total + n)
 
 
 # ---------------------------------------------------------------------------------------------------------
-# main loop
+# the run
 # ---------------------------------------------------------------------------------------------------------
-
-
-def run_perception(
-    config: PerceptionConfig,
-    *,
-    backend: CachedBackend | None = None,
-    segmenter: Segmenter | None = None,
-    library: MaterialLibrary | None = None,
-    on_commit: Callable[[MaskDone], None] | None = None,
-) -> PerceptionResult:
-    """Run perception on ``config.data`` and (unless ``write_outputs=False``) fuse and write the outputs.
-
-    ``backend``/``segmenter``/``library`` override what the config would build (tests, demos);
-    ``on_commit`` is called after each mask is recorded (progress hooks; an exception stops the run, which a
-    later call resumes).
-    """
-    t0 = time.time()
-    root = Path(config.data)
-    _, all_frames = load_frames(root)
-    frames = select_views(all_frames, config.max_views)
-    library = library or load_library(config.env, extra_files=config.library_files)
-    cache = ResponseCache(config.cache_dir or root / "perception" / "cache")
-    backend = backend or build_backend(config, library, cache)
-    if config.prompt == "baseline":
-        seg_fp = "baseline:full-image"
-    else:
-        segmenter = segmenter or _segmenter(config)
-        seg_fp = segmenter.fingerprint()
-    store = ObservationStore(
-        root, run_fingerprint(config, seg_fp, backend, library), overwrite=config.overwrite
-    )
-    validator = Validator(library, config.validation)
-    prompt_cfg = PromptConfig(**{**asdict(config.prompt_options), "kind": config.prompt})
-    result = PerceptionResult(
-        root,
-        [f["file_path"] for f in frames],
-        simulated=backend.simulated,
-        backend=backend.name,
-        model=backend.model,
-    )
-    result.resumed_masks = 0
-    inner = backend.inner
-    cost_of = getattr(inner, "cost_usd", None)
-    paid_submitted = 0
-
-    def handle(request: VLMRequest, response: VLMResponse) -> None:
-        done, _ = commit_answer(
-            request,
-            response,
-            result=result,
-            validator=validator,
-            backend=backend,
-            store=store,
-            cost_of=cost_of,
-        )
-        if on_commit is not None:
-            on_commit(done)
-
-    pool = ThreadPoolExecutor(max_workers=config.max_concurrency, thread_name_prefix="physgs-vlm")
-    in_flight: dict[Future, VLMRequest] = {}
-
-    def drain(limit: int) -> None:
-        while len(in_flight) > limit:
-            finished, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
-            for fut in finished:
-                request = in_flight.pop(fut)
-                try:
-                    response = fut.result()
-                except Exception as err:  # noqa: BLE001  (a backend bug must not lose the other answers)
-                    msg = failure_message(request, err)
-                    result.failed.append(msg)
-                    logger.warning("%s", msg)
-                    bar.advance(task_q)
-                    continue
-                handle(request, response)
-                bar.advance(task_q)
-
-    names_for_prompt = list(library.names)
-    total_masks = 0
-    bar = _Progress(config.progress)
-    try:
-        with bar:
-            task_v = bar.add("frames (segment + prompt)", len(frames))
-            task_q = bar.add("VLM answers", 0)
-            for frame in frames:
-                view = frame["file_path"]
-                image = load_image(root, view)
-                masks = _masks_for(root, view, image, segmenter, seg_fp, config.prompt)
-                result.masks += len(masks)
-                total_masks += len(masks)
-                bar.set_total(task_q, total_masks)
-                for mask_id, mask in enumerate(masks):
-                    if store.is_done(view, mask_id):
-                        result.resumed_masks += 1
-                        bar.advance(task_q)
-                        continue
-                    request = build_request(
-                        view,
-                        mask_id,
-                        mask.level,
-                        image,
-                        mask.segmentation,
-                        names_for_prompt,
-                        library.env,
-                        prompt_cfg,
-                    )
-                    hit = backend.lookup(request)
-                    if hit is not None:
-                        handle(request, hit)
-                        bar.advance(task_q)
-                        continue
-                    if backend.replay:
-                        try:
-                            backend.query(request)  # raises ReplayMiss naming the request
-                        except VLMError as err:
-                            result.failed.append(str(err))
-                            logger.warning("%s", err)
-                        bar.advance(task_q)
-                        continue
-                    if not budget_left(config, paid_submitted, result.cost_usd):
-                        result.skipped_budget += 1
-                        bar.advance(task_q)
-                        continue
-                    paid_submitted += 1
-                    in_flight[pool.submit(backend.query, request)] = request
-                    drain(2 * config.max_concurrency)
-                bar.advance(task_v)
-            drain(0)
-    finally:
-        # let requests already sent finish (their answers land in the cache), drop the queued ones
-        pool.shutdown(wait=True, cancel_futures=True)
-
-    finish_run(root, frames, store, library, config, result, seg_fp, t0)
-    if config.strict and result.failed:
-        raise VLMError(f"{len(result.failed)} requests failed; first: {result.failed[0]}")
-    return result
-
-
-def _masks_for(
-    root: Path, view: str, image: np.ndarray, segmenter: Segmenter | None, seg_fp: str, prompt: str
-) -> list[Mask]:
-    h, w = image.shape[:2]
-    if prompt == "baseline":
-        full = np.ones((h, w), bool)
-        return [Mask(full, h * w, 1.0, 1.0, "whole")]
-    from ..fusion.writer import frame_names
-
-    path = root / MASK_DIR / f"{frame_names([view])[view]}__{_short_hash(view)}.npz"
-    masks = load_masks(path, seg_fp)
-    if masks is not None and (not masks or masks[0].segmentation.shape == (h, w)):
-        return masks
-    assert segmenter is not None
-    masks = segmenter.segment(image)
-    save_masks(path, masks, (h, w), seg_fp)
-    return masks
 
 
 def _short_hash(text: str) -> str:
@@ -552,105 +238,266 @@ def mask_path(root: Path, view: str) -> Path:
     return Path(root) / MASK_DIR / f"{frame_names([view])[view]}__{_short_hash(view)}.npz"
 
 
-def write_dataset_outputs(
-    root: Path,
-    frames: Sequence[dict],
-    observations: Sequence[dict],
-    library: MaterialLibrary,
-    config: PerceptionConfig,
-    result: PerceptionResult,
-    seg_fp: str,
-) -> None:
-    """Fuse observations into materials.json and per-frame maps; update transforms.json."""
-    from ..fusion.maps import fuse_view
-    from ..fusion.properties import fuse_properties, legend_names
-    from ..fusion.writer import (
-        frame_names,
-        legend_colors,
-        materials_document,
-        update_transforms,
-        write_legend,
-        write_materials_json,
-        write_view_maps,
-    )
+def whole_image_mask(h: int, w: int) -> Mask:
+    """The one mask of the baseline prompt."""
+    return Mask(np.ones((h, w), bool), h * w, 1.0, 1.0, "whole")
 
-    names = legend_names(observations, library, config.legend)
-    post = fuse_properties(observations, library, names, config.prior)
-    result.materials = names
-    colors = [library[n].color for n in names]
-    palette = legend_colors(colors)
-    index = {n: i for i, n in enumerate(names)}
-    by_view: dict[str, list[dict]] = {}
-    for o in observations:
-        by_view.setdefault(o["view"], []).append(o)
-    out_names = frame_names([f["file_path"] for f in frames])
-    paths: dict[str, tuple[str, str]] = {}
-    for frame in frames:
-        view = frame["file_path"]
-        if config.prompt == "baseline":
-            image = load_image(root, view)
-            masks = _masks_for(root, view, image, None, seg_fp, "baseline")
-        else:
-            masks = load_masks(mask_path(root, view), seg_fp)
-            if masks is None:
-                continue  # never segmented (e.g. the run stopped before this frame)
-            image = load_image(root, view)
-        recs = [
-            r for r in by_view.get(view, []) if r["material"] in index and 0 < float(r["confidence"]) <= 1
-        ]
-        stack = np.stack([m.segmentation for m in masks]) if masks else np.zeros((0,) + image.shape[:2], bool)
-        maps = fuse_view(
-            stack,
-            [m.level for m in masks],
-            [int(r["mask_id"]) for r in recs],
-            [index[r["material"]] for r in recs],
-            [float(r["confidence"]) for r in recs],
-            len(names),
-            config.fusion,
+
+@dataclass
+class Query:
+    """One question: the (view, mask) it is about and its prompt."""
+
+    view: str
+    mask_id: int
+    request: VLMRequest
+
+
+Outcome = tuple[Query, "list[dict] | None"]
+"""A query and its committed observation records (possibly none), or None when it got no answer (the
+request failed, replay had no cached answer, or the budget was spent)."""
+
+
+class Scheduler(Protocol):
+    """Which queries a :class:`PerceptionRun` asks, in which order (cf. gsplat's strategies)."""
+
+    def initialize_state(self, run: PerceptionRun) -> dict[str, Any]: ...
+
+    def step_batch(self, run: PerceptionRun, state: dict[str, Any]) -> list[Query]:
+        """The next batch; an empty one ends the run."""
+        ...
+
+    def step_answer(self, run: PerceptionRun, state: dict[str, Any], outcome: Outcome) -> None: ...
+
+    def step_finish(self, run: PerceptionRun, state: dict[str, Any]) -> None: ...
+
+
+class PerceptionRun:
+    """Everything one perception run needs, built once from its config (module docstring).
+
+    ``backend`` (a cache-wrapped backend, e.g. :class:`~.vlm.CachedBackend`), ``segmenter`` and ``library``
+    override what the config would build (tests, demos); ``on_commit`` is called after each mask is recorded
+    (progress hooks; an exception stops the run, which a later run resumes).
+    """
+
+    def __init__(
+        self,
+        config: PerceptionConfig,
+        *,
+        backend: CachedBackend | None = None,
+        segmenter: Segmenter | None = None,
+        library: MaterialLibrary | None = None,
+        on_commit: Callable[[MaskDone], None] | None = None,
+        result_type: type[PerceptionResult] | None = None,
+    ):
+        self.t0 = time.time()
+        self.config = config
+        self.root = root = Path(config.data)
+        self.frames = select_views(load_frames(root)[1], config.max_views)
+        self.views = [f["file_path"] for f in self.frames]
+        self.library = library or load_library(config.env, extra_files=config.library_files)
+        if backend is None:
+            cache = ResponseCache(config.cache_dir or root / "perception" / "cache")
+            backend = CachedBackend(config.vlm.setup(root, self.library), cache)
+        self.backend = backend
+        self.segmenter = None
+        self.seg_fp = "baseline:full-image"
+        if config.prompt != "baseline":
+            self.segmenter = segmenter or config.segmenter.setup()
+            self.seg_fp = self.segmenter.fingerprint()
+        fingerprint = run_fingerprint(config, self.seg_fp, backend, self.library)
+        self.store = ObservationStore(root, fingerprint, overwrite=config.overwrite)
+        self.validator = Validator(self.library, config.validation)
+        self.prompt_cfg = PromptConfig(**{**asdict(config.prompt_options), "kind": config.prompt})
+        self.result = (result_type or PerceptionResult)(
+            root, list(self.views), simulated=backend.simulated, backend=backend.name, model=backend.model
         )
-        paths[view] = write_view_maps(root, out_names[view], maps, palette, image)
-    source = {
-        "backend": result.backend,
-        "model": result.model,
-        "segmenter": config.segmenter if config.prompt == "triplet" else "none (baseline prompt)",
-        "prompt": config.prompt,
-        "observations": len(observations),
-    }
-    doc = materials_document(
-        post,
-        library,
-        result.simulated or any(o.get("simulated") for o in observations),
-        config.fusion,
-        source,
-    )
-    result.materials_json = write_materials_json(root, doc)
-    write_legend(root, names, colors)
-    if paths:
-        update_transforms(root, paths)
-    result.label_paths = {v: p[0] for v, p in paths.items()}
-    result.confidence_paths = {v: p[1] for v, p in paths.items()}
+        self.on_commit = on_commit
+        self.paid = 0
+        """Uncached requests sent in this run."""
+        self.pool: ThreadPoolExecutor | None = None
+        self.bar = _Progress(config.progress)
+        self._task = None
+
+    # -- pieces -----------------------------------------------------------------------------------------
+    def masks(self, view: str, image: np.ndarray) -> list[Mask]:
+        """The view's masks: the saved ones when they match the segmenter, else segmented now and saved."""
+        h, w = image.shape[:2]
+        if self.segmenter is None:
+            return [whole_image_mask(h, w)]
+        path = mask_path(self.root, view)
+        masks = load_masks(path, self.seg_fp)
+        if masks is not None and (not masks or masks[0].segmentation.shape == (h, w)):
+            return masks
+        masks = self.segmenter.segment(image)
+        save_masks(path, masks, (h, w), self.seg_fp)
+        return masks
+
+    def query(self, view: str, mask_id: int, mask: Mask, image: np.ndarray) -> Query:
+        request = build_request(
+            view, mask_id, mask.level, image, mask.segmentation, list(self.library.names), self.library.env,
+            self.prompt_cfg,
+        )  # fmt: skip
+        return Query(view, mask_id, request)
+
+    def add_to_progress(self, queries: int, resumed: int = 0) -> None:
+        """Tell the progress bar about ``queries`` more masks, ``resumed`` of them already done."""
+        self.bar.grow(self._task, queries)
+        self.bar.advance(self._task, resumed)
+
+    def budget_left(self) -> bool:
+        return budget_left(self.config, self.paid, self.result.cost_usd)
+
+    # -- the dispatcher ---------------------------------------------------------------------------------
+    def ask(self, batch: Sequence[Query]) -> list[Outcome]:
+        """Answer a batch: from the cache where possible, else (budget allowing) by the backend, concurrently;
+        every answer is validated and committed in this thread. A query the backend fails on (a replay miss
+        included) is recorded in ``result.failed``; one over the budget in ``result.skipped_budget``."""
+        assert self.pool is not None, "PerceptionRun.ask runs inside PerceptionRun.run"
+        outcomes: list[Outcome] = []
+        in_flight: dict[Future, Query] = {}
+        for q in batch:
+            hit = self.backend.lookup(q.request)
+            if hit is not None:
+                outcomes.append((q, self._commit(q, hit)))
+            elif not self.budget_left():
+                self.result.skipped_budget += 1
+                outcomes.append((q, None))
+            else:
+                self.paid += 1
+                in_flight[self.pool.submit(self.backend.query, q.request)] = q
+        for fut in as_completed(in_flight):
+            q = in_flight[fut]
+            try:
+                response = fut.result()
+            except Exception as err:  # noqa: BLE001  (a failed query must not lose the other answers)
+                msg = failure_message(q.request, err)
+                self.result.failed.append(msg)
+                logger.warning("%s", msg)
+                outcomes.append((q, None))
+                continue
+            outcomes.append((q, self._commit(q, response)))
+        self.bar.advance(self._task, len(batch))
+        return outcomes
+
+    def _commit(self, q: Query, response: VLMResponse) -> list[dict]:
+        """Account one answer in ``result``, validate it and commit its records to the store."""
+        result = self.result
+        if response.cached:
+            result.cache_hits += 1
+        else:
+            result.calls += 1
+            u, r = result.usage, response.usage
+            result.usage = Usage(u.prompt_tokens + r.prompt_tokens, u.completion_tokens + r.completion_tokens,
+                                 u.total_tokens + r.total_tokens)  # fmt: skip
+            result.cost_usd += float(self.backend.cost_usd(r))
+        checked = self.validator(response.text, context=q.request.describe())
+        result.reasons += len(checked.reasons)
+        result.dropped_candidates += sum("dropped" in r for r in checked.reasons)
+        records = observation_records(q.request, checked.candidates, self.backend, response)
+        done = MaskDone(q.view, q.mask_id, q.request.level, len(records), checked.reasons, response.cached,
+                        response.usage.to_dict())  # fmt: skip
+        self.store.commit(done, records)
+        result.new_observations += len(records)
+        if self.on_commit is not None:
+            self.on_commit(done)
+        return records
+
+    # -- the loop ---------------------------------------------------------------------------------------
+    def run(self, scheduler: Scheduler) -> PerceptionResult:
+        """Ask the scheduler's batches until it gives none, then fuse and write the outputs."""
+        self.pool = ThreadPoolExecutor(max_workers=self.config.max_concurrency, thread_name_prefix="physgs-vlm")
+        try:
+            with self.bar:
+                self._task = self.bar.add("VLM answers", 0)
+                state = scheduler.initialize_state(self)
+                while batch := scheduler.step_batch(self, state):
+                    for outcome in self.ask(batch):
+                        scheduler.step_answer(self, state, outcome)
+        finally:
+            # let requests already sent finish (their answers land in the cache), drop the queued ones
+            self.pool.shutdown(wait=True, cancel_futures=True)
+        self.finish()
+        scheduler.step_finish(self, state)
+        if self.config.strict and self.result.failed:
+            raise VLMError(f"{len(self.result.failed)} requests failed; first: {self.result.failed[0]}")
+        return self.result
+
+    def view_masks(self, view: str) -> tuple[np.ndarray, np.ndarray, list[str]] | None:
+        """For fusion: the view's image, mask stack and levels (None if it was never segmented)."""
+        if self.segmenter is None:
+            image = load_image(self.root, view)
+            masks = [whole_image_mask(*image.shape[:2])]
+        else:
+            masks = load_masks(mask_path(self.root, view), self.seg_fp)
+            if masks is None:
+                return None
+            image = load_image(self.root, view)
+        stack = np.stack([m.segmentation for m in masks]) if masks else np.zeros((0,) + image.shape[:2], bool)
+        return image, stack, [m.level for m in masks]
+
+    def finish(self) -> None:
+        """Count the stored observations into ``result``, fuse and write the dataset outputs
+        (``config.write_outputs``), and write the run summary."""
+        from ..fusion.dataset import write_dataset_outputs
+
+        config, result = self.config, self.result
+        observations = self.store.observations()
+        result.observations = len(observations)
+        for o in observations:
+            result.material_counts[o["material"]] = result.material_counts.get(o["material"], 0) + 1
+        if config.write_outputs:
+            segmenter = config.segmenter.name if self.segmenter is not None else "none (baseline prompt)"
+            source = {"backend": result.backend, "model": result.model, "segmenter": segmenter,
+                      "prompt": config.prompt}  # fmt: skip
+            out = write_dataset_outputs(
+                self.root, self.views, observations, self.library, self.view_masks, legend=config.legend,
+                fusion=config.fusion, prior=config.prior, source=source, simulated=result.simulated,
+            )  # fmt: skip
+            result.materials, result.materials_json = out.materials, out.materials_json
+            result.label_paths, result.confidence_paths = out.label_paths, out.confidence_paths
+        result.seconds = time.time() - self.t0
+        _write_run_summary(self.root, config, result)
 
 
-def finish_run(
-    root: Path,
-    frames: Sequence[dict],
-    store: ObservationStore,
-    library: MaterialLibrary,
+class ExhaustiveScheduler:
+    """Every mask of every frame, frame by frame in dataset order (one batch per frame)."""
+
+    def initialize_state(self, run: PerceptionRun) -> dict[str, Any]:
+        return {"next_view": 0}
+
+    def step_batch(self, run: PerceptionRun, state: dict[str, Any]) -> list[Query]:
+        while state["next_view"] < len(run.views):
+            view = run.views[state["next_view"]]
+            state["next_view"] += 1
+            image = load_image(run.root, view)
+            masks = run.masks(view, image)
+            run.result.masks += len(masks)
+            batch = [run.query(view, i, m, image) for i, m in enumerate(masks) if not run.store.is_done(view, i)]
+            run.result.resumed_masks += len(masks) - len(batch)
+            run.add_to_progress(len(masks), resumed=len(masks) - len(batch))
+            if batch:
+                return batch
+        return []
+
+    def step_answer(self, run: PerceptionRun, state: dict[str, Any], outcome: Outcome) -> None:
+        pass
+
+    def step_finish(self, run: PerceptionRun, state: dict[str, Any]) -> None:
+        pass
+
+
+def run_perception(
     config: PerceptionConfig,
-    result: PerceptionResult,
-    seg_fp: str,
-    t0: float,
-) -> None:
-    """After the queries: count the stored observations into ``result``, fuse and write the dataset outputs
-    (``config.write_outputs``), and write the run summary."""
-    observations = store.observations()
-    result.observations = len(observations)
-    for o in observations:
-        result.material_counts[o["material"]] = result.material_counts.get(o["material"], 0) + 1
-    if config.write_outputs:
-        write_dataset_outputs(root, frames, observations, library, config, result, seg_fp)
-    result.seconds = time.time() - t0
-    _write_run_summary(root, config, result)
+    *,
+    backend: CachedBackend | None = None,
+    segmenter: Segmenter | None = None,
+    library: MaterialLibrary | None = None,
+    on_commit: Callable[[MaskDone], None] | None = None,
+) -> PerceptionResult:
+    """Run perception on every mask of ``config.data`` and (unless ``write_outputs=False``) fuse and write
+    the outputs (:class:`PerceptionRun` documents the overrides)."""
+    run = PerceptionRun(config, backend=backend, segmenter=segmenter, library=library, on_commit=on_commit)
+    return run.run(ExhaustiveScheduler())
 
 
 def _write_run_summary(root: Path, config: PerceptionConfig, result: PerceptionResult) -> None:

@@ -1,12 +1,14 @@
 """Part masks at three granularities (paper sec. 3.4 "Semantic Segmentation").
 
-One protocol, :class:`Segmenter`: ``segment(image: uint8 [H, W, 3]) -> list[Mask]``. Two implementations:
+One protocol, :class:`Segmenter`: ``segment(image: uint8 [H, W, 3]) -> list[Mask]``. This module holds the
+protocol, the mask type, the shared mask operations and mask persistence; the two implementations live in
+their own modules and are built by their configs' ``setup()`` (the one segmenter factory):
 
-* ``sam`` (:class:`SamSegmenter`): segment-anything's automatic mask generator from a local checkpoint
+* ``sam`` (:class:`.segment_sam.SamSegmenter`): segment-anything's automatic mask generator from a local checkpoint
   (optional extra: ``pip install -e ".[sam]"``). SAM's own predicted IoU and stability scores filter the
   masks; levels come from the containment hierarchy (a mask inside no other mask is "whole", a mask inside
   a mask that is itself contained is "subpart", the rest "part").
-* ``builtin`` (:class:`BuiltinSegmenter`): no weights. SLIC superpixels merged on their region adjacency
+* ``builtin`` (:class:`.segment_builtin.BuiltinSegmenter`): no weights. SLIC superpixels merged on their region adjacency
   graph by mean colour (scikit-image) at a coarse, a medium and a fine threshold give the "whole", "part"
   and "subpart" levels; regions dominating the image border are treated as background. Its ``predicted_iou`` and ``stability`` are HEURISTICS with
   the same meaning of "higher is better" but not SAM's learned quantities (see the class docstring).
@@ -22,13 +24,9 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Protocol
+from typing import Literal, Protocol
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from .segment_builtin import BuiltinSegmenterConfig
-    from .segment_sam import SamSegmenterConfig
 
 logger = logging.getLogger(__name__)
 
@@ -37,9 +35,9 @@ LEVELS: tuple[str, ...] = ("whole", "part", "subpart")
 
 SAM_INSTALL_HINT = (
     'The "sam" segmenter needs the optional package segment-anything: pip install -e ".[sam]" '
-    "(or pip install segment-anything), then pass --sam-checkpoint PATH to a SAM checkpoint "
-    "(e.g. sam_vit_h_4b8939.pth) and --sam-model-type vit_h|vit_l|vit_b. "
-    "Use --segmenter builtin to run without SAM."
+    "(or pip install segment-anything), then choose segmenter:sam --segmenter.checkpoint PATH to a SAM "
+    "checkpoint (e.g. sam_vit_h_4b8939.pth) and --segmenter.model-type vit_h|vit_l|vit_b. "
+    "Use segmenter:builtin (the default) to run without SAM."
 )
 
 
@@ -167,47 +165,6 @@ def assign_levels_by_containment(stack: np.ndarray, contain: float = 0.9) -> lis
 # implementations (in segment_builtin.py / segment_sam.py; re-exported lazily here to avoid an import cycle,
 # since those modules import the shared helpers above)
 # ---------------------------------------------------------------------------------------------------------
-
-_REEXPORTS = {
-    "BuiltinSegmenter": "segment_builtin",
-    "BuiltinSegmenterConfig": "segment_builtin",
-    "SamSegmenter": "segment_sam",
-    "SamSegmenterConfig": "segment_sam",
-}
-
-
-def __getattr__(name: str):
-    mod = _REEXPORTS.get(name)
-    if mod is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(f".{mod}", __package__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_REEXPORTS))
-
-
-def make_segmenter(
-    kind: str,
-    builtin: BuiltinSegmenterConfig | None = None,
-    sam: SamSegmenterConfig | None = None,
-) -> Segmenter:
-    if kind == "builtin":
-        from .segment_builtin import BuiltinSegmenter
-
-        return BuiltinSegmenter(builtin)
-    if kind == "sam":
-        from .segment_sam import SamSegmenter
-
-        seg = SamSegmenter(sam)
-        seg._load()  # fail early with the install/checkpoint hint
-        return seg
-    raise ValueError(f"unknown segmenter {kind!r}; choose 'builtin' or 'sam'")
-
 
 # ---------------------------------------------------------------------------------------------------------
 # persistence (so fusion and resumed runs use exactly the masks the VLM saw)

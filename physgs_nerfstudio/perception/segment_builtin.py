@@ -1,11 +1,12 @@
 """Built-in weight-free segmenter: SLIC superpixels merged hierarchically by colour (scikit-image).
 
-Moved verbatim from :mod:`physgs_nerfstudio.perception.segment`, which re-exports
-:class:`BuiltinSegmenter` and :class:`BuiltinSegmenterConfig` (see its module docstring).
+Built by ``BuiltinSegmenterConfig.setup()``; the protocol, the mask type and the shared mask operations are in
+:mod:`.segment`.
 """
 
 from __future__ import annotations
 
+from typing import ClassVar
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +21,8 @@ from .segment import LEVELS, Mask, check_image, deduplicate, sort_masks
 @dataclass
 class BuiltinSegmenterConfig:
     """SLIC superpixels merged hierarchically by mean Lab colour (scikit-image), no learned weights."""
+
+    name: ClassVar[str] = "builtin"
 
     work_size: int = 512
     """Images are segmented at this long side (downscaled, never upscaled); masks are upsampled back."""
@@ -59,6 +62,10 @@ class BuiltinSegmenterConfig:
     """Levels to produce."""
     seed: int = 0
     """(SLIC is deterministic; kept for future randomised variants.)"""
+
+    def setup(self) -> BuiltinSegmenter:
+        """The segmenter of this config."""
+        return BuiltinSegmenter(self)
 
 
 def _lab(image: np.ndarray) -> np.ndarray:

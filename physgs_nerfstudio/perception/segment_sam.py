@@ -1,11 +1,12 @@
 """SAM segmenter: segment-anything's automatic mask generator from a local checkpoint (optional extra).
 
-Moved verbatim from :mod:`physgs_nerfstudio.perception.segment`, which re-exports
-:class:`SamSegmenter` and :class:`SamSegmenterConfig` (see its module docstring).
+Built by ``SamSegmenterConfig.setup()``; the protocol, the mask type and the shared mask operations are in
+:mod:`.segment`.
 """
 
 from __future__ import annotations
 
+from typing import ClassVar
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,8 +31,10 @@ from .segment import (
 class SamSegmenterConfig:
     """segment-anything automatic mask generation from a local checkpoint."""
 
+    name: ClassVar[str] = "sam"
+
     checkpoint: Path | None = None
-    """Path to a SAM checkpoint (.pth). Required for --segmenter sam."""
+    """Path to a SAM checkpoint (.pth); required (segmenter:sam --segmenter.checkpoint PATH)."""
     model_type: str = "vit_h"
     """vit_h | vit_l | vit_b (must match the checkpoint)."""
     device: str = "auto"
@@ -50,6 +53,13 @@ class SamSegmenterConfig:
     levels: tuple[str, ...] = LEVELS
     generator_kwargs: dict = field(default_factory=dict)
     """Extra keyword arguments for SamAutomaticMaskGenerator (e.g. crop_n_layers)."""
+
+    def setup(self) -> SamSegmenter:
+        """The segmenter of this config; loads the checkpoint now, so a missing package or file fails before
+        any work (with the install / checkpoint hint)."""
+        seg = SamSegmenter(self)
+        seg._load()
+        return seg
 
 
 class SamSegmenter:

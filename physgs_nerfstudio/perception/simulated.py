@@ -20,8 +20,11 @@ so the same request always gets the same answer:
    centre is the TRUE value used to generate the scene for the truth's candidate (from the ground-truth
    part that holds most of the mask's truth-material pixels) and the library's typical value for the
    others. Hardness is answered on the material's quoted Shore scale (noise applied to that reading,
-   clipped to [0, 100]); thickness_m is the part's true wall thickness for shells (null for solids) and the
-   library's for other candidates.
+   clipped to [0, 100]).
+5. structure: one judgment per mask, shared by its candidates: the part is called hollow when the ground-truth
+   part is a shell, flipped with probability ``p_structure_error``. A hollow answer gives ``thickness_m`` =
+   the part's true wall thickness (truth candidate) or the candidate material's library thickness
+   (``default_thickness_m`` without one), times exp(``thickness_sigma`` * N(0, 1)); a solid answer gives null.
 """
 
 from __future__ import annotations
@@ -62,7 +65,18 @@ class SimulatedConfig:
     """Log-normal noise sigma per property."""
     background_max_fraction: float = 0.5
     """Masks with more background than this get an empty answer."""
+    p_structure_error: float = 0.1
+    """Probability that the answer calls a solid part hollow or a hollow part solid (one judgment per mask,
+    shared by its candidates)."""
+    thickness_sigma: float = 0.25
+    """Log-normal noise sigma of the answered wall thickness."""
+    default_thickness_m: float = 0.003
+    """Thickness answered for a part called hollow whose candidate material has none in the library."""
     seed: int = 0
+
+    def setup(self, data: Path, library: MaterialLibrary) -> SimulatedBackend:
+        """The simulated VLM answering from the generated scene at ``data`` (its ground truth)."""
+        return SimulatedBackend(data, library, self)
 
     def fingerprint(self) -> str:
         return json.dumps(
@@ -73,8 +87,11 @@ class SimulatedConfig:
                 "concentration": self.concentration,
                 "sigma": dict(sorted(self.sigma.items())),
                 "background_max_fraction": self.background_max_fraction,
+                "p_structure_error": self.p_structure_error,
+                "thickness_sigma": self.thickness_sigma,
+                "default_thickness_m": self.default_thickness_m,
                 "seed": self.seed,
-                "model": 1,
+                "model": 2,
             },
             sort_keys=True,
         )
@@ -195,6 +212,9 @@ class SimulatedBackend:
         self.variant = self.config.fingerprint()
         self.calls = 0
 
+    def cost_usd(self, usage: Usage) -> float:
+        return 0.0
+
     def _truth_of(self, request: VLMRequest) -> tuple[str | None, dict | None]:
         if request.mask is None:
             raise VLMError(f"simulated VLM: {request.describe()} carries no mask")
@@ -257,15 +277,19 @@ class SimulatedBackend:
                 break
             chosen.append(nxt)
         conf = np.sort(rng.dirichlet(np.full(len(chosen), cfg.concentration)))[::-1]
+        _, true_t, true_shell = self.truth.true_values(truth, part)
+        says_hollow = bool(true_shell) != bool(rng.random() < cfg.p_structure_error)
 
         candidates = []
         for name, p in zip(chosen, conf):
             mat = lib[name]
             if name == truth:
-                centre, thickness, _ = self.truth.true_values(name, part)
+                centre, _, _ = self.truth.true_values(name, part)
             else:
                 centre = {k: mat.properties[k].typical for k in PROPERTY_KEYS}
-                thickness = mat.thickness_m
+            base_t = true_t if (name == truth and true_t) else (mat.thickness_m or cfg.default_thickness_m)
+            t_noise = float(np.exp(cfg.thickness_sigma * rng.standard_normal()))
+            thickness = base_t * t_noise if says_hollow else None
             noise = {k: float(np.exp(cfg.sigma.get(k, 0.0) * rng.standard_normal())) for k in PROPERTY_KEYS}
             reading = float(from_canonical(centre["shore_hardness"], mat.hardness_scale))
             candidates.append(

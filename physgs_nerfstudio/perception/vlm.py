@@ -8,9 +8,12 @@
   server answers 400 to a request carrying it); token accounting from ``usage`` and a cost estimate from
   configurable $/1k-token rates. The API key is read from the environment variable named by
   ``api_key_env`` and is redacted from every message this module produces.
-* :class:`CachedBackend` - wraps a backend with the disk cache (cache.py); with ``inner=None`` it is the
-  ``replay`` backend, which answers only from the cache and raises :class:`ReplayMiss` naming the request.
+* :class:`CachedBackend` - wraps a backend with the disk cache (cache.py).
+* ``replay`` - see replay.py (answers only from the cache; a miss raises :class:`ReplayMiss`).
 * ``simulated`` - see simulated.py (generated scenes only; every output flagged ``simulated``).
+
+Each backend is built by its config's ``setup(data, library)`` (:class:`OpenAIConfig`,
+``replay.ReplayConfig``, ``simulated.SimulatedConfig``); the perception config chooses one by its type.
 """
 
 from __future__ import annotations
@@ -89,6 +92,10 @@ class VLMBackend(Protocol):
     simulated: bool
 
     def query(self, request: VLMRequest) -> VLMResponse: ...
+
+    def cost_usd(self, usage: Usage) -> float:
+        """Estimated cost of an answer's token usage (0 where nothing is paid)."""
+        ...
 
 
 class RateLimiter(Protocol):
@@ -218,6 +225,11 @@ class OpenAIConfig:
     seed: int | None = 0
     """Seed for the retry jitter."""
 
+    def setup(self, data=None, library=None) -> OpenAIBackend:
+        """The backend of this config (``data`` and ``library``, the run's dataset and material library, are
+        not needed by a real endpoint; every VLM config's ``setup`` takes them)."""
+        return OpenAIBackend(self)
+
 
 def _retry_after_s(headers: Any) -> float | None:
     if headers is None:
@@ -269,8 +281,8 @@ class OpenAIBackend:
             if not value:
                 raise VLMError(
                     f"environment variable {cfg.api_key_env} is not set: export it with your API key "
-                    f"(export {cfg.api_key_env}=...), name another with --api-key-env, or pass "
-                    "--api-key-env '' for a keyless local server."
+                    f"(export {cfg.api_key_env}=...), name another with --vlm.api-key-env, or pass "
+                    "--vlm.api-key-env '' for a keyless local server."
                 )
             self._key = Secret(value)
         else:
@@ -428,36 +440,18 @@ class OpenAIBackend:
 
 
 class CachedBackend:
-    """Answers from the disk cache when it can, else asks ``inner`` and caches the answer.
+    """Answers from the disk cache when it can, else asks ``inner`` and caches the answer."""
 
-    With ``inner=None`` this is the ``replay`` backend: the identity (name, model, variant) of the backend
-    that filled the cache must be given, and a miss raises :class:`ReplayMiss`.
-    """
-
-    def __init__(
-        self,
-        inner: VLMBackend | None,
-        cache: ResponseCache,
-        *,
-        name: str | None = None,
-        model: str | None = None,
-        variant: str | None = None,
-        simulated: bool | None = None,
-    ):
-        if inner is None and (name is None or model is None):
-            raise ValueError(
-                "the replay backend needs the name and model of the backend that filled the cache"
-            )
+    def __init__(self, inner: VLMBackend, cache: ResponseCache):
         self.inner = inner
         self.cache = cache
-        self.name = name if name is not None else inner.name  # type: ignore[union-attr]
-        self.model = model if model is not None else inner.model  # type: ignore[union-attr]
-        self.variant = variant if variant is not None else (inner.variant if inner is not None else "")
-        self.simulated = simulated if simulated is not None else bool(inner is not None and inner.simulated)
+        self.name = inner.name
+        self.model = inner.model
+        self.variant = inner.variant
+        self.simulated = bool(inner.simulated)
 
-    @property
-    def replay(self) -> bool:
-        return self.inner is None
+    def cost_usd(self, usage: Usage) -> float:
+        return float(self.inner.cost_usd(usage))
 
     def key(self, request: VLMRequest) -> str:
         return key_for(self.name, self.model, self.variant, request)
@@ -476,12 +470,6 @@ class CachedBackend:
         if hit is not None:
             return hit
         key = self.key(request)
-        if self.inner is None:
-            raise ReplayMiss(
-                f"replay: no cached response for {request.describe()} (key {key}, backend {self.name}, model "
-                f"{self.model!r}) in {self.cache.root}. Run once with the real backend, or check --model / "
-                "--replay-source and the prompt settings, which are part of the key."
-            )
         response = self.inner.query(request)
         self.cache.put(
             key,

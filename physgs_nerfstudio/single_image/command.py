@@ -40,7 +40,15 @@ class ImageCommand(SingleImageConfig):
     resumable), fuse the answers over the image's masks and levels (NIG property posteriors per material,
     a Dirichlet over materials per pixel) and write dense maps: material, each property's mean, aleatoric,
     epistemic and total uncertainty (maps.npz, PNG figures with colour bars, an overview panel and
-    summary.json)."""
+    summary.json).
+
+    The VLM and the segmenter are subcommands, after the other options: physgs image photo.jpg vlm:openai
+    --vlm.model gpt-5 segmenter:sam --segmenter.checkpoint sam_vit_h.pth."""
+
+    from ..perception.legacy_flags import HELP as _DEPRECATED
+
+    __doc__ = (__doc__ or "") + "\n\n    " + _DEPRECATED
+    del _DEPRECATED
 
     def main(self) -> None:
         import logging

@@ -1,6 +1,6 @@
 """Dense per-pixel material and property maps of one image from its masks and VLM observations.
 
-Fusion over the image (DESIGN.md section 3, with the image as the scene and pixels as entities):
+Fusion over the image (docs/architecture.md, "`bayes/`", with the image as the scene and pixels as entities):
 
 * properties: per material, one NIG posterior per property from ALL observations of the image
   (``fusion.properties.fuse_properties`` over the whole library, so unobserved materials keep their prior);

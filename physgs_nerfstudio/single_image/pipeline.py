@@ -23,18 +23,16 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import tyro
 
-from ..fusion.maps import MapFusionConfig
-from ..materials import PROPERTY_KEYS, MaterialLibrary, PriorConfig, load_library
-from ..perception.pipeline import PerceptionConfig, PerceptionResult
-from ..perception.prompts import PromptConfig
-from ..perception.segment import BuiltinSegmenterConfig, Mask, SamSegmenterConfig, Segmenter
+from ..materials import PROPERTY_KEYS, MaterialLibrary, load_library
+from ..perception.config import PerceptionConfig
+from ..perception.pipeline import PerceptionResult
+from ..perception.segment import Mask, Segmenter
 from ..perception.simulated import SimulatedConfig
-from ..perception.validate import ValidationConfig
 from .inputs import (
     InputError,
     StagedImage,
@@ -70,30 +68,8 @@ class SingleImageConfig:
     """An image file, or a folder of images (each is processed on its own)."""
     output_dir: Path = Path("physgs_image")
     """Where the maps, figures, summaries and the perception workspace (cache, masks) go."""
-    segmenter: Literal["builtin", "sam"] = "builtin"
-    """builtin: weight-free superpixel masks (weaker); sam: segment-anything (pip install -e ".[sam]")."""
-    sam_checkpoint: Path | None = None
-    """SAM checkpoint file (required with --segmenter sam)."""
-    sam_model_type: str = "vit_h"
-    """vit_h | vit_l | vit_b, matching the checkpoint."""
-    vlm: Literal["openai", "replay", "simulated"] = "openai"
-    """openai: any OpenAI-compatible endpoint; replay: cached answers only; simulated: generated scenes (--ground-truth)."""
     ground_truth: Path | None = None
-    """A generated scene (`physgs synth`) or its ground_truth.json; needed by --vlm simulated, adds an accuracy check."""
-    model: str = "gpt-5"
-    """Model name sent to the endpoint (and part of the cache key)."""
-    base_url: str = "https://api.openai.com/v1"
-    """OpenAI-compatible endpoint root, e.g. http://localhost:8000/v1 (vLLM) or http://localhost:11434/v1 (Ollama)."""
-    api_key_env: str = "OPENAI_API_KEY"
-    """Name of the environment variable holding the API key ('' for keyless local servers)."""
-    replay_source: Literal["openai", "simulated"] = "openai"
-    """With --vlm replay: which backend filled the cache."""
-    env: str = "indoor"
-    """Material library: indoor | outdoor | path to a library YAML."""
-    library_files: tuple[Path, ...] = ()
-    """Extra library YAML files merged into --env."""
-    prompt: Literal["triplet", "baseline"] = "triplet"
-    """triplet: per-mask full | overlay | isolated prompt (PhysGS); baseline: the raw image, one query."""
+    """A generated scene (`physgs synth`) or its ground_truth.json; needed by vlm:simulated, adds an accuracy check."""
     properties: tuple[str, ...] = PROPERTY_KEYS
     """Properties to map (keys or friction / hardness / stiffness)."""
     hardness_scale: Literal["A", "D", "00", "A_eq"] = "D"
@@ -104,38 +80,16 @@ class SingleImageConfig:
     """Property means shown in the overview panel (among --properties)."""
     uncovered: Literal["library", "legend"] = "library"
     """Prior of pixels without evidence: flat Dirichlet over the library (maximal uncertainty) or the image's legend."""
-    legend: Literal["observed", "library"] = "observed"
-    """Materials of the per-pixel Dirichlet: those observed in the image, or the whole library."""
     max_side: int | None = 1024
     """Downscale images whose long side exceeds this (maps are at the working size); None: keep."""
     figures: bool = True
     """Write the PNG figures (maps.npz and summary.json are always written)."""
     dpi: int = 150
-    max_concurrency: int = 4
-    """VLM requests in flight at once."""
-    budget: float | None = None
-    """Stop issuing uncached requests once the estimated cost reaches this many USD (needs the rates)."""
-    max_calls: int | None = None
-    """At most this many uncached requests in this run."""
-    cache_dir: Path | None = None
-    """Response cache directory; default <output_dir>/perception/cache (share one between runs to reuse answers)."""
-    overwrite: bool = False
-    """Start over in an existing output directory (old observations kept as .bak; the cache is reused)."""
-    strict: bool = False
-    """Fail if any VLM request failed (default: report failures; their masks carry no evidence)."""
-    progress: bool = True
-    timeout_s: float = 120.0
-    max_retries: int = 5
-    json_mode: bool = True
-    usd_per_1k_prompt_tokens: float = 0.0
-    usd_per_1k_completion_tokens: float = 0.0
-    builtin: BuiltinSegmenterConfig = field(default_factory=BuiltinSegmenterConfig)
-    sam: SamSegmenterConfig = field(default_factory=SamSegmenterConfig)
-    prompt_options: PromptConfig = field(default_factory=PromptConfig)
-    simulated: SimulatedConfig = field(default_factory=SimulatedConfig)
-    validation: ValidationConfig = field(default_factory=ValidationConfig)
-    fusion: MapFusionConfig = field(default_factory=MapFusionConfig)
-    prior: PriorConfig = field(default_factory=PriorConfig)
+    perception: Annotated[PerceptionConfig, tyro.conf.arg(name="")] = field(
+        default_factory=lambda: PerceptionConfig(data=Path("."))
+    )
+    """The perception settings (VLM, segmenter, library, budget, cache, prompts, fusion); its --data is not
+    used: single-image mode works in --output-dir. --legend chooses the materials of the per-pixel Dirichlet."""
 
     def __post_init__(self) -> None:
         self.properties = normalize_properties(self.properties)
@@ -145,47 +99,16 @@ class SingleImageConfig:
             raise ValueError(f"hardness_scale must be one of {HARDNESS_SCALES}")
         if self.max_side is not None and self.max_side < 16:
             raise ValueError("max_side must be >= 16 (or None)")
-        if self.vlm == "simulated" and self.ground_truth is None:
+        if isinstance(self.perception.vlm, SimulatedConfig) and self.ground_truth is None:
             raise ValueError(
-                "--vlm simulated answers from a generated scene's ground truth: pass --ground-truth SCENE_DIR "
-                "(a `physgs synth` output). For real photographs use --vlm openai (or replay)."
+                "vlm:simulated answers from a generated scene's ground truth: pass --ground-truth SCENE_DIR "
+                "(a `physgs synth` output). For real photographs use vlm:openai (or vlm:replay)."
             )
 
     def perception_config(self) -> PerceptionConfig:
-        return PerceptionConfig(
-            data=Path(self.output_dir),
-            segmenter=self.segmenter,
-            sam_checkpoint=self.sam_checkpoint,
-            sam_model_type=self.sam_model_type,
-            vlm=self.vlm,
-            model=self.model,
-            base_url=self.base_url,
-            api_key_env=self.api_key_env,
-            replay_source=self.replay_source,
-            env=self.env,
-            library_files=self.library_files,
-            max_concurrency=self.max_concurrency,
-            budget=self.budget,
-            max_calls=self.max_calls,
-            prompt=self.prompt,
-            cache_dir=self.cache_dir,
-            overwrite=self.overwrite,
-            strict=False,
-            write_outputs=False,
-            progress=self.progress,
-            timeout_s=self.timeout_s,
-            max_retries=self.max_retries,
-            json_mode=self.json_mode,
-            usd_per_1k_prompt_tokens=self.usd_per_1k_prompt_tokens,
-            usd_per_1k_completion_tokens=self.usd_per_1k_completion_tokens,
-            builtin=self.builtin,
-            sam=self.sam,
-            prompt_options=self.prompt_options,
-            simulated=self.simulated,
-            validation=self.validation,
-            fusion=self.fusion,
-            prior=self.prior,
-        )
+        """The perception run of single-image mode: ``perception`` on the workspace in ``output_dir``, without
+        dataset outputs (fusion happens per image here) and never strict (failures are reported at the end)."""
+        return replace(self.perception, data=Path(self.output_dir), strict=False, write_outputs=False)
 
 
 @dataclass
@@ -230,24 +153,19 @@ class ViewAliasBackend:
     def calls(self) -> int:
         return int(getattr(self.inner, "calls", 0))
 
+    def cost_usd(self, usage) -> float:
+        return float(self.inner.cost_usd(usage))
+
     def query(self, request):
         return self.inner.query(replace(request, view=self.aliases.get(request.view, request.view)))
 
 
 def simulated_backend(config: SingleImageConfig, staged: Sequence[StagedImage], library: MaterialLibrary) -> ViewAliasBackend:
     """The simulated VLM of --ground-truth, answering for the staged copies of its frames (uncached)."""
-    from ..perception.simulated import SimulatedBackend
-
-    if config.ground_truth is None:
-        raise InputError("the simulated VLM needs --ground-truth")
+    if config.ground_truth is None or not isinstance(config.perception.vlm, SimulatedConfig):
+        raise InputError("the simulated VLM needs vlm:simulated and --ground-truth")
     root = ground_truth_root(config.ground_truth)
-    return ViewAliasBackend(SimulatedBackend(root, library, config.simulated), match_ground_truth(staged, root))
-
-
-def build_segmenter(config: SingleImageConfig) -> Segmenter:
-    from ..perception.pipeline import _segmenter
-
-    return _segmenter(config)
+    return ViewAliasBackend(config.perception.vlm.setup(root, library), match_ground_truth(staged, root))
 
 
 def _image_masks(workspace: Path, s: StagedImage, seg_fp: str | None, prompt: str) -> list[Mask] | None:
@@ -258,6 +176,12 @@ def _image_masks(workspace: Path, s: StagedImage, seg_fp: str | None, prompt: st
     from ..perception.segment import load_masks
 
     return load_masks(mask_path(workspace, s.view), seg_fp)
+
+
+def _segmenter_name(config: SingleImageConfig) -> str:
+    if config.perception.prompt != "triplet":
+        return "none (baseline prompt)"
+    return config.perception.segmenter.name
 
 
 def _jsonable(obj: Any) -> Any:
@@ -306,26 +230,23 @@ def run_single_image(
     """Run single-image mode (module docstring). ``backend`` (a ``perception.vlm.CachedBackend``),
     ``segmenter`` and ``library`` override what the config would build (tests, demos)."""
     from ..perception.cache import ResponseCache
-    from ..perception.pipeline import build_backend, run_perception
+    from ..perception.pipeline import run_perception
     from ..perception.store import read_observations
     from ..perception.vlm import CachedBackend, VLMError
 
     t0 = time.time()
+    pc = config.perception
     files = find_images(config.path)
     ws = Path(config.output_dir)
     ws.mkdir(parents=True, exist_ok=True)
-    staged = stage_images(files, ws, config.max_side, config.overwrite)
-    library = library or load_library(config.env, extra_files=config.library_files)
+    staged = stage_images(files, ws, config.max_side, pc.overwrite)
+    library = library or load_library(pc.env, extra_files=pc.library_files)
     pconfig = config.perception_config()
-    if backend is None:
-        cache = ResponseCache(config.cache_dir or ws / "perception" / "cache")
-        if config.vlm == "simulated":
-            backend = CachedBackend(simulated_backend(config, staged, library), cache)
-        else:
-            backend = build_backend(pconfig, library, cache)
+    if backend is None and isinstance(pc.vlm, SimulatedConfig):  # answers for the staged copies of its frames
+        backend = CachedBackend(simulated_backend(config, staged, library), ResponseCache(pc.cache_dir or ws / "perception" / "cache"))
     seg_fp: str | None = None
-    if config.prompt == "triplet":
-        segmenter = segmenter or build_segmenter(config)
+    if pc.prompt == "triplet":
+        segmenter = segmenter or pc.segmenter.setup()
         seg_fp = segmenter.fingerprint()
     presult = run_perception(pconfig, backend=backend, segmenter=segmenter, library=library, on_commit=on_commit)
     observations = read_observations(ws)
@@ -343,14 +264,14 @@ def run_single_image(
 
     simulated = bool(presult.simulated or any(o.get("simulated") for o in observations))
     results: list[ImageResult] = []
-    bar = _progress(config.progress)
+    bar = _progress(config.perception.progress)
     with bar:
         task = bar.add("maps + figures", len(staged))
         for s in staged:
             name = f"{s.name}_maps" if s.name in RESERVED_NAMES else s.name
             res = ImageResult(s.name, s.source, ws / name, s.image.shape[:2])
             results.append(res)
-            masks = _image_masks(ws, s, seg_fp, config.prompt)
+            masks = _image_masks(ws, s, seg_fp, config.perception.prompt)
             if masks is None:
                 res.skipped = "not segmented (the run stopped before this image); run again to resume"
                 logger.warning("%s: %s", s.source, res.skipped)
@@ -366,9 +287,9 @@ def run_single_image(
                 library,
                 properties=config.properties,
                 hardness_scale=config.hardness_scale,
-                map_config=config.fusion,
-                prior_config=config.prior,
-                legend=config.legend,
+                map_config=config.perception.fusion,
+                prior_config=config.perception.prior,
+                legend=config.perception.legend,
                 uncovered=config.uncovered,
             )
             gt_check = None
@@ -381,9 +302,9 @@ def run_single_image(
                 "source": str(s.source),
                 "hardness_scale": config.hardness_scale,
                 "log_space": maps.log_space,
-                "alpha0": config.fusion.alpha0,
-                "lambda": config.fusion.lam,
-                "level_weights": dict(config.fusion.level_weights),
+                "alpha0": config.perception.fusion.alpha0,
+                "lambda": config.perception.fusion.lam,
+                "level_weights": dict(config.perception.fusion.level_weights),
                 "uncovered_prior": maps.uncovered_prior,
                 "simulated": simulated,
             }
@@ -410,7 +331,7 @@ def run_single_image(
 
     result = SingleImageResult(ws, results, presult, time.time() - t0)
     _write_json(ws / "summary.json", run_summary(config, result, simulated))
-    if config.strict and presult.failed:
+    if config.perception.strict and presult.failed:
         raise VLMError(f"{len(presult.failed)} VLM requests failed; first: {presult.failed[0]}")
     return result
 
@@ -444,9 +365,9 @@ def image_summary(
             "original_size_hw": list(s.original_size),
             "backend": presult.backend,
             "model": presult.model,
-            "segmenter": config.segmenter if config.prompt == "triplet" else "none (baseline prompt)",
-            "prompt": config.prompt,
-            "env": config.env,
+            "segmenter": _segmenter_name(config),
+            "prompt": config.perception.prompt,
+            "env": config.perception.env,
             "masks": {"total": len(masks), **{lv: levels.count(lv) for lv in ("whole", "part", "subpart")}},
             "masks_with_evidence": len(answered),
             "observations": len(records),
@@ -457,12 +378,12 @@ def image_summary(
             "variance_units": {k: ("1" if u == "1" else f"({u})^2") for k, u in maps.units.items()},
             "log_space": maps.log_space,
             "fusion": {
-                "alpha0": config.fusion.alpha0,
-                "lambda": config.fusion.lam,
-                "level_weights": dict(config.fusion.level_weights),
-                "legend": config.legend,
+                "alpha0": config.perception.fusion.alpha0,
+                "lambda": config.perception.fusion.lam,
+                "level_weights": dict(config.perception.fusion.level_weights),
+                "legend": config.perception.legend,
                 "uncovered_prior": maps.uncovered_prior,
-                "prior": {"kappa0": config.prior.kappa0, "a0": config.prior.a0, "spread_divisor": config.prior.spread_divisor},
+                "prior": {"kappa0": config.perception.prior.kappa0, "a0": config.perception.prior.a0, "spread_divisor": config.perception.prior.spread_divisor},
             },
             "materials": maps.per_material,
             "unknown_pixel": maps.unknown,
@@ -484,9 +405,9 @@ def run_summary(config: SingleImageConfig, result: SingleImageResult, simulated:
             "input": str(config.path),
             "backend": p.backend,
             "model": p.model,
-            "segmenter": config.segmenter if config.prompt == "triplet" else "none (baseline prompt)",
-            "prompt": config.prompt,
-            "env": config.env,
+            "segmenter": _segmenter_name(config),
+            "prompt": config.perception.prompt,
+            "env": config.perception.env,
             "vlm": {
                 "masks": p.masks,
                 "calls": p.calls,

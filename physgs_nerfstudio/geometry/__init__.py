@@ -1,0 +1,13 @@
+"""The object's geometry for mass: which Gaussians are the object, its volume carved from many views' masks
+and depth, its parts, their wall areas and whether each is solid or hollow (docs/architecture.md, "Mass
+geometry"). Pure geometry on tensors and arrays: no nerfstudio imports."""
+
+from .capture import CaptureView, MaskObservation, load_capture, load_observations
+from .carve import CarveConfig
+from .grid import VoxelGrid
+from .reconstruct import GeometryConfig, ObjectGeometry, reconstruct_object
+from .select import SelectConfig
+from .structure import StructureConfig
+
+__all__ = ["CarveConfig", "CaptureView", "GeometryConfig", "MaskObservation", "ObjectGeometry", "SelectConfig",
+           "StructureConfig", "VoxelGrid", "load_capture", "load_observations", "reconstruct_object"]

@@ -1,0 +1,226 @@
+"""The object's geometry from a splat and its views: selection -> carving (several variants) -> parts ->
+per-part volume, wall area and structure. One public entry: :func:`reconstruct_object`.
+
+Geometric uncertainty: the carving is redone under perturbed settings (``variants``: mask erosion and
+dilation, a looser and a tighter vote, a smaller and a larger depth margin). The mass's Monte Carlo draws one
+variant per sample, so the interval carries the geometry's uncertainty alongside the materials', densities',
+structure and thickness (:mod:`physgs_nerfstudio.mass`). Parts are defined once, on the union of the variants'
+solids, so a part keeps its identity across variants.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import torch
+
+from .capture import CaptureView, MaskObservation
+from .carve import CarveConfig, carve_votes, signed_mask_distance, solid_from_votes
+from .gaussians import ViewRender, render_depth
+from .grid import VoxelGrid
+from .parts import PartGeometry, part_areas, part_labels, voxel_mixture
+from .select import ObjectSelection, SelectConfig, select_object
+from .structure import PartStructure, StructureConfig, fuse_structure
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["GeometryConfig", "ObjectGeometry", "reconstruct_object"]
+
+
+@dataclass
+class GeometryConfig:
+    """How the object's volume is recovered (docs/architecture.md, "Mass geometry")."""
+
+    resolution: int = 128
+    """voxels along the longest side of the object's box"""
+    select: SelectConfig = field(default_factory=SelectConfig)
+    carve: CarveConfig = field(default_factory=CarveConfig)
+    structure: StructureConfig = field(default_factory=StructureConfig)
+    variants: bool = True
+    """sample the geometry in the mass interval (module doc); False: the nominal carving only"""
+    mask_margin_variants_px: tuple[float, ...] = (-0.5, 0.5)
+    vote_variants: tuple[tuple[int, float], ...] = ((1, 0.1), (3, 0.25))
+    """(min_votes, min_vote_fraction) pairs"""
+    depth_margin_variants: tuple[float, ...] = (0.5, 2.0)
+    """depth margins in voxels"""
+    pad_fraction: float = 0.1
+    """domain padding around the object's Gaussians, as a fraction of their extent"""
+    sheet_voxels: float | None = None
+    """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
+    None = the nominal depth margin + 1"""
+    min_part_fraction: float = 2e-3
+    object_mask_dilate_px: int = 2
+    """the object's own silhouette (its Gaussians rendered alone) is dilated by this before it cuts the
+    foreground masks, so that other objects in the views do not count as this one"""
+    max_views: int | None = None
+    """use at most this many views (evenly spaced); None = all"""
+    backend: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.resolution < 8:
+            raise ValueError(f"GeometryConfig.resolution must be >= 8, got {self.resolution}.")
+
+
+@dataclass
+class ObjectGeometry:
+    grid: VoxelGrid
+    solid: np.ndarray
+    """bool [X, Y, Z]: the nominal carved solid"""
+    parts: np.ndarray
+    """int [X, Y, Z]: part id on the union of the variants' solids, -1 elsewhere"""
+    part_mixture: np.ndarray
+    """[P, K]: volume-weighted material mixture of each part (nominal solid)"""
+    mixture: np.ndarray
+    """[X, Y, Z, K] per-voxel material mixture (zeros outside the union solid)"""
+    variant_names: list[str]
+    volumes: np.ndarray
+    """[G, P] volume per variant and part, scene units^3"""
+    areas: np.ndarray
+    """[G, P] wall area per variant and part, scene units^2"""
+    sheet_share: np.ndarray
+    """[P] share of each part's wall faces on sheets (nominal)"""
+    structure: PartStructure
+    selection: ObjectSelection
+    views_used: int
+    mask_sources: dict[str, int]
+
+    @property
+    def num_parts(self) -> int:
+        return int(self.volumes.shape[1])
+
+    def summary(self) -> dict[str, Any]:
+        return {"grid": self.grid.to_dict(), "solid_voxels": int(self.solid.sum()), "num_parts": self.num_parts,
+                "variants": self.variant_names, "views_used": self.views_used, "mask_sources": self.mask_sources,
+                "selected_gaussians": self.selection.num_selected,
+                "object_centre_scene": [float(x) for x in self.selection.centre]}  # fmt: skip
+
+
+def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
+    m = g.means[selected].double()
+    lo = torch.quantile(m[: 1 << 20], 0.001, dim=0) if len(m) > 1000 else m.amin(0)
+    hi = torch.quantile(m[: 1 << 20], 0.999, dim=0) if len(m) > 1000 else m.amax(0)
+    r = 3 * g.scales[selected].double().amax(-1)
+    pad = float((hi - lo).max()) * cfg.pad_fraction + float(torch.quantile(r[: 1 << 20], 0.9)) if len(r) else 0.0
+    return VoxelGrid.from_bounds((lo - pad).cpu(), (hi + pad).cpu(), cfg.resolution)
+
+
+def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig
+                  ) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
+    """The object's own depth and alpha (its Gaussians rendered alone: a thin part's expected depth is not
+    pulled back by the background behind it), and the foreground masks cut down to this object (foreground
+    AND the dilated silhouette of its Gaussians)."""
+    import cv2
+
+    sub = _Subset(g, selection.selected)
+    renders = render_depth(sub, views, backend=cfg.backend)
+    k = 2 * cfg.object_mask_dilate_px + 1
+    kernel = np.ones((k, k), np.uint8)
+    out = []
+    for v, r in zip(views, renders):
+        sil = (r.alpha.cpu().numpy() > 0.5).astype(np.uint8)
+        if cfg.object_mask_dilate_px > 0:
+            sil = cv2.dilate(sil, kernel)
+        out.append(replace(v, mask=v.mask & torch.from_numpy(sil.astype(bool))))
+    return out, renders
+
+
+@dataclass
+class _Subset:
+    g: Any
+    idx: torch.Tensor
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.g, name)[self.idx]
+
+
+def _variants(cfg: GeometryConfig) -> list[tuple[str, CarveConfig]]:
+    base = cfg.carve
+    out = [("nominal", base)]
+    if not cfg.variants:
+        return out
+    out += [(f"mask{m:+g}px", replace(base, mask_margin_px=base.mask_margin_px + m)) for m in cfg.mask_margin_variants_px]
+    out += [(f"vote{k}/{q:g}", replace(base, min_votes=k, min_vote_fraction=q)) for k, q in cfg.vote_variants]
+    out += [(f"depth{d:g}vox", replace(base, depth_margin_voxels=d)) for d in cfg.depth_margin_variants]
+    return out
+
+
+@torch.no_grad()
+def reconstruct_object(
+    g: Any,
+    pi: torch.Tensor,
+    views: Sequence[CaptureView],
+    observations: Sequence[MaskObservation] = (),
+    library_thickness: Sequence[float | None] | None = None,
+    cfg: GeometryConfig | None = None,
+    *,
+    material_names: Sequence[str] | None = None,
+    progress: Any = None,
+) -> ObjectGeometry:
+    """Select, carve, split into parts and measure the object (module doc). ``g``: the Gaussians (activated
+    ``means``, ``quats``, ``scales``, ``opacities``), ``pi``: their material mixture weights [N, K],
+    ``library_thickness[k]``: material k's typical wall thickness in the library (None: solid),
+    ``material_names[k]``: the names observations use.
+    ``progress(stage: str)`` is called as stages start."""
+    cfg = cfg or GeometryConfig()
+    step = progress or (lambda _s: None)
+    views = list(views)
+    if cfg.max_views is not None and len(views) > cfg.max_views:
+        keep = np.linspace(0, len(views) - 1, cfg.max_views).round().astype(int)
+        views = [views[i] for i in keep]
+    if not views:
+        raise ValueError("no views to carve the object from: the run has no training cameras.")
+    sources: dict[str, int] = {}
+    for v in views:
+        sources[v.mask_source] = sources.get(v.mask_source, 0) + 1
+    step("selecting the object")
+    selection = select_object(g, views, cfg.select, backend=cfg.backend)
+    step("rendering depth")
+    obj_views, renders = _object_views(g, selection, views, cfg)
+    grid = _domain(g, selection.selected, cfg)
+    sdf = [signed_mask_distance(v.mask) for v in obj_views]
+    device = g.means.device
+    step("carving")
+    solids: list[np.ndarray] = []
+    names: list[str] = []
+    vote_cache: dict[tuple[float, float], Any] = {}
+    for name, cc in _variants(cfg):
+        key = (cc.mask_margin_px, cc.depth_margin_voxels)
+        if key not in vote_cache:
+            vote_cache[key] = carve_votes(grid, obj_views, renders, cc, sdf=sdf, device=device)
+        solids.append(solid_from_votes(vote_cache[key], grid, cc))
+        names.append(name)
+    union = np.logical_or.reduce(solids)
+    if not solids[0].any():
+        raise ValueError("carving left no solid voxel: the object masks and the views disagree (check poses and "
+                         "masks, or lower --geometry.carve.min-vote-fraction).")  # fmt: skip
+    step("materials and parts")
+    sel = selection.selected
+    mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi[sel])
+    parts = part_labels(union, mixture, cfg.min_part_fraction)
+    P = int(parts.max()) + 1
+    K = pi.shape[1]
+    nominal_parts = np.where(solids[0], parts, -1)
+    pm = np.zeros((P, K))
+    np.add.at(pm, nominal_parts[solids[0]], mixture[solids[0]])
+    empty = pm.sum(1) == 0  # a part only in other variants: its union mixture
+    if empty.any():
+        np.add.at(pm, parts[union], mixture[union] * empty[parts[union]][:, None])
+    pm /= pm.sum(1, keepdims=True)
+    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else cfg.carve.depth_margin_voxels + 1.0
+    geos: list[PartGeometry] = [part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet) for s in solids]
+    step("structure")
+    dom = np.argmax(pm, 1)
+    lib = library_thickness if library_thickness is not None else [None] * K
+    mat_names = material_names if material_names is not None else [str(k) for k in range(K)]
+    structure = fuse_structure(grid, nominal_parts, P, views, observations, [lib[k] for k in dom], pm, mat_names,
+                               cfg.structure)  # fmt: skip
+    return ObjectGeometry(
+        grid=grid, solid=solids[0], parts=parts, part_mixture=pm, mixture=mixture, variant_names=names,
+        volumes=np.stack([gm.volume for gm in geos]), areas=np.stack([gm.area for gm in geos]),
+        sheet_share=geos[0].sheet_share, structure=structure, selection=selection, views_used=len(views),
+        mask_sources=sources,
+    )  # fmt: skip

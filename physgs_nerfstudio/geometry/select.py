@@ -1,0 +1,154 @@
+"""Which Gaussians are the object.
+
+1. Every Gaussian gets a Beta posterior of "belongs to a foreground object" from the foreground masks of every
+   view that sees it (:func:`.gaussians.lift_masks`: per view, the share of its blending weight on mask pixels):
+   ``P(object) = (a0 + inside) / (a0 + b0 + inside + outside)``. The floor, walls and background are outside
+   the masks in the views that see them, so they come out near 0.
+2. Foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``) are grouped into 3-D clusters
+   (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side but no finer than
+   1.5 x the Gaussians' median nearest-neighbour spacing, cells dilated by ``bridge_cells`` so that an
+   object's parts a few millimetres apart stay one cluster).
+3. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
+   camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
+   the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
+   restricts the candidates first.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from scipy import ndimage
+from torch import Tensor
+
+from .capture import CaptureView
+from .gaussians import lift_masks
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["ObjectSelection", "SelectConfig", "capture_centre", "select_object"]
+
+
+@dataclass
+class SelectConfig:
+    """How the object's Gaussians are chosen (module doc)."""
+
+    prior: tuple[float, float] = (1.0, 1.0)
+    """Beta prior (a0, b0) of a Gaussian belonging to the object"""
+    min_prob: float = 0.5
+    min_opacity: float = 0.05
+    cluster_cells: int = 48
+    """cells along the longest side of the foreground's extent, for the 3-D clusters"""
+    bridge_cells: int = 1
+    """dilation of occupied cells before labelling clusters"""
+    point: tuple[float, float, float] | None = None
+    """pick the cluster nearest this point (scene units) instead of the capture centre"""
+    bbox: tuple[float, float, float, float, float, float] | None = None
+    """only Gaussians inside (xmin ymin zmin xmax ymax zmax), scene units (the viewer's crop box)"""
+
+    def __post_init__(self) -> None:
+        if not 0 < self.min_prob < 1:
+            raise ValueError(f"SelectConfig.min_prob must be in (0, 1), got {self.min_prob}.")
+        if min(self.prior) <= 0:
+            raise ValueError(f"SelectConfig.prior must be two positive numbers, got {self.prior}.")
+        if self.cluster_cells < 4:
+            raise ValueError(f"SelectConfig.cluster_cells must be >= 4, got {self.cluster_cells}.")
+        if self.bbox is not None:
+            b = tuple(float(v) for v in self.bbox)
+            if len(b) != 6 or not all(b[i] < b[i + 3] for i in range(3)):
+                raise ValueError(f"bbox must be (xmin, ymin, zmin, xmax, ymax, zmax) with min < max, got {self.bbox}.")
+            self.bbox = b  # type: ignore[assignment]
+
+
+@dataclass
+class ObjectSelection:
+    prob: Tensor
+    """float [N]: posterior probability that each Gaussian belongs to a foreground object"""
+    selected: Tensor
+    """bool [N]: the object's Gaussians"""
+    centre: np.ndarray
+    """the point the object was chosen by (capture centre or the user's point), scene units"""
+    num_clusters: int
+
+    @property
+    def num_selected(self) -> int:
+        return int(self.selected.sum())
+
+
+def capture_centre(views: Sequence[CaptureView]) -> np.ndarray:
+    """Least-squares point nearest to every camera's optical axis (scene units)."""
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for v in views:
+        d = v.axis.double().numpy()
+        d = d / max(np.linalg.norm(d), 1e-12)
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ v.centre.double().numpy()
+    if np.linalg.matrix_rank(A) < 3:  # parallel axes (e.g. one view): a point on the first axis
+        v = views[0]
+        return v.centre.double().numpy() + v.axis.double().numpy()
+    return np.linalg.solve(A, b)
+
+
+def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    lo = np.quantile(means, 0.002, axis=0)
+    hi = np.quantile(means, 0.998, axis=0)
+    from scipy.spatial import cKDTree
+
+    sub = means[:: max(1, len(means) // 100_000)]
+    nn = cKDTree(sub).query(sub, k=2)[0][:, 1] if len(sub) > 1 else np.zeros(1)
+    # cells no finer than the Gaussians' own spacing, so a sparse splat stays one cluster
+    cell = max(float((hi - lo).max()) / cfg.cluster_cells, 1.5 * float(np.median(nn)), 1e-9)
+    lo = lo - 2 * cell
+    idx = np.floor((means - lo) / cell).astype(np.int64)
+    shape = np.maximum(idx.max(0) + 1, 1)
+    inside = (idx >= 0).all(1)
+    occ = np.zeros(shape, bool)
+    occ[tuple(idx[inside].T)] = True
+    grown = ndimage.binary_dilation(occ, iterations=cfg.bridge_cells) if cfg.bridge_cells > 0 else occ
+    labels, n = ndimage.label(grown, structure=np.ones((3, 3, 3), bool))
+    lab = np.zeros(len(means), np.int64)
+    lab[inside] = labels[tuple(idx[inside].T)]
+    return lab, lo, cell, np.arange(1, n + 1)
+
+
+@torch.no_grad()
+def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None = None, *,
+                  backend: str = "auto") -> ObjectSelection:  # fmt: skip
+    """The object's Gaussians (module doc)."""
+    cfg = cfg or SelectConfig()
+    inside, outside = lift_masks(g, views, backend=backend)
+    a0, b0 = cfg.prior
+    prob = ((a0 + inside) / (a0 + b0 + inside + outside)).float()
+    cand = (prob >= cfg.min_prob) & (g.opacities >= cfg.min_opacity)
+    if cfg.bbox is not None:
+        b = torch.as_tensor(cfg.bbox, dtype=g.means.dtype, device=g.means.device)
+        cand &= ((g.means >= b[:3]) & (g.means <= b[3:])).all(-1)
+    centre = np.asarray(cfg.point, dtype=np.float64) if cfg.point is not None else capture_centre(views)
+    if not bool(cand.any()):
+        raise ValueError("no Gaussian lies on the object masks of the views (foreground probability >= "
+                         f"{cfg.min_prob}): check that perception ran on this dataset, or give a bbox.")  # fmt: skip
+    idx = torch.nonzero(cand).squeeze(1)
+    means = g.means[idx].double().cpu().numpy()
+    lab, _, _, ids = _clusters(means, cfg)
+    d = np.linalg.norm(means - centre[None], axis=1)
+    valid = lab > 0
+    if not valid.any():
+        chosen = np.ones(len(means), bool)
+    else:
+        # distance of each cluster to the centre: its nearest Gaussian
+        dmin = np.full(int(lab.max()) + 1, np.inf)
+        np.minimum.at(dmin, lab[valid], d[valid])
+        dmin[0] = np.inf
+        chosen = lab == int(np.argmin(dmin))
+    selected = torch.zeros_like(cand)
+    selected[idx[torch.from_numpy(chosen).to(idx.device)]] = True
+    logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
+                g.means.shape[0], len(ids))  # fmt: skip
+    return ObjectSelection(prob, selected, centre, len(ids))

@@ -1,0 +1,169 @@
+"""Solid or hollow, and the wall thickness, per 3-D part, fused from what perception said per mask.
+
+The triplet prompt asks, per mask, for ``thickness_m``: the wall thickness if the part is a hollow shell, null if
+solid (observations.jsonl, docs/architecture.md). One observation (a candidate of material ``c`` with confidence ``p``)
+concerns a 3-D part ``s`` with weight ``w = p x share_s x pi_sc``: ``share_s`` is the share of the mask's pixels
+where that part is the visible surface (a z-buffer of the solid's boundary voxels in the mask's view,
+:func:`part_maps`) and ``pi_sc`` the part's mixture weight of the candidate's material. A candidate's structure
+answer is conditional on its material ("if this is cast iron, it is a 4 mm shell"), so it counts as far as
+the part is made of that material.
+
+* Hollowness of part ``s``: Beta(a, b) with ``a = a0 + sum p w [hollow]``, ``b = b0 + sum p w [solid]``. The
+  prior has ``prior_strength`` pseudo-observations with mean ``prior_hollow_if_library_shell`` when the part's
+  dominant material has a typical wall thickness in the material library, else ``prior_hollow_otherwise``.
+* Wall thickness: a Normal-Inverse-Gamma posterior on ``log t`` (:func:`physgs_nerfstudio.bayes.nig_posterior`)
+  from the hollow answers (weights ``p w``), with prior mean the log of the library's typical thickness (else
+  ``default_thickness_m``), ``kappa0`` = 1 and a prior spread of a factor ``prior_thickness_spread`` (90%).
+
+So a table with solid steel legs and a steel pan both come out right: the legs' masks are answered solid, the
+pan's hollow, whatever their material has in the library.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..bayes.nig import NIG, Moments, nig_posterior
+from .capture import CaptureView, MaskObservation
+from .grid import VoxelGrid
+
+__all__ = ["PartStructure", "StructureConfig", "fuse_structure", "part_maps"]
+
+_Z90 = 1.6448536269514722
+
+
+@dataclass
+class StructureConfig:
+    prior_strength: float = 1.0
+    prior_hollow_if_library_shell: float = 0.6
+    prior_hollow_otherwise: float = 0.3
+    default_thickness_m: float = 0.003
+    prior_thickness_spread: float = 2.0
+    """90% of the prior's thickness mass within [t / spread, t x spread]"""
+
+    def __post_init__(self) -> None:
+        if self.prior_strength <= 0:
+            raise ValueError(f"StructureConfig.prior_strength must be > 0, got {self.prior_strength}.")
+        if self.prior_thickness_spread <= 1:
+            raise ValueError("StructureConfig.prior_thickness_spread must be > 1.")
+
+
+@dataclass
+class PartStructure:
+    hollow_a: np.ndarray
+    hollow_b: np.ndarray
+    thickness: NIG
+    """NIG on log(thickness in metres), shape [P]"""
+    observations: np.ndarray
+    """[P] summed weights p w of the observations that concern each part"""
+
+    @property
+    def p_hollow(self) -> np.ndarray:
+        return self.hollow_a / (self.hollow_a + self.hollow_b)
+
+    def thickness_m(self) -> np.ndarray:
+        """Posterior median thickness per part (metres)."""
+        return np.exp(self.thickness.tau.double().cpu().numpy())
+
+    def to_list(self) -> list[dict]:
+        t = self.thickness
+        return [{"p_hollow": float(self.p_hollow[i]), "beta": [float(self.hollow_a[i]), float(self.hollow_b[i])],
+                 "thickness_m": float(math.exp(float(t.tau[i]))),
+                 "log_thickness_nig": {"tau": float(t.tau[i]), "kappa": float(t.kappa[i]), "a": float(t.a[i]),
+                                       "b": float(t.b[i])},
+                 "observation_weight": float(self.observations[i])} for i in range(len(self.hollow_a))]  # fmt: skip
+
+
+@torch.no_grad()
+def part_maps(grid: VoxelGrid, parts: np.ndarray, view: CaptureView, width: int, height: int) -> np.ndarray:
+    """int [height, width] id of the part whose boundary voxel is nearest the camera at each pixel (-1: none);
+    the view's intrinsics are rescaled to ``width`` x ``height``."""
+    solid = parts >= 0
+    inner = np.zeros_like(solid)
+    inner[1:-1, 1:-1, 1:-1] = (solid[1:-1, 1:-1, 1:-1] & solid[:-2, 1:-1, 1:-1] & solid[2:, 1:-1, 1:-1]
+                               & solid[1:-1, :-2, 1:-1] & solid[1:-1, 2:, 1:-1] & solid[1:-1, 1:-1, :-2]
+                               & solid[1:-1, 1:-1, 2:])  # fmt: skip
+    ijk = np.argwhere(solid & ~inner)
+    out = np.full(height * width, -1, np.int64)
+    if len(ijk) == 0:
+        return out.reshape(height, width)
+    x = grid.centres(torch.from_numpy(ijk))
+    R, t = view.viewmat[:3, :3], view.viewmat[:3, 3]
+    pc = x @ R.T + t
+    sx, sy = width / view.width, height / view.height
+    z = pc[:, 2]
+    u = (view.K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + view.K[0, 2]) * sx
+    v = (view.K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + view.K[1, 2]) * sy
+    ok = (z > 1e-6) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    pix = (v.floor().long() * width + u.floor().long())[ok]
+    zz = z[ok]
+    best = torch.full((height * width,), float("inf")).scatter_reduce(0, pix, zz, reduce="amin")
+    front = zz <= best[pix]
+    pid = torch.from_numpy(parts[tuple(ijk.T)])[ok]
+    out_t = torch.from_numpy(out)
+    out_t[pix[front]] = pid[front]
+    return out_t.numpy().reshape(height, width)
+
+
+def fuse_structure(
+    grid: VoxelGrid,
+    parts: np.ndarray,
+    num_parts: int,
+    views: Sequence[CaptureView],
+    observations: Sequence[MaskObservation],
+    library_thickness: Sequence[float | None],
+    part_mixture: np.ndarray,
+    material_names: Sequence[str],
+    cfg: StructureConfig | None = None,
+) -> PartStructure:
+    """Per-part Beta hollowness and NIG log-thickness (module doc). ``library_thickness[s]``: the library's
+    typical wall thickness of part ``s``'s dominant material (None: the library calls it solid)."""
+    cfg = cfg or StructureConfig()
+    P = num_parts
+    lib = np.array([t is not None for t in library_thickness], dtype=bool)
+    p0 = np.where(lib, cfg.prior_hollow_if_library_shell, cfg.prior_hollow_otherwise)
+    a = cfg.prior_strength * p0
+    b = cfg.prior_strength * (1 - p0)
+    W = np.zeros(P)
+    S = np.zeros(P)
+    Q = np.zeros(P)
+    seen = np.zeros(P)
+    by_view = {v.name: v for v in views}
+    mat_index = {n: i for i, n in enumerate(material_names)}
+    maps: dict[tuple[str, int, int], np.ndarray] = {}
+    for ob in observations:
+        view = by_view.get(ob.view)
+        k = mat_index.get(ob.material)
+        if view is None or ob.confidence <= 0 or k is None:
+            continue
+        h, w = ob.mask.shape
+        key = (ob.view, h, w)
+        if key not in maps:
+            maps[key] = part_maps(grid, parts, view, w, h)
+        ids = maps[key][ob.mask]
+        ids = ids[ids >= 0]
+        if len(ids) == 0:
+            continue
+        share = np.bincount(ids, minlength=P) / len(ids)
+        wt = ob.confidence * share * part_mixture[:, k]
+        seen += wt
+        if ob.thickness_m is not None:
+            a += wt
+            lt = math.log(ob.thickness_m)
+            W += wt
+            S += wt * lt
+            Q += wt * lt * lt
+        else:
+            b += wt
+    t0 = np.array([math.log(t if t is not None else cfg.default_thickness_m) for t in library_thickness])
+    s0 = math.log(cfg.prior_thickness_spread) / _Z90
+    a0 = 2.0
+    prior = NIG(torch.as_tensor(t0), torch.ones(P, dtype=torch.float64), torch.full((P,), a0, dtype=torch.float64),
+                torch.full((P,), s0**2 * (a0 - 1), dtype=torch.float64))  # fmt: skip
+    post = nig_posterior(prior, Moments(torch.as_tensor(W), torch.as_tensor(S), torch.as_tensor(Q)))
+    return PartStructure(a, b, post, seen)
