@@ -16,11 +16,18 @@ from typing import Any, Literal
 
 import torch
 
+from ..geometry import (
+    CaptureView,
+    GeometryConfig,
+    MaskObservation,
+    ObjectGeometry,
+    load_capture,
+    load_observations,
+    reconstruct_object,
+)
+from ..mass import MassConfig, MassReport, integrate_mass, library_thickness
 from .field import PropertyField
 from .maps import View, save_property_maps, viewmat_from_c2w
-from ..geometry import CaptureView, GeometryConfig, MaskObservation, ObjectGeometry, load_capture, load_observations
-from ..geometry import reconstruct_object
-from ..mass import MassConfig, MassReport, integrate_mass, library_thickness
 from .ply import write_property_ply
 from .report import print_mass_table, write_report
 from .voxel import write_voxel_grid

@@ -25,6 +25,8 @@ from .ply import PROPERTY_UNITS
 
 __all__ = ["View", "render_property_maps", "save_property_maps", "viewmat_from_c2w"]
 
+from ..geometry.capture import viewmat_from_c2w
+
 _SH_C0 = 0.28209479177387814
 _LOG_KEYS = ("density", "youngs_modulus")
 
@@ -37,17 +39,6 @@ class View:
     width: int
     height: int
     name: str = "view"
-
-
-def viewmat_from_c2w(c2w: Float[Tensor, "3 4"]) -> Float[Tensor, "4 4"]:
-    """World-to-camera (OpenCV) from a nerfstudio camera-to-world (OpenGL: y up, z backward)."""
-    c2w = torch.as_tensor(c2w, dtype=torch.float32)
-    R = c2w[:3, :3] @ torch.diag(torch.tensor([1.0, -1.0, -1.0]))
-    T = c2w[:3, 3:4]
-    out = torch.eye(4)
-    out[:3, :3] = R.T
-    out[:3, 3:4] = -R.T @ T
-    return out
 
 
 @torch.no_grad()

@@ -25,8 +25,8 @@ import numpy as np
 import torch
 
 from ..bayes import mixture_fields
-from .field import PropertyField
 from ..geometry import ObjectGeometry
+from .field import PropertyField
 from .ply import PROPERTY_UNITS
 
 __all__ = ["load_voxel_grid", "write_voxel_grid"]

@@ -9,5 +9,16 @@ from .reconstruct import GeometryConfig, ObjectGeometry, reconstruct_object
 from .select import SelectConfig
 from .structure import StructureConfig
 
-__all__ = ["CarveConfig", "CaptureView", "GeometryConfig", "MaskObservation", "ObjectGeometry", "SelectConfig",
-           "StructureConfig", "VoxelGrid", "load_capture", "load_observations", "reconstruct_object"]
+__all__ = [
+           "CaptureView",
+           "CarveConfig",
+           "GeometryConfig",
+           "MaskObservation",
+           "ObjectGeometry",
+           "SelectConfig",
+           "StructureConfig",
+           "VoxelGrid",
+           "load_capture",
+           "load_observations",
+           "reconstruct_object",
+]

@@ -122,34 +122,35 @@ def carve_votes(
     M = grid.num_voxels
     empty = torch.zeros(M, dtype=torch.int32, device=device)
     seen = torch.zeros(M, dtype=torch.int32, device=device)
-    sdf = list(sdf) if sdf is not None else [signed_mask_distance(v.mask) for v in views]
+    sdf = [t.to(device) for t in (sdf if sdf is not None else [signed_mask_distance(v.mask) for v in views])]
+    cams = [(v.viewmat[:3, :3].to(device), v.viewmat[:3, 3].to(device), v.K.to(device)) for v in views]
+    use = [r if (renders is not None and cfg.use_depth) else None for r in (renders or [None] * len(views))]
+    depth = [(r.depth.to(device), r.alpha.to(device)) if r is not None else None for r in use]
     shape = torch.as_tensor(grid.shape, device=device)
-    for v, view in enumerate(views):
-        R = view.viewmat[:3, :3].to(device)
-        t = view.viewmat[:3, 3].to(device)
-        K = view.K.to(device)
-        sd = sdf[v].to(device)
-        rend = renders[v] if (renders is not None and cfg.use_depth) else None
-        for s0 in range(0, M, chunk):
-            flat = torch.arange(s0, min(M, s0 + chunk), device=device)
-            ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
-            x = grid.centres(ijk)
+    for s0 in range(0, M, chunk):  # voxel centres once per chunk, then every view
+        flat = torch.arange(s0, min(M, s0 + chunk), device=device)
+        ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
+        x = grid.centres(ijk)
+        n_empty = torch.zeros(len(flat), dtype=torch.int32, device=device)
+        n_seen = torch.zeros_like(n_empty)
+        for view, (R, t, K), sd, dz in zip(views, cams, sdf, depth):
             pc = x @ R.T + t
             z = pc[:, 2]
             u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
             w = K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]
             ok = (z > 1e-6) & (u >= 0) & (u < view.width) & (w >= 0) & (w < view.height)
-            ui = u.floor().long().clamp(0, view.width - 1)
-            vi = w.floor().long().clamp(0, view.height - 1)
             dist = _sample(sd, u.clamp(0, view.width), w.clamp(0, view.height))
             vote = ok & (dist > cfg.mask_margin_px)
-            if rend is not None:
-                d = rend.depth.to(device)[vi, ui]
-                a = rend.alpha.to(device)[vi, ui]
+            if dz is not None:
+                ui = u.floor().long().clamp(0, view.width - 1)
+                vi = w.floor().long().clamp(0, view.height - 1)
+                d, a = dz[0][vi, ui], dz[1][vi, ui]
                 margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
                 vote |= ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha) & (z < d - margin)
-            empty[s0 : s0 + len(flat)] += vote.int()
-            seen[s0 : s0 + len(flat)] += ok.int()
+            n_empty += vote.int()
+            n_seen += ok.int()
+        empty[s0 : s0 + len(flat)] = n_empty
+        seen[s0 : s0 + len(flat)] = n_seen
     return CarveVotes(empty, seen)
 
 
