@@ -54,10 +54,12 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("/tmp/physgs_mass_suite"))
     ap.add_argument("--demo-args", nargs="*", default=[])
     a = ap.parse_args()
-    rows = [run_one(o, s, a.out, a.demo_args) for s in a.seeds for o in a.objects]
+    rows = []
+    for s in a.seeds:
+        for o in a.objects:
+            rows.append(run_one(o, s, a.out, a.demo_args))
+            print(json.dumps(rows[-1]), flush=True)
     ok = [r for r in rows if "error" not in r]
-    for r in rows:
-        print(json.dumps(r))
     if ok:
         print(f"median APE {statistics.median(r['ape'] for r in ok):.3f}; covered {sum(r['covered'] for r in ok)}/"
               f"{len(ok)}; off by more than 2x: {sum(r['pred_kg'] > 2 * r['truth_kg'] or r['pred_kg'] < r['truth_kg'] / 2 for r in ok)}")  # fmt: skip
