@@ -56,6 +56,9 @@ class GeometryConfig:
     object_mask_dilate_px: int = 2
     """the object's own silhouette (its Gaussians rendered alone) is dilated by this before it cuts the
     foreground masks, so that other objects in the views do not count as this one"""
+    min_mask_agreement: float = 0.5
+    """IoU between a view's object mask and the object's rendered silhouette below which the view carves with
+    the silhouette (:func:`_object_views`)"""
     max_views: int | None = None
     """use at most this many views (evenly spaced); None = all"""
     backend: str = "auto"
@@ -87,6 +90,7 @@ class ObjectGeometry:
     selection: ObjectSelection
     views_used: int
     mask_sources: dict[str, int]
+    """views per mask source, after the silhouette replacements of :func:`_object_views`"""
 
     @property
     def num_parts(self) -> int:
@@ -112,7 +116,11 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
                   ) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
     """The object's own depth and alpha (its Gaussians rendered alone: a thin part's expected depth is not
     pulled back by the background behind it), and the foreground masks cut down to this object (foreground
-    AND the dilated silhouette of its Gaussians)."""
+    AND the dilated silhouette of its Gaussians). A view whose cut mask agrees with the silhouette at IoU below
+    ``min_mask_agreement`` (its segmentation merged the object into the background, or found nothing) carves
+    with the dilated silhouette instead: the silhouette is the consensus of every view's masks, lifted onto the
+    Gaussians (:mod:`.select`) and rendered back, so one view's failed segmentation cannot carve the object
+    away, which the vote alone cannot prevent once several views fail."""
     import cv2
 
     sub = _Subset(g, selection.selected)
@@ -120,11 +128,21 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     k = 2 * cfg.object_mask_dilate_px + 1
     kernel = np.ones((k, k), np.uint8)
     out = []
+    replaced = 0
     for v, r in zip(views, renders):
-        sil = (r.alpha.cpu().numpy() > 0.5).astype(np.uint8)
-        if cfg.object_mask_dilate_px > 0:
-            sil = cv2.dilate(sil, kernel)
-        out.append(replace(v, mask=v.mask & torch.from_numpy(sil.astype(bool))))
+        core = r.alpha.cpu().numpy() > 0.5
+        sil = cv2.dilate(core.astype(np.uint8), kernel).astype(bool) if cfg.object_mask_dilate_px > 0 else core
+        fg = v.mask.cpu().numpy() & sil
+        union = (fg | core).sum()
+        iou = (fg & core).sum() / union if union else 1.0
+        if iou < cfg.min_mask_agreement:  # this view's segmentation lost the object: use the splat's consensus
+            replaced += 1
+            out.append(replace(v, mask=torch.from_numpy(sil), mask_source="silhouette"))
+        else:
+            out.append(replace(v, mask=torch.from_numpy(fg)))
+    if replaced:
+        logger.info("object masks: %d of %d views disagree with the object's rendered silhouette (IoU < %.2g) and "
+                    "carve with the silhouette instead", replaced, len(views), cfg.min_mask_agreement)  # fmt: skip
     return out, renders
 
 
@@ -173,13 +191,13 @@ def reconstruct_object(
         views = [views[i] for i in keep]
     if not views:
         raise ValueError("no views to carve the object from: the run has no training cameras.")
-    sources: dict[str, int] = {}
-    for v in views:
-        sources[v.mask_source] = sources.get(v.mask_source, 0) + 1
     step("selecting the object")
     selection = select_object(g, views, cfg.select, backend=cfg.backend)
     step("rendering depth")
     obj_views, renders = _object_views(g, selection, views, cfg)
+    sources: dict[str, int] = {}
+    for v in obj_views:
+        sources[v.mask_source] = sources.get(v.mask_source, 0) + 1
     grid = _domain(g, selection.selected, cfg)
     sdf = [signed_mask_distance(v.mask) for v in obj_views]
     device = g.means.device
