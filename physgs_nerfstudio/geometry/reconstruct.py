@@ -214,7 +214,7 @@ def reconstruct_object(
     union = np.logical_or.reduce(solids)
     if not solids[0].any():
         raise ValueError("carving left no solid voxel: the object masks and the views disagree (check poses and "
-                         "masks, or lower --geometry.carve.min-vote-fraction).")  # fmt: skip
+                         "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
     step("materials and parts")
     sel = selection.selected
     mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi[sel])
