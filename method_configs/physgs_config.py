@@ -12,12 +12,12 @@ from __future__ import annotations
 from nerfstudio.configs.base_config import ViewerConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
 from nerfstudio.engine.trainer import TrainerConfig
-from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 from physgs_nerfstudio.nerfstudio.datamanager import PhysGSDatamanagerConfig
 from physgs_nerfstudio.nerfstudio.dataparser import PhysGSDataParserConfig
 from physgs_nerfstudio.nerfstudio.model import PhysGSModelConfig
+from physgs_nerfstudio.nerfstudio.pipeline import PhysGSPipelineConfig
 from physgs_nerfstudio.nerfstudio.schedulers import FloatExponentialDecaySchedulerConfig
 
 
@@ -58,7 +58,7 @@ def physgs_trainer_config() -> TrainerConfig:
         steps_per_eval_all_images=1000,
         max_num_iterations=30000,
         mixed_precision=False,
-        pipeline=VanillaPipelineConfig(
+        pipeline=PhysGSPipelineConfig(
             datamanager=PhysGSDatamanagerConfig(
                 dataparser=PhysGSDataParserConfig(load_3D_points=True),
                 cache_images_type="uint8",
@@ -81,7 +81,7 @@ def physgs_lite_trainer_config() -> TrainerConfig:
         steps_per_eval_all_images=1_000_000,
         max_num_iterations=iters,
         mixed_precision=False,
-        pipeline=VanillaPipelineConfig(
+        pipeline=PhysGSPipelineConfig(
             datamanager=PhysGSDatamanagerConfig(
                 dataparser=PhysGSDataParserConfig(load_3D_points=True),
                 cache_images_type="uint8",

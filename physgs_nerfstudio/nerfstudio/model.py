@@ -8,16 +8,17 @@ Per Gaussian g, on top of splatfacto's parameters:
 - `dirichlet_evidence` [N, K] (not trainable, in `gauss_params` so densification splits / clones / prunes it
   with everything else; children of a split inherit their parent's evidence): the lifted evidence
   e_gk = sum over training pixels of (T * alpha)_g(pixel) * confidence(pixel) * [label(pixel) = k],
-  computed by `run_lifting` through `physgs_nerfstudio.lifting.lift_evidence`. Posterior
+  computed by the pipeline (`pipeline.PhysGSPipeline`, through `physgs_nerfstudio.lifting.lift_evidence`) and
+  handed to the model by `set_material_evidence`. Posterior
   alpha_g = alpha0 + lambda * e_g; a Gaussian with (near) zero evidence keeps the prior (maximal
   epistemic uncertainty).
 
 How the two combine: the Dirichlet posterior is *the* Bayesian belief used for every physical property and
 its uncertainty (mixture predictive over the per-material NIG posteriors of `materials.json`,
 `bayes.property_fields`); the logits only drive the rendered material map (they are a point estimate fit by
-gradient descent, good at pixel-sharp boundaries, with no calibrated uncertainty). Lifting runs when
-densification stops (`lifting_step`, default `stop_split_at`), at the last training iteration and on demand
-(`run_lifting(datamanager)`); before the first lifting every Gaussian shows the prior.
+gradient descent, good at pixel-sharp boundaries, with no calibrated uncertainty). The pipeline lifts when
+densification stops (its `lifting_step`, default `stop_split_at`), at the last training iteration and on demand
+(`PhysGSPipeline.lift()`); before the first lifting every Gaussian shows the prior.
 
 Lifting also records, per Gaussian, its total (per-view normalised) blending weight `lifting_weight` [N, 1]
 and the part of it that fell on labelled pixels (label != 0, whatever the confidence) `labelled_weight`
@@ -38,14 +39,13 @@ evaluated from the SH coefficients before rasterization so that RGB and the extr
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import torch
 import torch.nn.functional as F
 from gsplat.strategy import DefaultStrategy
 from jaxtyping import Float
 from nerfstudio.cameras.cameras import Cameras
-from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.model_components.lib_bilagrid import BilateralGrid
 from nerfstudio.models.splatfacto import (
     RGB2SH,
@@ -61,9 +61,10 @@ from torch import Tensor
 from torch.nn import Parameter
 
 from physgs_nerfstudio.bayes import NIG, dirichlet_posterior, property_fields
+from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 from physgs_nerfstudio.render import eval_sh_colors, rasterize
 
-from .keys import EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY, world_to_camera
+from .keys import EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY
 from .legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
 
 PROPERTY_OUTPUTS = ("density", "friction", "hardness", "stiffness")
@@ -95,21 +96,6 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     """Dirichlet prior concentration per material; None = `alpha0` of materials.json (1.0 if absent)."""
     dirichlet_lambda: float | None = None
     """Evidence strength lambda (evidence in pixel-weight units); None = `lambda` of materials.json (1.0 if absent)."""
-    min_evidence: float = 1e-3
-    """Gaussians with less total lifted evidence than this keep the exact prior (never seen)."""
-    evidence_per_view: Literal["view", "pixels"] = "view"
-    """How a view's lifted evidence counts in the Dirichlet. "view": divided by the Gaussian's blending weight in
-    that view, so every view that sees the Gaussian (weight above `min_view_weight`) is one confidence-weighted
-    observation, split over the labels of the pixels it covers: the concentration grows with the number of
-    consistent views, not with the Gaussian's size on screen. "pixels": the raw pixel sum (every covered pixel
-    counts as an observation: far more confident for large Gaussians, far less for sub-pixel ones)."""
-    min_view_weight: float = 0.05
-    """With evidence_per_view="view": a view counts for a Gaussian only if its total blending weight there (in
-    pixels) exceeds this; below it the Gaussian is treated as unseen in that view."""
-    lifting_step: int | None = None
-    """Step at which to lift the material maps onto the Gaussians; None = `stop_split_at` (densification end)."""
-    lift_at_end: bool = True
-    """Lift again at the last training iteration (so the checkpoint's evidence matches the final Gaussians)."""
     material_weights: Literal["dominant", "predictive"] = "dominant"
     """How a Gaussian's Dirichlet posterior weights the materials' property posteriors, for the viewer outputs
     and every `physgs export` writer (saved with the run's config): "dominant", the posterior that a material
@@ -129,6 +115,19 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     """auto: gsplat on CUDA, the pure-torch reference rasterizer elsewhere."""
     compute_lpips: bool = True
     """LPIPS in eval metrics (needs torchvision's AlexNet weights; skipped with a warning when absent)."""
+
+
+class MaterialEvidence(NamedTuple):
+    """A lifting pass's result for the Gaussians as they stand (`PhysGSModel.set_material_evidence`)."""
+
+    evidence: Float[Tensor, "n k"]
+    """confidence-weighted label evidence (per-view normalised or pixel sums); 0 rows keep the prior"""
+    weight: Float[Tensor, "n 1"]
+    """total blending weight (`lifting_weight`)"""
+    labelled: Float[Tensor, "n 1"]
+    """the part of it on labelled pixels (`labelled_weight`)"""
+    views: int
+    """training views with at least one labelled pixel"""
 
 
 class _LazyLPIPS:
@@ -337,37 +336,29 @@ class PhysGSModel(SplatfactoModel):
         for key in NON_TRAINABLE_KEYS:
             self.gauss_params[key].requires_grad_(False)
 
-    def get_training_callbacks(
-        self, training_callback_attributes: TrainingCallbackAttributes
-    ) -> list[TrainingCallback]:
-        cbs = super().get_training_callbacks(training_callback_attributes)
-        cbs.append(
-            TrainingCallback(
-                [TrainingCallbackLocation.AFTER_TRAIN_ITERATION],
-                self._lifting_callback,
-                args=[training_callback_attributes],
-            )
-        )
-        return cbs
-
-    def _lifting_callback(self, attrs: TrainingCallbackAttributes, step: int) -> None:
-        lift_at = (
-            self.config.lifting_step if self.config.lifting_step is not None else self.config.stop_split_at
-        )
-        last = None
-        if attrs.trainer is not None:
-            last = attrs.trainer._start_step + attrs.trainer.config.max_num_iterations - 1
-        if step == lift_at or (self.config.lift_at_end and step == last):
-            assert attrs.pipeline is not None
-            self.run_lifting(attrs.pipeline.datamanager)
-
     # ------------------------------------------------------------------ Bayesian head
     @torch.no_grad()
-    def run_lifting(self, datamanager) -> Tensor:
-        """Lift the training views' material maps onto the Gaussians (`lifting_pass.lift_material_maps`)."""
-        from .lifting_pass import lift_material_maps
-
-        return lift_material_maps(self, datamanager)
+    def set_material_evidence(self, lifted: MaterialEvidence) -> None:
+        """Replace the lifted per-Gaussian tensors (`dirichlet_evidence`, `lifting_weight`, `labelled_weight`) and
+        the count of lifted views with a lifting pass over the Gaussians as they stand (the pipeline's)."""
+        N, K = self.num_points, self.num_materials
+        shapes = {"evidence": (N, K), "weight": (N, 1), "labelled": (N, 1)}
+        for name, want in shapes.items():
+            got = tuple(getattr(lifted, name).shape)
+            if got != want:
+                raise ValueError(
+                    f"set_material_evidence: {name} has shape {got}, the model has {want} "
+                    "(lift again after densification changed the Gaussians)"
+                )
+        self.gauss_params[EVIDENCE_KEY].data = lifted.evidence.to(self.device)
+        self.gauss_params[WEIGHT_KEY].data = lifted.weight.to(self.device)
+        self.gauss_params[LABELLED_KEY].data = lifted.labelled.to(self.device)
+        self._labelled_legacy = False
+        self.lifted_views.fill_(int(lifted.views))
+        CONSOLE.log(
+            f"PhysGS lifting: {int(lifted.views)} views -> evidence on "
+            f"{int((lifted.evidence.sum(-1) > 0).sum())}/{N} Gaussians"
+        )
 
     def dirichlet_alpha(self) -> Float[Tensor, "n k"]:
         """Per-Gaussian Dirichlet posterior alpha0 + lambda * evidence (the prior where evidence is 0)."""
@@ -495,7 +486,7 @@ class PhysGSModel(SplatfactoModel):
             scales=torch.exp(crop(self.scales)),
             opacities=torch.sigmoid(crop(self.opacities)).squeeze(-1),
             colors=torch.cat(channels, dim=-1),
-            viewmats=world_to_camera(c2w.to(self.device)),
+            viewmats=viewmat_from_c2w(c2w.to(self.device)),
             Ks=Ks, width=W, height=H, packed=False, near_plane=0.01, far_plane=1e10, render_mode="RGB+ED",
             sh_degree=None, sparse_grad=False, absgrad=self.strategy.absgrad,
             rasterize_mode=self.config.rasterize_mode, backend=self.config.rasterize_backend,
@@ -554,7 +545,7 @@ class PhysGSModel(SplatfactoModel):
     def _training_outputs(self, camera: Cameras, c2w: Tensor, Ks: Tensor, W: int, H: int) -> dict[str, Any]:
         """Training: splatfacto's RGB(+depth) pass (SH evaluated in the rasterizer), plus, every
         `material_every` steps, a pass of the K material logits at 1/`material_downscale` resolution."""
-        viewmat = world_to_camera(c2w.to(self.device))
+        viewmat = viewmat_from_c2w(c2w.to(self.device))
         geometry = {
             "means": self.means,
             "quats": self.quats,
