@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from physgs_nerfstudio.export.maps import viewmat_from_c2w
 from physgs_nerfstudio.export.shapes import field_from, shell_sphere
 from physgs_nerfstudio.geometry import CaptureView, GeometryConfig, MaskObservation, reconstruct_object
+from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.geometry.select import capture_centre
 from physgs_nerfstudio.mass import MassConfig, integrate_mass

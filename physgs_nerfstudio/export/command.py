@@ -25,9 +25,10 @@ from ..geometry import (
     load_observations,
     reconstruct_object,
 )
+from ..geometry.capture import viewmat_from_c2w
 from ..mass import MassConfig, MassReport, integrate_mass, library_thickness
 from .field import PropertyField
-from .maps import View, save_property_maps, viewmat_from_c2w
+from .maps import View, save_property_maps
 from .ply import write_property_ply
 from .report import print_mass_table, write_report
 from .voxel import write_voxel_grid
