@@ -57,7 +57,13 @@ def entrypoint(argv: list[str] | None = None) -> None:
         description="PhysGS for nerfstudio: physical properties with uncertainty on Gaussian splats.",
         args=_upgrade(list(sys.argv[1:] if argv is None else argv)),
     )
-    config.main()
+    from physgs_nerfstudio.errors import PhysGSError
+
+    try:
+        config.main()
+    except PhysGSError as err:  # a user error (errors.py): one line, no traceback
+        name = next((n for n in COMMANDS if COMMANDS[n][1] == type(config).__name__), "")
+        raise SystemExit(f"physgs {name}: {' '.join(str(err).split())}") from None
 
 
 if __name__ == "__main__":
