@@ -232,7 +232,6 @@ def reject_nonpositive_masses(truth: Sequence[Measurement], preds: Sequence[Pred
             raise input_error(rec.source or None, None if rec.source else f"item {rec.item!r}",
                               f"{what} mass of item {rec.item!r} is {value:g} kg; a mass must be > 0",
                               "Fix or remove that entry (a failed prediction is left out, not written as 0)")
-    return None
 
 
 def run_eval(cfg: EvalCommand):

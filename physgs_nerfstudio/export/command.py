@@ -92,7 +92,7 @@ def load_run(
 
     from .scale import read_dataparser_scale
 
-    run_files = check_run(Path(config_path))  # safe YAML, PhysGS method, checkpoint (beside the config if moved)
+    run_files = check_run(Path(config_path))  # safe YAML, method, checkpoint (beside the config if moved)
     config, pipeline, _, _ = eval_setup(run_files.config_path, test_mode="inference",
                                         update_config_callback=run_files.apply)  # fmt: skip
     dp_scale = read_dataparser_scale(config.get_base_dir())
@@ -257,7 +257,7 @@ class ExportCommand:
         return replace(m, **kw)
 
     def main(self) -> ExportResult:
-        check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before the load
+        check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
         run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env)
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
         run.field = run.field.to(device)

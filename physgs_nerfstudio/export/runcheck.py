@@ -30,7 +30,7 @@ from typing import Any
 
 from ..errors import PhysGSError
 
-__all__ = ["RunFilesError", "RunFiles", "check_run", "check_transforms"]
+__all__ = ["RunFiles", "RunFilesError", "check_run", "check_transforms"]
 
 _STEP = re.compile(r"^step-(\d+)\.ckpt$")
 _RETRAIN = "copy the run folder again from where it was trained, or retrain"
