@@ -1,15 +1,18 @@
-"""The base of the errors a user can fix: ``physgs`` prints them as one line, without a traceback.
+"""Errors meant for the person at the command line.
 
-Raise a subclass of :class:`PhysGSError` (usually mixed with the builtin it refines, e.g.
-``class RunFilesError(PhysGSError, ValueError)``, so existing ``except ValueError`` callers still catch it)
-whose message names what was wrong, where (the file), and what to do. ``physgs_nerfstudio.cli`` catches
-``PhysGSError`` and prints ``physgs <command>: <message>``; anything else keeps its traceback (a bug).
+A :class:`PhysGSError` says what was wrong, where, and what to do, in one line; the ``physgs`` command prints
+its message without a traceback and exits with status 1 (cli.py). Subclasses also derive from the builtin
+exception a caller would have caught before (``ValueError``, ``RuntimeError``), so existing ``except``
+clauses keep working.
 """
 
 from __future__ import annotations
 
-__all__ = ["PhysGSError"]
-
 
 class PhysGSError(Exception):
-    """A user error: bad input, a file that cannot be used, a full disk. ``str(err)`` is one line."""
+    """A user-facing error: its message is printed as one line, without a traceback."""
+
+
+class DatasetError(PhysGSError, ValueError):
+    """A dataset that cannot be used as it is: a malformed transforms.json, an unreadable image, a frame path
+    outside the dataset. The message names the file and the fix."""
