@@ -53,6 +53,9 @@ class GeometryConfig:
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1"""
     min_part_fraction: float = 2e-3
+    min_voxel_evidence: float = 0.5
+    """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
+    (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
     object_mask_dilate_px: int = 2
     """the object's own silhouette (its Gaussians rendered alone) is dilated by this before it cuts the
     foreground masks, so that other objects in the views do not count as this one"""
@@ -217,7 +220,9 @@ def reconstruct_object(
                          "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
     step("materials and parts")
     sel = selection.selected
-    mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi[sel])
+    labelled = getattr(g, "labelled", None)
+    mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi[sel],
+                            labelled[sel] if labelled is not None else None, min_evidence=cfg.min_voxel_evidence)
     parts = part_labels(union, mixture, cfg.min_part_fraction)
     P = int(parts.max()) + 1
     K = pi.shape[1]

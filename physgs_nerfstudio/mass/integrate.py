@@ -9,9 +9,9 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
 * **Density**: one draw per material from the posterior of its mean (NIG: Student-t(2a, tau, sqrt(b/(a kappa))),
   in log space where configured; ``density_draw="predictive"`` uses the full predictive). Every part of that
   material uses the same draw (densities are fully correlated across the object).
-* **Structure**: each part is hollow with its posterior predictive probability ``E[theta_p]`` (Beta posterior
-  of :mod:`physgs_nerfstudio.geometry.structure`); a hollow part draws its wall thickness ``t_p`` from the
-  posterior of its log-thickness mean.
+* **Structure**: each part draws its "hollow" answer rate ``theta_p`` from its Beta posterior
+  (:mod:`physgs_nerfstudio.geometry.structure`) and is hollow when ``theta_p > 1/2``; a hollow part draws its
+  wall thickness ``t_p`` from the posterior of its log-thickness mean.
 * Part mass: ``rho x V_p`` (solid) or ``rho x min(V_p, A_p t_p)`` (hollow); the object's mass is the sum.
 
 The reported mean, median and central ``level`` interval all come from these same samples.
@@ -127,7 +127,7 @@ def _structure_draws(geo: ObjectGeometry, cfg: MassConfig, rng: np.random.Genera
     S, P = cfg.n_samples, geo.num_parts
     st = geo.structure
     if cfg.structure == "auto":
-        hollow = rng.random((S, P)) < st.p_hollow[None, :]
+        hollow = st.sample_hollow(rng, S)
     else:
         hollow = np.full((S, P), cfg.structure == "hollow")
     t = st.thickness
