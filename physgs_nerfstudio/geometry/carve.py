@@ -33,7 +33,9 @@ one view":
 
 The centre test makes the recovered volume unbiased to first order in the voxel size (a boundary voxel is
 counted when its centre is inside). The solid's small disconnected specks (below ``min_component`` of the
-largest component's volume) are dropped.
+largest component's volume) are dropped, and cavities that the solid encloses completely are filled: a view
+can only see past a voxel along a ray of empty space, so an enclosed empty pocket was carved by wrong
+evidence (a depth rendered too deep through a semi-transparent wall), never seen.
 """
 
 from __future__ import annotations
@@ -75,6 +77,8 @@ class CarveConfig:
     use_depth: bool = True
     min_component: float = 0.02
     """drop solid components smaller than this fraction of the largest one"""
+    fill_cavities: bool = True
+    """fill empty pockets that the solid encloses completely (module doc)"""
 
     def __post_init__(self) -> None:
         if self.min_votes < 1:
@@ -194,4 +198,6 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
         sizes = np.bincount(labels.ravel())
         sizes[0] = 0
         solid = (sizes >= cfg.min_component * sizes.max())[labels] & (labels > 0)
+    if cfg.fill_cavities:
+        solid = ndimage.binary_fill_holes(solid)
     return solid

@@ -22,7 +22,7 @@ from .capture import CaptureView, MaskObservation
 from .carve import CarveConfig, carve_votes, signed_mask_distance, solid_from_votes
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
-from .parts import PartGeometry, part_areas, part_labels, voxel_mixture
+from .parts import PartGeometry, material_quantiles, part_areas, part_labels, voxel_mixture
 from .select import ObjectSelection, SelectConfig, select_object
 from .structure import PartStructure, StructureConfig, fuse_structure
 
@@ -94,6 +94,9 @@ class ObjectGeometry:
     views_used: int
     mask_sources: dict[str, int]
     """views per mask source, after the silhouette replacements of :func:`_object_views`"""
+    material_levels: np.ndarray | None = None
+    """[P, J, K]: per part and quantile level, the volume share per material
+    (:func:`physgs_nerfstudio.geometry.parts.material_quantiles`); None = each part one material"""
 
     @property
     def num_parts(self) -> int:
@@ -245,5 +248,5 @@ def reconstruct_object(
         grid=grid, solid=solids[0], parts=parts, part_mixture=pm, mixture=mixture, variant_names=names,
         volumes=np.stack([gm.volume for gm in geos]), areas=np.stack([gm.area for gm in geos]),
         sheet_share=geos[0].sheet_share, structure=structure, selection=selection, views_used=len(views),
-        mask_sources=sources,
+        mask_sources=sources, material_levels=material_quantiles(parts, mixture, P, pm),
     )  # fmt: skip
