@@ -45,10 +45,15 @@ class WriteFailed(PhysGSError, OSError):
 
 def write_file(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` and fsync it: the write layer of every dataset output."""
-    with open(path, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
+    try:
+        with open(path, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as err:
+        if err.filename is None:
+            err.filename = str(path)
+        raise
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
