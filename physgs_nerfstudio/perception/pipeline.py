@@ -522,8 +522,12 @@ class PerceptionRun:
         for o in observations:
             result.material_counts[o["material"]] = result.material_counts.get(o["material"], 0) + 1
         if config.write_outputs and not observations:
-            raise NoObservations(no_observations_message(result))
-        if config.write_outputs:
+            asked = (result.failed or result.calls or result.cache_hits or result.resumed_masks or result.skipped_frames
+                     or not result.masks)
+            if asked:  # questions were asked (or could not be) and nothing came of them: a failed run
+                raise NoObservations(no_observations_message(result))
+            logger.warning("no mask was asked in this run (budget or stop rule): the dataset outputs are not written")
+        if config.write_outputs and observations:
             segmenter = config.segmenter.name if self.segmenter is not None else "none (baseline prompt)"
             source = {"backend": result.backend, "model": result.model, "segmenter": segmenter,
                       "prompt": config.prompt}  # fmt: skip
