@@ -29,7 +29,13 @@ from physgs_nerfstudio.perception.images import BadFrame, read_image
 from physgs_nerfstudio.perception.lock import LOCK_FILE, LockHeld, LockInfo
 from physgs_nerfstudio.perception.pipeline import NoObservations
 from physgs_nerfstudio.perception.prompts import PromptConfig, build_request
-from physgs_nerfstudio.perception.vlm import CachedBackend, OpenAIBackend, OpenAIConfig, VLMAuthError, VLMError
+from physgs_nerfstudio.perception.vlm import (
+    CachedBackend,
+    OpenAIBackend,
+    OpenAIConfig,
+    VLMAuthError,
+    VLMError,
+)
 from physgs_nerfstudio.urls import redact_urls, split_userinfo
 
 KEY = "sk-faults-SECRET-0123456789abcdef"
@@ -69,7 +75,9 @@ def _request():
     img = np.random.default_rng(0).integers(0, 255, (32, 40, 3), dtype=np.uint8)
     mask = np.zeros((32, 40), bool)
     mask[8:20, 10:30] = True
-    return build_request("images/f0.png", 3, "part", img, mask, ["ceramic", "steel"], "indoor", PromptConfig())
+    return build_request(
+        "images/f0.png", 3, "part", img, mask, ["ceramic", "steel"], "indoor", PromptConfig()
+    )
 
 
 # ------------------------------------------------------------------------------------------------ 1. hang
@@ -148,7 +156,9 @@ def test_1_drip_server_perceive_run_finishes_within_deadline(tmp_path):
     with DripServer("body") as srv:
         t0 = time.monotonic()
         with pytest.raises(NoObservations):  # the run ends, non-zero, the dataset untouched
-            run_perception(_config(root, srv.base_url, {"timeout_s": 3.0, "max_retries": 0}, prompt="baseline"))
+            run_perception(
+                _config(root, srv.base_url, {"timeout_s": 3.0, "max_retries": 0}, prompt="baseline")
+            )
         elapsed = time.monotonic() - t0
     assert elapsed <= 3.0 + 2.0, elapsed
     assert srv.requests == 1 and not (root / "materials.json").exists()
@@ -267,9 +277,9 @@ def test_4_disk_full_during_rerun_leaves_the_dataset_as_it_was(tmp_path, monkeyp
         run_perception(_config(root, srv.base_url))
     before.update(_outputs(root))
     assert json.loads(before["materials.json"])["materials"][0]["name"] == "ceramic"
-    with FakeServer(lambda i, b: ok(_answer("steel"))) as srv:  # another model: other answers, new ids
-        with pytest.raises(PhysGSError, match="disk is full.*left as it was"):
-            run_perception(_config(root, srv.base_url, {"model": "m2"}, overwrite=True))
+    steel = FakeServer(lambda i, b: ok(_answer("steel")))  # another model: other answers, new ids
+    with steel as srv, pytest.raises(PhysGSError, match="disk is full.*left as it was"):
+        run_perception(_config(root, srv.base_url, {"model": "m2"}, overwrite=True))
     assert _outputs(root) == before  # all old files, byte for byte, and no new one
     assert _strays(root) == []
     monkeypatch.setattr(transaction, "write_file", real)
@@ -283,9 +293,13 @@ def test_4_a_committed_update_interrupted_while_moving_is_finished(tmp_path):
     txn = transaction.DatasetTransaction(tmp_path)
     txn.write_text("materials.json", "new")
     txn.write_text("materials/labels/a.png", "A")
-    transaction.atomic_write_bytes(txn.staging / transaction.JOURNAL, json.dumps({"files": txn.files}).encode())
+    transaction.atomic_write_bytes(
+        txn.staging / transaction.JOURNAL, json.dumps({"files": txn.files}).encode()
+    )
     uncommitted = transaction.DatasetTransaction(tmp_path)  # recovers the first one on creation
-    assert (tmp_path / "materials.json").read_text() == "new" and (tmp_path / "materials/labels/a.png").exists()
+    assert (tmp_path / "materials.json").read_text() == "new" and (
+        tmp_path / "materials/labels/a.png"
+    ).exists()
     uncommitted.write_text("materials.json", "never")  # staged, never committed (a kill)
     transaction.recover(tmp_path)
     assert (tmp_path / "materials.json").read_text() == "new" and _strays(tmp_path) == []
@@ -296,7 +310,8 @@ def test_4_real_full_tmpfs(tmp_path):
         pytest.skip("mounting a tmpfs needs root")
     mnt = tmp_path / "mnt"
     mnt.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mnt)], capture_output=True).returncode:
+    mount = ["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mnt)]
+    if subprocess.run(mount, capture_output=True, check=False).returncode:
         pytest.skip("cannot mount a tmpfs here")
     try:
         root = make_scene(mnt / "scene", num_views=2)
@@ -309,10 +324,9 @@ def test_4_real_full_tmpfs(tmp_path):
         free = st.f_bavail * st.f_frsize
         with open(mnt / "filler", "wb") as fh:  # leave room for the observations, not for the maps
             fh.write(b"\0" * max(0, free - need // 2))
-        with FakeServer(lambda i, b: ok(_answer("steel"))) as srv:
-            with pytest.raises(PhysGSError, match="disk is full") as err:
-                run_perception(_config(root, srv.base_url, {"model": "m2"}, cache_dir=cache, overwrite=True))
-        print("real tmpfs:", err.value)
+        steel = FakeServer(lambda i, b: ok(_answer("steel")))
+        with steel as srv, pytest.raises(PhysGSError, match="disk is full"):
+            run_perception(_config(root, srv.base_url, {"model": "m2"}, cache_dir=cache, overwrite=True))
         assert _outputs(root) == before and _strays(root) == []
     finally:
         subprocess.run(["umount", str(mnt)], check=False)
@@ -329,7 +343,9 @@ def test_7_16bit_and_float_images_are_scaled_not_clipped(tmp_path):
     assert (got == 255).mean() < 0.05  # main read it as all white
     ramp_f = np.linspace(0, 1, 48 * 64, dtype=np.float32).reshape(48, 64)
     Image.fromarray(ramp_f, mode="F").save(tmp_path / "f.tiff")
-    np.testing.assert_array_equal(read_image(tmp_path / "f.tiff")[..., 1], np.round(ramp_f * 255).astype(np.uint8))
+    np.testing.assert_array_equal(
+        read_image(tmp_path / "f.tiff")[..., 1], np.round(ramp_f * 255).astype(np.uint8)
+    )
     hdr = ramp_f * 1000 - 200  # outside [0, 1]: its own range
     Image.fromarray(hdr, mode="F").save(tmp_path / "hdr.tiff")
     got = read_image(tmp_path / "hdr.tiff")[..., 2]
@@ -390,9 +406,11 @@ def test_8_credentials_refused_stops_at_the_first_request(tmp_path, capsys, stat
 def test_8_no_observations_leaves_the_dataset_untouched_and_fails(tmp_path, reply):
     root = make_scene(tmp_path / "scene", num_views=1)
     before = _outputs(root)
-    with FakeServer(lambda i, b: reply) as srv:
-        with pytest.raises(NoObservations, match="were not changed") as err:
-            run_perception(_config(root, srv.base_url, {"max_retries": 2}, prompt="baseline"))
+    with (
+        FakeServer(lambda i, b: reply) as srv,
+        pytest.raises(NoObservations, match="were not changed") as err,
+    ):
+        run_perception(_config(root, srv.base_url, {"max_retries": 2}, prompt="baseline"))
     assert len(srv.requests) == 3  # retried, then given up
     assert "failed" in str(err.value)
     _untouched(root, before)
@@ -452,7 +470,9 @@ def test_10a_userinfo_of_the_url_is_never_written(tmp_path, caplog):
         again = run_perception(config)
     assert set(srv.auth) == {"Basic YWxpY2U6aHVudGVyMnNlY3JldA=="}  # the credentials are used, as basic auth
     assert len(result.failed) == 1 and "http://***@127.0.0.1" in result.failed[0] and again.calls == 1
-    texts = [caplog.text, *result.failed] + [f.read_text(errors="ignore") for f in root.rglob("*") if f.is_file()]
+    texts = [caplog.text, *result.failed] + [
+        f.read_text(errors="ignore") for f in root.rglob("*") if f.is_file()
+    ]
     assert all("hunter2secret" not in t for t in texts)
     assert "http://***@127.0.0.1" in (root / "perception/run.json").read_text()
 
@@ -499,7 +519,11 @@ def test_12_structured_output_schema_and_fallbacks():
         be = OpenAIBackend(_vlm(srv.base_url))
         be.query(_request())
         be.query(_request())
-    assert [b["response_format"]["type"] for b in srv.requests] == ["json_schema", "json_object", "json_object"]
+    assert [b["response_format"]["type"] for b in srv.requests] == [
+        "json_schema",
+        "json_object",
+        "json_object",
+    ]
     assert be.response_format == "json_object"
 
     with FakeServer(lambda i, b: (400, {}, {"error": "bad image"}, 0.0)) as srv:  # not about the format

@@ -70,7 +70,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 
 
 def _ordered(files: Sequence[str]) -> list[str]:
-    return sorted(files, key=lambda rel: (LAST.index(rel) + 1 if rel in LAST else 0))
+    return sorted(files, key=lambda rel: LAST.index(rel) + 1 if rel in LAST else 0)
 
 
 def _apply(root: Path, staging: Path, files: Sequence[str]) -> None:
@@ -135,7 +135,7 @@ class DatasetTransaction:
     def abort(self) -> None:
         shutil.rmtree(self.staging, ignore_errors=True)
 
-    def __enter__(self) -> DatasetTransaction:
+    def __enter__(self):
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

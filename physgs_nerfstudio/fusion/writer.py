@@ -26,9 +26,9 @@ import numpy as np
 from ..errors import DatasetError
 from ..materials import CANONICAL_SCALE, PROPERTY_KEYS, MaterialLibrary
 from . import transaction as _transaction
-from .transaction import DatasetTransaction
 from .maps import MapFusionConfig, ViewMaps
 from .properties import PropertyPosteriors, posterior_means
+from .transaction import DatasetTransaction
 
 MATERIALS_JSON_VERSION = 1
 LABEL_DIR = "materials/labels"

@@ -45,7 +45,11 @@ def to_rgb8(im) -> UInt8[np.ndarray, "H W 3"]:
         finite = np.isfinite(a)
         a = np.where(finite, a, 0.0)
         vals = a[finite]
-        lo, hi = (0.0, 1.0) if vals.size == 0 or (vals.min() >= 0 and vals.max() <= 1) else (vals.min(), vals.max())
+        lo, hi = (
+            (0.0, 1.0)
+            if vals.size == 0 or (vals.min() >= 0 and vals.max() <= 1)
+            else (vals.min(), vals.max())
+        )
         grey = _scale(a, float(lo), float(hi))
     else:
         return np.asarray(im.convert("RGB"), dtype=np.uint8)
@@ -63,8 +67,12 @@ def read_image(path: Path, name: str | None = None) -> UInt8[np.ndarray, "H W 3"
         size = path.stat().st_size
     except OSError as err:
         if err.errno == errno.ELOOP:
-            raise BadFrame(f"{what} is a symlink loop; point the link at a real file or remove the frame") from None
-        raise BadFrame(f"{what} not found; fix its file_path in transforms.json or remove the frame") from None
+            raise BadFrame(
+                f"{what} is a symlink loop; point the link at a real file or remove the frame"
+            ) from None
+        raise BadFrame(
+            f"{what} not found; fix its file_path in transforms.json or remove the frame"
+        ) from None
     if not path.is_file():
         raise BadFrame(f"{what} is not a file; fix its file_path in transforms.json") from None
     if size == 0:
@@ -75,4 +83,6 @@ def read_image(path: Path, name: str | None = None) -> UInt8[np.ndarray, "H W 3"
             return np.ascontiguousarray(to_rgb8(im))
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
         reason = " ".join(str(err).split())[:160] or type(err).__name__
-        raise BadFrame(f"{what} cannot be read as an image ({reason}); replace it or remove the frame") from None
+        raise BadFrame(
+            f"{what} cannot be read as an image ({reason}); replace it or remove the frame"
+        ) from None

@@ -158,7 +158,7 @@ class DatasetLock:
             self.path.unlink(missing_ok=True)
         self.info = None
 
-    def __enter__(self) -> DatasetLock:
+    def __enter__(self):
         self.acquire()
         return self
 

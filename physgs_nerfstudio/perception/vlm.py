@@ -40,9 +40,9 @@ from ..errors import PhysGSError
 from ..urls import redact_url, redact_urls, split_userinfo
 from .answer import response_format
 from .cache import ResponseCache, request_key
+from .prompts import VLMRequest
 from .transport import DeadlineExceeded, ReplyTooLarge
 from .transport import post as http_post
-from .prompts import VLMRequest
 
 logger = logging.getLogger(__name__)
 
