@@ -25,16 +25,20 @@ from ..geometry import (
     load_observations,
     reconstruct_object,
 )
+from ..geometry.capture import viewmat_from_c2w
 from ..mass import MassConfig, MassReport, integrate_mass, library_thickness
 from .field import PropertyField
-from .maps import View, save_property_maps, viewmat_from_c2w
+from .maps import View, save_property_maps
 from .ply import write_property_ply
 from .report import print_mass_table, write_report
+from .runcheck import check_run
+from .staging import ExportStage, ExportWriteError, check_output_dir
 from .voxel import write_voxel_grid
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ExportCommand", "ExportResult", "LoadedRun", "load_run", "object_geometry", "run_export", "views_from_cameras"]
+__all__ = ["ExportCommand", "ExportResult", "LoadedRun", "load_run", "object_geometry", "run_export", "views_from_cameras",
+           "write_export"]
 
 Output = Literal["ply", "voxels", "maps", "mass"]
 
@@ -89,10 +93,9 @@ def load_run(
 
     from .scale import read_dataparser_scale
 
-    config_path = Path(config_path)
-    if not config_path.exists():
-        raise FileNotFoundError(f"{config_path} not found: pass the config.yml of an `ns-train physgs` run.")
-    config, pipeline, _, _ = eval_setup(config_path, test_mode="inference")
+    run_files = check_run(Path(config_path))  # safe YAML, method, checkpoint (beside the config if moved)
+    config, pipeline, _, _ = eval_setup(run_files.config_path, test_mode="inference",
+                                        update_config_callback=run_files.apply)  # fmt: skip
     dp_scale = read_dataparser_scale(config.get_base_dir())
     pf = PropertyField.from_model(pipeline.model, dp_scale, scale=scale, known_length=known_length, env=env)
     dm = pipeline.datamanager
@@ -121,7 +124,28 @@ def object_geometry(run: LoadedRun, cfg: GeometryConfig, progress: Any = None) -
                               material_names=pf.material_names, progress=progress)  # fmt: skip
 
 
-def run_export(
+def run_export(run: LoadedRun, output_dir: Path, *, overwrite: bool = False, source: Path | None = None,
+               **kwargs: Any) -> ExportResult:  # fmt: skip
+    """Write the chosen outputs of ``run`` into ``output_dir`` as one unit (:mod:`.staging`: staged beside it,
+    checked, swapped in; a failure leaves the previous export as it was) and print the mass table. ``kwargs``:
+    those of :func:`write_export`; ``overwrite`` replaces a folder that is not a previous export."""
+    stage = ExportStage.open(output_dir, overwrite=overwrite, protect=(source, run.data_dir))
+    try:
+        result = write_export(run, stage.path, final_dir=stage.final, **kwargs)
+        result.files = stage.commit(result.files, {"source": str(source) if source else None})
+    except OSError as err:
+        stage.abort()
+        if isinstance(err, ExportWriteError):
+            raise
+        raise ExportWriteError(f"{stage.final}: writing the export failed ({err}); nothing there was changed (the "
+                               "previous export is kept). Free space or fix the cause and rerun.") from None  # fmt: skip
+    except BaseException:
+        stage.abort()
+        raise
+    return result
+
+
+def write_export(
     run: LoadedRun,
     output_dir: Path,
     *,
@@ -132,8 +156,10 @@ def run_export(
     truth_kg: float | None = None,
     title: str | None = None,
     quiet: bool = False,
+    final_dir: Path | None = None,
 ) -> ExportResult:
-    """Write the chosen outputs of ``run`` into ``output_dir`` and print the mass table."""
+    """Write the chosen outputs of ``run`` straight into ``output_dir`` (no staging; ``final_dir``: where the
+    report says the files are) and print the mass table."""
     from rich.console import Console
 
     console = Console(quiet=quiet)
@@ -162,7 +188,8 @@ def run_export(
         files["maps"] = save_property_maps(pf, views, out / "maps")
         console.log(f"property maps: {len(files['maps'])} view(s) in {out / 'maps'}")
     if report is not None:
-        extra: dict[str, Any] = {"files": {k: [str(p) for p in v] for k, v in files.items()},
+        shown = Path(final_dir or out)
+        extra: dict[str, Any] = {"files": {k: [str(shown / p.relative_to(out)) for p in v] for k, v in files.items()},
                                  "legend": pf.legend(), "simulated": pf.simulated}  # fmt: skip
         if truth_kg is not None:
             extra["ground_truth_kg"] = truth_kg
@@ -198,6 +225,9 @@ class ExportCommand:
     truth_kg: float | None = None
     """ground-truth mass, if known: printed and checked against the interval"""
     device: Literal["auto", "cpu", "cuda"] = "auto"
+    overwrite: bool = False
+    """replace a non-empty --output-dir that is not a previous physgs export (a previous export is always
+    replaced, as a unit, once the new one is complete)"""
     resolution: int | None = None
     """(deprecated spelling of --mass.geometry.resolution)"""
     bbox: tuple[float, float, float, float, float, float] | None = None
@@ -228,6 +258,7 @@ class ExportCommand:
         return replace(m, **kw)
 
     def main(self) -> ExportResult:
+        check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
         run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env)
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
         run.field = run.field.to(device)
@@ -236,5 +267,5 @@ class ExportCommand:
         if "maps" in self.outputs and cameras is None:
             logger.warning("no training cameras found in the run: property maps skipped")
         return run_export(run, self.output_dir, mass=self.mass_config(), outputs=self.outputs, views=views,
-                          top_k=self.top_k, truth_kg=self.truth_kg,
+                          top_k=self.top_k, truth_kg=self.truth_kg, overwrite=self.overwrite, source=self.load_config,
                           title=f"Mass of {self.load_config.parent.name}")  # fmt: skip

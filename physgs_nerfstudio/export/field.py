@@ -263,10 +263,11 @@ class PropertyField:
         """Load a trained run (its ``config.yml``) through nerfstudio's ``eval_setup`` and snapshot it."""
         from nerfstudio.utils.eval_utils import eval_setup
 
-        config_path = Path(config_path)
-        if not config_path.exists():
-            raise FileNotFoundError(f"{config_path} not found: pass the config.yml of an `ns-train physgs` run.")
-        config, pipeline, _, _ = eval_setup(config_path, test_mode="inference")
+        from .runcheck import check_run
+
+        run_files = check_run(Path(config_path))  # safe YAML, PhysGS method, checkpoint (beside the config if moved)
+        config, pipeline, _, _ = eval_setup(run_files.config_path, test_mode="inference",
+                                            update_config_callback=run_files.apply)  # fmt: skip
         dp_scale = read_dataparser_scale(config.get_base_dir())
         return cls.from_model(pipeline.model, dp_scale, scale=scale, known_length=known_length, env=env)
 

@@ -9,9 +9,21 @@ For every voxel centre ``x`` and every view ``v`` in whose image it projects (in
   ``depth_margin_rel`` of the depth: the camera sees *past* ``x`` onto a surface behind it, so ``x`` is empty
   (this carves concavities that silhouettes cannot, such as a cup's inside).
 
-Either is an *empty vote*. A voxel is carved (empty) when its empty votes reach both ``min_votes`` and
-``min_vote_fraction`` of the views that see it. Otherwise it is solid, so space that no view sees past (the
-inside of a closed object) stays solid. Why a vote rather than the classic visual hull's "any one view":
+Either is an *empty vote*. A view *sees* ``x`` when ``x`` projects into its image; it sees ``x`` *directly*
+when, besides, the splat is opaque there and ``x`` is not hidden behind the rendered surface (``x`` lies in
+front of it or within the depth margin of it). A voxel is carved (empty) when its empty votes reach
+``min_votes`` and either
+
+* ``min_vote_fraction`` of the views that see it (the rule for silhouettes), or
+* ``min_direct_fraction`` of the views that see it directly, counting only the depth votes among them (the
+  rule for space that few views can see: under an object shot from above, only the few low views see that
+  space at all, every higher view has it hidden behind the object; the low views that see past it are then
+  all the direct evidence there is).
+
+Otherwise it is solid, so space that no view sees past (the inside of a closed object) stays solid. The direct
+rule never lets silhouette votes alone carve (a thick part's inside is seen directly by no view, so two bad
+masks stay 2 votes out of every view that sees it). Why a vote rather than the classic visual hull's "any
+one view":
 
 * one bad mask (a part the segmenter missed in one view) casts one wrong empty vote: with ``min_votes`` = 2 it
   cannot delete the part;
@@ -21,7 +33,9 @@ inside of a closed object) stays solid. Why a vote rather than the classic visua
 
 The centre test makes the recovered volume unbiased to first order in the voxel size (a boundary voxel is
 counted when its centre is inside). The solid's small disconnected specks (below ``min_component`` of the
-largest component's volume) are dropped.
+largest component's volume) are dropped, and cavities that the solid encloses completely are filled: a view
+can only see past a voxel along a ray of empty space, so an enclosed empty pocket was carved by wrong
+evidence (a depth rendered too deep through a semi-transparent wall), never seen.
 """
 
 from __future__ import annotations
@@ -57,9 +71,14 @@ class CarveConfig:
     """a voxel is in front of the surface when nearer than depth - (margin_voxels * voxel + margin_rel * depth)"""
     min_alpha: float = 0.5
     """pixels less opaque than this do not carve by depth"""
+    min_direct_fraction: float = 0.5
+    """... or at least this fraction of the views that see it directly see past it by depth (module doc);
+    > 1 switches the direct rule off"""
     use_depth: bool = True
     min_component: float = 0.02
     """drop solid components smaller than this fraction of the largest one"""
+    fill_cavities: bool = True
+    """fill empty pockets that the solid encloses completely (module doc)"""
 
     def __post_init__(self) -> None:
         if self.min_votes < 1:
@@ -105,6 +124,10 @@ class CarveVotes:
     """int [M]: views that see past each voxel"""
     seen: Tensor
     """int [M]: views in whose image each voxel projects"""
+    depth_empty: Tensor | None = None
+    """int [M]: the empty votes cast by depth (a subset of ``empty``)"""
+    direct: Tensor | None = None
+    """int [M]: views that see each voxel directly (opaque there, not hidden behind the rendered surface)"""
 
 
 @torch.no_grad()
@@ -122,6 +145,8 @@ def carve_votes(
     M = grid.num_voxels
     empty = torch.zeros(M, dtype=torch.int32, device=device)
     seen = torch.zeros(M, dtype=torch.int32, device=device)
+    depth_empty = torch.zeros(M, dtype=torch.int32, device=device)
+    direct = torch.zeros(M, dtype=torch.int32, device=device)
     sdf = [t.to(device) for t in (sdf if sdf is not None else [signed_mask_distance(v.mask) for v in views])]
     cams = [(v.viewmat[:3, :3].to(device), v.viewmat[:3, 3].to(device), v.K.to(device)) for v in views]
     use = [r if (renders is not None and cfg.use_depth) else None for r in (renders or [None] * len(views))]
@@ -133,6 +158,8 @@ def carve_votes(
         x = grid.centres(ijk)
         n_empty = torch.zeros(len(flat), dtype=torch.int32, device=device)
         n_seen = torch.zeros_like(n_empty)
+        n_depth = torch.zeros_like(n_empty)
+        n_direct = torch.zeros_like(n_empty)
         for view, (R, t, K), sd, dz in zip(views, cams, sdf, depth):
             pc = x @ R.T + t
             z = pc[:, 2]
@@ -146,21 +173,31 @@ def carve_votes(
                 vi = w.floor().long().clamp(0, view.height - 1)
                 d, a = dz[0][vi, ui], dz[1][vi, ui]
                 margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
-                vote |= ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha) & (z < d - margin)
+                inside = ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha)
+                dvote = inside & (z < d - margin)
+                vote |= dvote
+                n_depth += dvote.int()
+                n_direct += (inside & (z <= d + margin)).int()
             n_empty += vote.int()
             n_seen += ok.int()
-        empty[s0 : s0 + len(flat)] = n_empty
-        seen[s0 : s0 + len(flat)] = n_seen
-    return CarveVotes(empty, seen)
+        sl = slice(s0, s0 + len(flat))
+        empty[sl], seen[sl], depth_empty[sl], direct[sl] = n_empty, n_seen, n_depth, n_direct
+    return CarveVotes(empty, seen, depth_empty, direct)
 
 
 def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
     """bool [X, Y, Z]: voxels not carved by the vote (module doc), without specks."""
-    need = torch.maximum(torch.full_like(votes.seen, cfg.min_votes).float(), cfg.min_vote_fraction * votes.seen.float())
-    solid = (votes.empty.float() < need).reshape(grid.shape).cpu().numpy()
+    e = votes.empty.float()
+    carved = (e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * votes.seen.float())
+    if votes.direct is not None and votes.depth_empty is not None and cfg.min_direct_fraction <= 1:
+        d = votes.direct.float()
+        carved |= (e >= cfg.min_votes) & (d > 0) & (votes.depth_empty.float() >= cfg.min_direct_fraction * d)
+    solid = (~carved).reshape(grid.shape).cpu().numpy()
     labels, n = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
     if n > 1:
         sizes = np.bincount(labels.ravel())
         sizes[0] = 0
         solid = (sizes >= cfg.min_component * sizes.max())[labels] & (labels > 0)
+    if cfg.fill_cavities:
+        solid = ndimage.binary_fill_holes(solid)
     return solid
