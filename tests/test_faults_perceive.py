@@ -554,6 +554,12 @@ def test_13_malformed_transforms_is_one_line_naming_the_file(tmp_path, capsys, c
     assert exit_.value.code == 1 and len(err.splitlines()) == 1 and str(root / "transforms.json") in err
 
 
+def test_13_a_missing_dataset_folder_is_one_line_and_not_created(tmp_path):
+    with pytest.raises(DatasetError, match="not a directory"):
+        run_perception(PerceptionConfig(data=tmp_path / "typo", progress=False))
+    assert not (tmp_path / "typo").exists()
+
+
 @pytest.mark.parametrize("damage", ["zero bytes", "corrupt", "missing"])
 def test_13_one_bad_frame_among_many_is_skipped_and_reported(tmp_path, caplog, damage):
     root = make_scene(tmp_path / "scene", num_views=3)

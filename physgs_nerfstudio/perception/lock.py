@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from ..errors import PhysGSError
+from ..errors import DatasetError, PhysGSError
 
 logger = logging.getLogger(__name__)
 
@@ -133,7 +133,10 @@ class DatasetLock:
         self.info: LockInfo | None = None
 
     def acquire(self) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        root = self.path.parent.parent
+        if not root.is_dir():
+            raise DatasetError(f"{root} is not a directory: --data must be a nerfstudio dataset directory")
+        self.path.parent.mkdir(exist_ok=True)
         mine, told = LockInfo.mine(), False
         while not _create(self.path, mine):
             if _remove_if_stale(self.path):
