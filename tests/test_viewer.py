@@ -253,3 +253,27 @@ def test_selection_mass_equals_physgs_export_with_the_same_box(trained, tmp_path
     far = Selection((50.0, 50.0, 50.0, 51.0, 51.0, 51.0), "crop box")
     with pytest.raises(ValueError):
         selection_mass(run, mass, far, tmp_path / "far")
+
+
+def test_panel_elements_are_found_by_nerfstudio(tmp_path):
+    """nerfstudio's viewer collects ViewerElements / ViewerControl by walking the pipeline's modules; the panel
+    must be found and the walk must end (a public back reference to the model would recurse forever)."""
+    from nerfstudio.data.scene_box import SceneBox
+    from nerfstudio.viewer.utils import parse_object
+    from nerfstudio.viewer.viewer_elements import ViewerControl, ViewerElement
+    from test_nerfstudio_fixtures import write_blob_scene
+
+    from physgs_nerfstudio.nerfstudio import PhysGSDatamanagerConfig, PhysGSDataParserConfig, PhysGSModelConfig
+
+    write_blob_scene(tmp_path, num_views=3, size=16)
+    dm = PhysGSDatamanagerConfig(dataparser=PhysGSDataParserConfig(data=tmp_path)).setup(device="cpu")
+    meta = dm.train_dataparser_outputs.metadata
+    model = PhysGSModelConfig(sh_degree=0).setup(scene_box=SceneBox(torch.tensor([[-1.0, -1, -1], [1, 1, 1]])),
+                                                 num_train_data=len(dm.train_dataset), metadata=dm.train_dataset.metadata,
+                                                 seed_points=(meta["points3D_xyz"], meta["points3D_rgb"]))  # fmt: skip
+    holder = torch.nn.Module()
+    holder.model = model
+    names = [path for path, _ in parse_object(holder, ViewerElement, "Custom Elements")]
+    assert any(p.endswith("physical_properties/k_mass") for p in names), names
+    assert len(parse_object(holder, ViewerControl, "Custom Elements")) == 1
+    assert not any(k.startswith("physical_properties") for k in model.state_dict())  # nothing in checkpoints

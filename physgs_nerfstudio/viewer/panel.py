@@ -135,14 +135,10 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         self.control = ViewerControl()
 
     # ------------------------------------------------------------------ settings and legend
-    @property
-    def model(self) -> Any:
-        return self._model
-
     def _on_settings(self, _: Any) -> None:
-        s = self.model.viewer_settings
+        s = self._model.viewer_settings
         s.material_view = MATERIAL_VIEWS[self.c_material_view.value]
-        s.material_index = list(self.model.legend.names).index(self.d_material.value)
+        s.material_index = list(self._model.legend.names).index(self.d_material.value)
         s.uncertainty_property = self.e_uncertainty.value
 
     def _current_output(self) -> str | None:
@@ -156,7 +152,7 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         """Called by every render: describe the scale of the output the viewer shows (when it changed)."""
         self._scales = scales
         shown = self._current_output()
-        if shown == "material" and self.model.viewer_settings.material_view == "probability":
+        if shown == "material" and self._model.viewer_settings.material_view == "probability":
             shown = "material_probability"
         if shown == self._shown:
             return
@@ -175,7 +171,7 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         self.control.register_pointer_cb("click", self._on_click)
 
     def _camera(self) -> tuple[Any, int, int]:
-        H, W = getattr(self.model, "last_size", (512, 512))
+        H, W = getattr(self._model, "last_size", (512, 512))
         cam = self.control.get_camera(int(H), int(W))
         if cam is None:
             raise RuntimeError("no viewer client is connected")
@@ -202,7 +198,7 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         """The answer for a click at ``screen_pos`` (normalised OpenCV screen coordinates) in the current view."""
         from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 
-        m = self.model
+        m = self._model
         cam, W, H = self._camera()
         cam = cam.to(m.device)
         u, v = min(screen_pos[0] * W, W - 1e-3), min(screen_pos[1] * H, H - 1e-3)
@@ -255,7 +251,7 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 
         self.control.unregister_pointer_cb()
-        m = self.model
+        m = self._model
         try:
             cam, W, H = self._camera()
             gm = gaussian_materials(m)
