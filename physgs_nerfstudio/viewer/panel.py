@@ -24,6 +24,7 @@ import tempfile
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -54,14 +55,16 @@ SCALE_RATIO = 10.0  # nerfstudio.viewer.viewer.VISER_NERFSTUDIO_SCALE_RATIO (imp
 class ViewerMarkdown(ViewerElement[str]):
     """Markdown text in the panel (viser's markdown, with images from ``image_root``)."""
 
-    def __init__(self, content: str, image_root: Path | None = None, visible: bool = True):
+    def __init__(self, content: str, image_root: Callable[[], Path] | None = None, visible: bool = True):
         super().__init__("markdown", visible=visible)
         self._content = content
         self.image_root = image_root
+        """called when the element is installed: the folder of the images the markdown names (no parentheses
+        may follow an image in the text: viser's image pattern would swallow them)"""
 
     def _create_gui_handle(self, viser_server: Any) -> None:
-        self.gui_handle = viser_server.gui.add_markdown(self._content, image_root=self.image_root,
-                                                        visible=self.visible)  # fmt: skip
+        root = self.image_root() if self.image_root is not None else None
+        self.gui_handle = viser_server.gui.add_markdown(self._content, image_root=root, visible=self.visible)
 
     def install(self, viser_server: Any) -> None:
         self._create_gui_handle(viser_server)
@@ -105,10 +108,8 @@ class PhysicalPropertiesPanel(torch.nn.Module):
     def __init__(self, model: Any):
         super().__init__()
         object.__setattr__(self, "_model", model)  # a back reference, not a sub-module
-        self._assets = Path(tempfile.mkdtemp(prefix="physgs_viewer_"))
+        self._assets: Path | None = None
         names = list(model.legend.names)
-        legend_image(names, model.material_colors.detach().cpu(), self._assets / "legend.png")
-        colourbar_image(self._assets / "colourbar.png")
         s: ViewerSettings = model.viewer_settings
         keys = list(model.property_keys)
         self._keys = keys
@@ -118,8 +119,8 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         self._shown: str | None = None
         self._busy = threading.Lock()
         sim = " [SIMULATED VLM]" if model.legend.simulated else ""
-        self.a_legend = ViewerMarkdown(f"**Materials**{sim}\n\n![legend](legend.png)", self._assets)
-        self.b_scale = ViewerMarkdown("**Colour scale**: choose a property in *Output type*.", self._assets)
+        self.a_legend = ViewerMarkdown(f"**Materials**{sim}\n\n![legend](legend.png)", self._images)
+        self.b_scale = ViewerMarkdown("**Colour scale**: choose a property in *Output type*.", self._images)
         self.c_material_view = ViewerDropdown("Material colours", "dominant material", list(MATERIAL_VIEWS),
                                               cb_hook=self._on_settings)  # fmt: skip
         self.d_material = ViewerDropdown("Material", names[0], names, cb_hook=self._on_settings)
@@ -135,6 +136,15 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         self.control = ViewerControl()
 
     # ------------------------------------------------------------------ settings and legend
+    def _images(self) -> Path:
+        """The legend and colour-bar PNGs, written once, when the viewer installs the panel."""
+        if self._assets is None:
+            self._assets = Path(tempfile.mkdtemp(prefix="physgs_viewer_"))
+            legend_image(list(self._model.legend.names), self._model.material_colors.detach().cpu(),
+                         self._assets / "legend.png")  # fmt: skip
+            colourbar_image(self._assets / "colourbar.png")
+        return self._assets
+
     def _on_settings(self, _: Any) -> None:
         s = self._model.viewer_settings
         s.material_view = MATERIAL_VIEWS[self.c_material_view.value]
@@ -161,7 +171,7 @@ class PhysicalPropertiesPanel(torch.nn.Module):
             sc = scales[shown]
             what = f" of {self.d_material.value}" if shown == "material_probability" else ""
             self.b_scale.content = (f"**Colour scale** ({shown}{what}): {sc.describe()}\n\n![scale](colourbar.png)\n\n"
-                                    "Grey (dimmed RGB): no material evidence.")  # fmt: skip
+                                    "Grey, dimmed RGB: no material evidence.")  # fmt: skip
         else:
             self.b_scale.content = "**Colour scale**: choose a property in *Output type*."
 
@@ -171,8 +181,15 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         self.control.register_pointer_cb("click", self._on_click)
 
     def _camera(self) -> tuple[Any, int, int]:
-        H, W = getattr(self._model, "last_size", (512, 512))
-        cam = self.control.get_camera(int(H), int(W))
+        """The client's camera at the viewer's full render size (its *Max res*), as nerfstudio renders it."""
+        clients = self.control.server.get_clients()
+        if not clients:
+            raise RuntimeError("no viewer client is connected")
+        aspect = float(next(iter(clients.values())).camera.aspect)
+        viewer = getattr(self.control, "viewer", None)
+        res = int(viewer.control_panel.max_res) if viewer is not None else 512
+        W, H = (res, max(1, int(res / aspect))) if aspect > 1 else (max(1, int(res * aspect)), res)
+        cam = self.control.get_camera(H, W)
         if cam is None:
             raise RuntimeError("no viewer client is connected")
         return cam, int(W), int(H)
