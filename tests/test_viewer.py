@@ -238,7 +238,7 @@ def test_selection_mass_equals_physgs_export_with_the_same_box(trained, tmp_path
     mass = MassConfig(geometry=GeometryConfig(resolution=32), n_samples=300)
     run = run_from_pipeline(trainer_config.get_base_dir(), pipeline)
     lines = []
-    report, path = selection_mass(run, mass, sel, tmp_path / "viewer", progress=lines.append)
+    _, path = selection_mass(run, mass, sel, tmp_path / "viewer", progress=lines.append)
     assert path.exists() and lines and json.loads(path.read_text())["selection"]["source"] == "rectangle"
     cfg = selection_mass_config(mass, sel)
     ExportCommand(load_config=config, output_dir=tmp_path / "export", outputs=("mass",), mass=cfg, device="cpu").main()
@@ -263,7 +263,11 @@ def test_panel_elements_are_found_by_nerfstudio(tmp_path):
     from nerfstudio.viewer.viewer_elements import ViewerControl, ViewerElement
     from test_nerfstudio_fixtures import write_blob_scene
 
-    from physgs_nerfstudio.nerfstudio import PhysGSDatamanagerConfig, PhysGSDataParserConfig, PhysGSModelConfig
+    from physgs_nerfstudio.nerfstudio import (
+        PhysGSDatamanagerConfig,
+        PhysGSDataParserConfig,
+        PhysGSModelConfig,
+    )
 
     write_blob_scene(tmp_path, num_views=3, size=16)
     dm = PhysGSDatamanagerConfig(dataparser=PhysGSDataParserConfig(data=tmp_path)).setup(device="cpu")

@@ -63,7 +63,12 @@ from torch.nn import Parameter
 from physgs_nerfstudio.bayes import NIG, dirichlet_posterior, property_fields
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 from physgs_nerfstudio.render import eval_sh_colors, rasterize
-from physgs_nerfstudio.viewer.display import ViewerSettings, gaussian_channels, gaussian_materials, viewer_outputs
+from physgs_nerfstudio.viewer.display import (
+    ViewerSettings,
+    gaussian_channels,
+    gaussian_materials,
+    viewer_outputs,
+)
 
 from .keys import EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY
 from .legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
@@ -102,7 +107,8 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     and every `physgs export` writer (saved with the run's config): "dominant", the posterior that a material
     is the Gaussian's dominant label (bayes.dominance_probability); "predictive", alpha / sum(alpha)."""
     uncertainty_property: Literal["density", "friction", "hardness", "stiffness"] = "density"
-    """Property whose aleatoric / epistemic / total uncertainty the viewer outputs show."""
+    """Property whose aleatoric / epistemic / total uncertainty the viewer outputs show at start (the viewer
+    panel's *Uncertainty of* changes it while the viewer runs)."""
     uncertainty_as_std: bool = True
     """Show uncertainties as standard deviations (property units) instead of variances."""
     material_alpha_thresh: float = 0.5

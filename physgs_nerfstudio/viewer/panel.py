@@ -309,7 +309,7 @@ class PhysicalPropertiesPanel(torch.nn.Module):
 
         t0 = time.perf_counter()
         head = f"**Mass** of the {sel.source} {[round(x, 3) for x in sel.bbox]}" + (f" ({sel.note})" if sel.note else "")
-        say = lambda s: setattr(self.l_mass, "content", f"{head}\n\n{s}")  # noqa: E731
+        say = lambda s: setattr(self.l_mass, "content", f"{head}\n\n{s}")
         try:
             say("loading the run's cameras and masks")
             viewer = self.control.viewer
@@ -329,10 +329,10 @@ class PhysicalPropertiesPanel(torch.nn.Module):
 
 def mass_lines(report: Any, path: Path, seconds: float) -> list[str]:
     """Markdown lines of a mass result: mean, interval, share per material, the report file."""
-    pct = int(round(report.level * 100))
+    pct = round(report.level * 100)
     sim = " [SIMULATED VLM]" if report.simulated else ""
-    lines = [f"**{report.mean_kg:.4g} kg**{sim}, {pct}% interval [{report.interval_kg[0]:.4g}, "
-             f"{report.interval_kg[1]:.4g}] kg"]  # fmt: skip
+    lo, hi = report.interval_kg
+    lines = [f"**{report.mean_kg:.4g} kg**{sim}, {pct}% interval [{lo:.4g}, {hi:.4g}] kg"]
     for m in sorted(report.materials, key=lambda m: -m.mass_share):
         if m.mass_share < 1e-3 and m.volume_share < 1e-3:
             continue

@@ -131,8 +131,8 @@ class PointQuery:
     def lines(self) -> list[str]:
         """Markdown lines for the panel."""
         if not self.hit:
-            return [f"No surface at pixel {self.pixel[0]:.0f}, {self.pixel[1]:.0f} (ray opacity "
-                    f"{self.accumulation:.2f})."]  # fmt: skip
+            u, v = self.pixel
+            return [f"No surface at pixel {u:.0f}, {v:.0f} (ray opacity {self.accumulation:.2f})."]
         p = ", ".join(f"{x:.3f}" for x in (self.point_m or []))
         out = [f"**Point** ({p}) m, ray opacity {self.accumulation:.2f}, measured {self.measured_share:.0%}"]
         if not self.measured:
@@ -220,7 +220,7 @@ def query_pixel(
             entry["shore"] = _shore(mean, ale, epi)
         q.properties[key] = entry
     w = rw.weights * gm.measured[rw.ids].float()
-    avg = lambda t: float((w * t[rw.ids]).sum() / max(cov, 1e-10))  # noqa: E731
+    avg = lambda t: float((w * t[rw.ids]).sum() / max(cov, 1e-10))
     q.evidence = {"views": avg(gm.views), "evidence": avg(gm.evidence), "labelled_share": avg(gm.labelled),
                   "gaussians": float(int((w > 0).sum()))}  # fmt: skip
     return q

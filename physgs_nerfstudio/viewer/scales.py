@@ -23,8 +23,17 @@ from torch import Tensor
 
 from ..materials.hardness import from_canonical
 
-__all__ = ["COLORMAP", "DisplayScale", "UNITS", "colourise", "format_value", "library_ranges", "property_scales",
-           "shore_reading", "uncertainty_scale"]  # fmt: skip
+__all__ = [
+    "COLORMAP",
+    "UNITS",
+    "DisplayScale",
+    "colourise",
+    "format_value",
+    "library_ranges",
+    "property_scales",
+    "shore_reading",
+    "uncertainty_scale",
+]  # fmt: skip
 
 COLORMAP = "turbo"
 UNITS: dict[str, str] = {
