@@ -146,7 +146,7 @@ def test_unhit_and_unmeasured_rays():
     rw = ray_weights(g["means"], g["quats"], g["scales"], g["opacities"], viewmat, K, SIZE, SIZE, (20, 20))
     q = query_pixel(rw, gm, _nig(), LOG, property_keys=KEYS, material_names=["a", "b", "c"], camera_to_world=c2w,
                     K=K, pixel=(20, 20))  # fmt: skip
-    assert q.hit and not q.measured and q.properties == {} and "No material evidence" in q.lines()[-1]
+    assert q.hit and not q.measured and q.properties == {} and "Not measured" in q.lines()[-1]
     far = torch.tensor(look_at_c2w(np.array([30.0, 0.0, 0.0]), np.array([60.0, 0.0, 0.0]))[:3], dtype=torch.float32)
     rw = ray_weights(g["means"], g["quats"], g["scales"], g["opacities"], viewmat_from_c2w(far), K, SIZE, SIZE, (20, 20))
     q = query_pixel(rw, gm, _nig(), LOG, property_keys=KEYS, material_names=["a", "b", "c"], camera_to_world=far,

@@ -14,7 +14,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 from viewer_browser import chromium_path, drive, free_port, start_viewer, wait_http
 from viewer_scene import trained_scene
@@ -31,14 +30,13 @@ def _physgs() -> list[str]:
 def test_click_and_mass_in_a_real_browser(tmp_path_factory, tmp_path):
     pytest.importorskip("playwright.sync_api", reason="pip install playwright (its browser download is not needed)")
     config, data, _ = trained_scene(tmp_path_factory)
-    colors = np.array([m["color"] for m in json.loads((data / "materials.json").read_text())["materials"]], float)
     names = [m["name"] for m in json.loads((data / "materials.json").read_text())["materials"]]
     shots = Path(os.environ.get("PHYSGS_VIEWER_SCREENSHOTS", tmp_path / "shots"))
     port = free_port()
     proc = start_viewer(config, port, tmp_path / "ns-viewer.log")
     try:
         wait_http(port, proc)
-        res = drive(f"http://127.0.0.1:{port}", colors, shots)
+        res = drive(f"http://127.0.0.1:{port}", shots)
     finally:
         proc.terminate()
         proc.wait(timeout=60)

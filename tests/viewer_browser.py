@@ -1,9 +1,9 @@
-"""Drive nerfstudio's web viewer (`ns-viewer`) with headless Chromium as a user would: show the material output,
-click a labelled point, copy its JSON, show the density output, enable the crop box and press Mass.
+"""Drive nerfstudio's web viewer (`ns-viewer`) with headless Chromium as a user would: show the density output,
+click a point it colours, copy its JSON, enable the crop box and press Mass.
 
 Used by test_viewer_browser.py; as a script it takes the README's screenshots of a trained run:
 
-    python tests/viewer_browser.py --load-config outputs/.../config.yml --data scene/ --out docs/
+    python tests/viewer_browser.py --load-config outputs/.../config.yml --out docs/
 
 Needs Debian's `chromium` (`apt-get install chromium`) and the `playwright` Python package (only its driver is
 used: Playwright's own browser download is never needed, the system Chromium is launched).
@@ -104,7 +104,7 @@ def _wait_render(page, timeout: float = 300) -> None:
           timeout, "the full-resolution render")  # fmt: skip
 
 
-def drive(url: str, legend_colors: np.ndarray, out: Path, *, mass_timeout: float = 900) -> dict[str, Any]:
+def drive(url: str, out: Path, *, mass_timeout: float = 900) -> dict[str, Any]:
     """The user session (module doc). Returns the point JSON, the panel's text after the click and after Mass,
     and the click's position; saves screenshots into ``out``."""
     from playwright.sync_api import sync_playwright
@@ -116,30 +116,29 @@ def drive(url: str, legend_colors: np.ndarray, out: Path, *, mass_timeout: float
         page = browser.new_page(viewport={"width": 1400, "height": 1500})
         page.goto(url, wait_until="domcontentloaded")
         page.get_by_text("physical_properties").wait_for(timeout=300_000)
-        _select(page, "Output type", "material")
+        _select(page, "Output type", "density")
         time.sleep(2)
         _wait_render(page)
-        clip, img = _canvas(page, out / "viewer_material_raw.png")
-        # a known point: the middle of the pixels the material output paints in a legend colour
-        dist = np.abs(img[:, :, None, :] - legend_colors[None, None]).max(-1).min(-1)
-        ys, xs = np.nonzero(dist < 6)
+        clip, img = _canvas(page, out / "viewer_density_raw.png")
+        # a known point: near the middle of the pixels the density output colours (turbo colours are bright and
+        # saturated; where nothing was measured it shows RGB dimmed to 0.3)
+        hi, lo = img.max(-1) / 255, img.min(-1) / 255
+        ys, xs = np.nonzero((hi > 0.45) & ((hi - lo) / np.maximum(hi, 1e-6) > 0.45))
         if len(xs) == 0:
-            raise AssertionError("the material output shows no legend colour: nothing to click")
+            raise AssertionError("the density output colours no pixel: nothing measured to click")
         order = np.argsort((xs - np.median(xs)) ** 2 + (ys - np.median(ys)) ** 2)
         x, y = float(xs[order[0]]), float(ys[order[0]])
         res["click_canvas_px"] = (x, y)
         page.get_by_role("button", name="Pick a point").click()
         time.sleep(1)
         page.mouse.click(clip["x"] + x, clip["y"] + y)
-        res["point_text"] = _wait(lambda: _panel_if(page, r"Evidence|No material|failed"), 300, "the click's answer")
+        res["point_text"] = _wait(lambda: _panel_if(page, r"Evidence|Not measured|failed"), 300, "the click's answer")
         field = page.locator("xpath=//label[normalize-space()='Point JSON']/following::input[1]")
         before = field.input_value()
         page.get_by_role("button", name="Point as JSON").click()
         res["json"] = json.loads(_wait(lambda: field.input_value() not in ("", before) and field.input_value(), 60,
                                        "the point JSON"))  # fmt: skip
-        _select(page, "Output type", "density")
         time.sleep(2)
-        _wait_render(page)
         page.get_by_text("physical_properties").scroll_into_view_if_needed()
         page.screenshot(path=str(out / "viewer_click.png"))
         page.get_by_label("Enable", exact=True).nth(1).check()  # Crop Viewport (the second "Enable")
@@ -157,17 +156,14 @@ def drive(url: str, legend_colors: np.ndarray, out: Path, *, mass_timeout: float
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--load-config", type=Path, required=True)
-    ap.add_argument("--data", type=Path, required=True, help="the run's dataset (for the legend colours)")
     ap.add_argument("--out", type=Path, default=Path("docs"))
     args = ap.parse_args()
     run_dir = args.load_config.parent
-    data = args.data
-    colors = np.array([m["color"] for m in json.loads((data / "materials.json").read_text())["materials"]], float)
     port = free_port()
     proc = start_viewer(args.load_config, port, run_dir / "viewer_browser.log")
     try:
         wait_http(port, proc)
-        res = drive(f"http://127.0.0.1:{port}", colors, args.out)
+        res = drive(f"http://127.0.0.1:{port}", args.out)
     finally:
         proc.terminate()
         proc.wait(timeout=30)

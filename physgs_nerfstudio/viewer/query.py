@@ -120,6 +120,9 @@ class PointQuery:
     measured_share: float
     """share of the ray's opacity on Gaussians with material evidence"""
     measured: bool
+    coverage: float = 0.0
+    """opacity of the measured Gaussians along the ray (the pixel is coloured above ``min_coverage``)"""
+    min_coverage: float = 0.5
     materials: list[dict[str, Any]] = field(default_factory=list)
     properties: dict[str, dict[str, Any]] = field(default_factory=dict)
     evidence: dict[str, float] = field(default_factory=dict)
@@ -136,7 +139,9 @@ class PointQuery:
         p = ", ".join(f"{x:.3f}" for x in (self.point_m or []))
         out = [f"**Point** ({p}) m, ray opacity {self.accumulation:.2f}, measured {self.measured_share:.0%}"]
         if not self.measured:
-            return [*out, "No material evidence here: perception labelled none of these Gaussians."]
+            why = (f"Not measured: Gaussians with material evidence give {self.coverage:.2f} of the ray's opacity, "
+                   f"below {self.min_coverage:.2f}; the viewer leaves this pixel uncoloured.")
+            return [*out, why]
         tag = " [SIMULATED VLM]" if self.simulated else ""
         out.append("**Materials**" + tag + ": " + ", ".join(f"{m['name']} {m['probability']:.0%}"
                                                            for m in self.materials))  # fmt: skip
@@ -205,7 +210,7 @@ def query_pixel(
     pi, cov, total = _mixture(rw, gm)
     measured = cov > min_coverage
     q = PointQuery(pixel, True, point.tolist(), (point * metres_per_unit).tolist(), surface, rw.expected_depth(),
-                   acc, cov / max(total, 1e-10), measured, simulated=simulated)  # fmt: skip
+                   acc, cov / max(total, 1e-10), measured, cov, min_coverage, simulated=simulated)  # fmt: skip
     if not measured:
         return q
     top = torch.argsort(pi, descending=True)[:top_k]
