@@ -97,6 +97,13 @@ def _canvas(page, path: Path) -> tuple[dict, np.ndarray]:
     return clip, np.asarray(Image.open(path).convert("RGB")).astype(float)
 
 
+def _figure(page, path: Path, scroll_to: str) -> None:
+    """The page, with the panel scrolled to the text ``scroll_to`` (the GUI panel scrolls on its own)."""
+    page.get_by_text(scroll_to).first.evaluate("e => e.scrollIntoView({block: 'start'})")
+    time.sleep(1)
+    page.screenshot(path=str(path))
+
+
 def _wait_render(page, timeout: float = 300) -> None:
     """The viewer's static frame at Max res has arrived (the stats line shows the full resolution)."""
     _wait(lambda: re.search(r"Resolution: (\d+)x\d+px", page.inner_text("body"))
@@ -113,7 +120,7 @@ def drive(url: str, out: Path, *, mass_timeout: float = 900) -> dict[str, Any]:
     res: dict[str, Any] = {}
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=chromium_path(), headless=True, args=CHROMIUM_ARGS)
-        page = browser.new_page(viewport={"width": 1400, "height": 1500})
+        page = browser.new_page(viewport={"width": 1500, "height": 1100})
         page.goto(url, wait_until="domcontentloaded")
         page.get_by_text("physical_properties").wait_for(timeout=300_000)
         _select(page, "Output type", "density")
@@ -138,17 +145,17 @@ def drive(url: str, out: Path, *, mass_timeout: float = 900) -> dict[str, Any]:
         page.get_by_role("button", name="Point as JSON").click()
         res["json"] = json.loads(_wait(lambda: field.input_value() not in ("", before) and field.input_value(), 60,
                                        "the point JSON"))  # fmt: skip
-        time.sleep(2)
-        page.get_by_text("physical_properties").scroll_into_view_if_needed()
-        page.screenshot(path=str(out / "viewer_click.png"))
+        time.sleep(3)
+        _wait_render(page)
+        _figure(page, out / "viewer_click.png", "Pick a point")
         page.get_by_label("Enable", exact=True).nth(1).check()  # Crop Viewport (the second "Enable")
         time.sleep(3)
         page.get_by_role("button", name="Mass", exact=True).click()
         res["mass_text"] = _wait(lambda: _panel_if(page, r"interval \[|Mass failed"), mass_timeout, "the mass", step=3)
-        time.sleep(2)
+        time.sleep(3)
+        _wait_render(page)
         res["mass_text"] = _panel_text(page)
-        page.get_by_role("button", name="Mass", exact=True).scroll_into_view_if_needed()
-        page.screenshot(path=str(out / "viewer_mass.png"))
+        _figure(page, out / "viewer_mass.png", "Draw a rectangle")
         browser.close()
     return res
 
