@@ -16,6 +16,7 @@ import os
 import re
 import shutil
 from collections.abc import Mapping, Sequence
+from dataclasses import asdict, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,24 @@ MATERIALS_JSON_VERSION = 1
 LABEL_DIR = "materials/labels"
 CONFIDENCE_DIR = "materials/confidence"
 PREVIEW_DIR = "materials/preview"
+
+
+def jsonable(obj: Any) -> Any:
+    """`obj` in plain JSON types: dataclasses and mappings as dicts (string keys), tuples and lists as lists,
+    paths as strings, numpy scalars as Python numbers, non-finite floats as None (JSON has no inf / nan)."""
+    if is_dataclass(obj) and not isinstance(obj, type):
+        return {k: jsonable(v) for k, v in asdict(obj).items()}
+    if isinstance(obj, Mapping):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return jsonable(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
 
 
 def atomic_write_text(path: Path, text: str) -> None:

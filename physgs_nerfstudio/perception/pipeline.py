@@ -21,12 +21,13 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field, is_dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
+from ..fusion.writer import jsonable
 from ..materials import PROPERTY_KEYS, MaterialLibrary, load_library
 from .cache import ResponseCache
 from .config import PerceptionConfig
@@ -108,22 +109,10 @@ def load_image(root: Path, file_path: str) -> np.ndarray:
         return np.asarray(im.convert("RGB"), dtype=np.uint8)
 
 
-def _jsonable(obj):
-    if is_dataclass(obj):
-        return {k: _jsonable(v) for k, v in asdict(obj).items()}
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
 def run_fingerprint(
     config: PerceptionConfig, segmenter_fp: str, backend: CachedBackend, library: MaterialLibrary
 ) -> str:
-    prompt = _jsonable(config.prompt_options)
+    prompt = jsonable(config.prompt_options)
     prompt["kind"] = config.prompt
     return json.dumps(
         {
@@ -504,9 +493,9 @@ def _write_run_summary(root: Path, config: PerceptionConfig, result: PerceptionR
     from ..fusion.writer import atomic_write_text
 
     summary = {
-        "config": _jsonable(config),
+        "config": jsonable(config),
         "result": {
-            k: _jsonable(v) for k, v in asdict(result).items() if k not in ("label_paths", "confidence_paths")
+            k: jsonable(v) for k, v in asdict(result).items() if k not in ("label_paths", "confidence_paths")
         },
     }
     atomic_write_text(root / "perception" / "run.json", json.dumps(summary, indent=2, default=str))
