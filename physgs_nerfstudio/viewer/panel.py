@@ -116,7 +116,7 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         self._last_query: PointQuery | None = None
         self._rect: Selection | None = None
         self._scales: dict[str, DisplayScale] = {}
-        self._shown: str | None = None
+        self._shown: tuple | None = None
         self._busy = threading.Lock()
         sim = " [SIMULATED VLM]" if model.legend.simulated else ""
         self.a_legend = ViewerMarkdown(f"**Materials**{sim}\n\n![legend](legend.png)", self._images)
@@ -164,9 +164,10 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         shown = self._current_output()
         if shown == "material" and self._model.viewer_settings.material_view == "probability":
             shown = "material_probability"
-        if shown == self._shown:
+        key = (shown, scales[shown].describe() if shown in scales else None, self.d_material.value)
+        if key == self._shown:  # unchanged (a new uncertainty property or material changes the scale's label)
             return
-        self._shown = shown
+        self._shown = key
         if shown in scales:
             sc = scales[shown]
             what = f" of {self.d_material.value}" if shown == "material_probability" else ""
