@@ -15,9 +15,9 @@ from physgs_nerfstudio.nerfstudio import PhysGSDatamanagerConfig, PhysGSDataPars
 from physgs_nerfstudio.nerfstudio.model import EVIDENCE_KEY, LOGITS_KEY, WEIGHT_KEY, PhysGSModel
 from physgs_nerfstudio.nerfstudio.pipeline import lift_material_maps
 
-OUTPUTS_1CH = ("density", "friction", "hardness", "stiffness", "aleatoric", "epistemic", "total_uncertainty",
-               "material_id", "depth", "accumulation")  # fmt: skip
-OUTPUTS_3CH = ("rgb", "material", "background")
+OUTPUTS_1CH = ("material_id", "depth", "accumulation")
+OUTPUTS_3CH = ("rgb", "material", "background", "density", "friction", "hardness", "stiffness", "aleatoric",
+               "epistemic", "total_uncertainty")  # property outputs are colours on fixed scales (viewer/display.py)
 
 
 @pytest.fixture(scope="module")
@@ -81,6 +81,9 @@ def test_outputs_on_cpu(blob_dm) -> None:
     for key in OUTPUTS_3CH:
         assert out[key].shape == (H, W, 3), key
     assert "material_logits" not in out  # not a viewer output (K channels)
+    # unlifted: nothing was measured, so no pixel gets a property colour (dimmed RGB everywhere)
+    for key in ("density", "epistemic"):
+        assert torch.allclose(out[key], model.viewer_settings.dim * out["rgb"]), key
     # unlifted: every Gaussian holds the prior -> density is the prior mixture mean everywhere
     props = model.gaussian_properties()
     assert torch.allclose(props["mean"], props["mean"][:1].expand_as(props["mean"]))

@@ -37,8 +37,8 @@ from .voxel import write_voxel_grid
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ExportCommand", "ExportResult", "LoadedRun", "load_run", "object_geometry", "run_export", "views_from_cameras",
-           "write_export"]
+__all__ = ["ExportCommand", "ExportResult", "LoadedRun", "load_run", "object_geometry", "run_export", "run_from_pipeline",
+           "views_from_cameras", "write_export"]
 
 Output = Literal["ply", "voxels", "maps", "mass"]
 
@@ -91,19 +91,35 @@ def load_run(
     perception's per-mask answers."""
     from nerfstudio.utils.eval_utils import eval_setup
 
-    from .scale import read_dataparser_scale
-
     run_files = check_run(Path(config_path))  # safe YAML, method, checkpoint (beside the config if moved)
     config, pipeline, _, _ = eval_setup(run_files.config_path, test_mode="inference",
                                         update_config_callback=run_files.apply)  # fmt: skip
-    dp_scale = read_dataparser_scale(config.get_base_dir())
+    return run_from_pipeline(config.get_base_dir(), pipeline, scale=scale, known_length=known_length, env=env,
+                             max_view_width=max_view_width)  # fmt: skip
+
+
+def run_from_pipeline(
+    run_dir: Path,
+    pipeline: Any,
+    *,
+    scale: float | None = None,
+    known_length: Sequence[float] | None = None,
+    env: str | None = None,
+    max_view_width: int | None = 640,
+) -> LoadedRun:
+    """:func:`load_run` on a pipeline already loaded (e.g. the viewer's); ``run_dir``: the folder of its
+    config.yml and dataparser_transforms.json."""
+    from .scale import read_dataparser_scale
+
+    dp_scale = read_dataparser_scale(Path(run_dir))
     pf = PropertyField.from_model(pipeline.model, dp_scale, scale=scale, known_length=known_length, env=env)
     dm = pipeline.datamanager
     dpo = getattr(dm, "train_dataparser_outputs", None)
     cameras = dpo.cameras if dpo is not None else getattr(getattr(dm, "train_dataset", None), "cameras", None)
     views: list[CaptureView] = []
     observations: list[MaskObservation] = []
-    data_dir = Path(config.pipeline.datamanager.data) if getattr(config.pipeline.datamanager, "data", None) else None
+    dm_config = getattr(dm, "config", None)
+    data_dir = Path(dm_config.data) if getattr(dm_config, "data", None) else None
     if data_dir is not None and data_dir.suffix == ".json":
         data_dir = data_dir.parent
     if dpo is not None and data_dir is not None and (data_dir / "transforms.json").exists():

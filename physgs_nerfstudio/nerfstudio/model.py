@@ -63,6 +63,12 @@ from torch.nn import Parameter
 from physgs_nerfstudio.bayes import NIG, dirichlet_posterior, property_fields
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 from physgs_nerfstudio.render import eval_sh_colors, rasterize
+from physgs_nerfstudio.viewer.display import (
+    ViewerSettings,
+    gaussian_channels,
+    gaussian_materials,
+    viewer_outputs,
+)
 
 from .keys import EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY
 from .legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
@@ -101,7 +107,8 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     and every `physgs export` writer (saved with the run's config): "dominant", the posterior that a material
     is the Gaussian's dominant label (bayes.dominance_probability); "predictive", alpha / sum(alpha)."""
     uncertainty_property: Literal["density", "friction", "hardness", "stiffness"] = "density"
-    """Property whose aleatoric / epistemic / total uncertainty the viewer outputs show."""
+    """Property whose aleatoric / epistemic / total uncertainty the viewer outputs show at start (the viewer
+    panel's *Uncertainty of* changes it while the viewer runs)."""
     uncertainty_as_std: bool = True
     """Show uncertainties as standard deviations (property units) instead of variances."""
     material_alpha_thresh: float = 0.5
@@ -194,6 +201,18 @@ class PhysGSModel(SplatfactoModel):
         self.register_buffer("lifted_views", torch.zeros((), dtype=torch.long))
         self.gauss_params = self._initial_gaussians(K)
         self._populate_training_modules()
+        self._populate_viewer()
+
+    def _populate_viewer(self) -> None:
+        """What the property outputs show (`viewer_settings`) and the viewer's "Physical properties" panel
+        (`physgs_nerfstudio.viewer.panel`: parameter-free, nothing in checkpoints)."""
+        from physgs_nerfstudio.viewer.panel import PhysicalPropertiesPanel
+
+        self.viewer_settings = ViewerSettings(
+            uncertainty_property=self.property_keys[self._uncertainty_index()],
+            min_coverage=self.config.material_alpha_thresh, min_labelled=self.config.material_min_labelled,
+        )  # fmt: skip
+        self.physical_properties = PhysicalPropertiesPanel(self)
 
     def _initial_gaussians(self, num_materials: int) -> torch.nn.ParameterDict:
         """splatfacto's Gaussians plus the material tensors, seeded device-agnostically (splatfacto's
@@ -393,22 +412,10 @@ class PhysGSModel(SplatfactoModel):
 
     @torch.no_grad()
     def _property_channels(self) -> tuple[list[str], Float[Tensor, "n c"]]:
-        """Per-Gaussian values composited into the property / uncertainty outputs."""
-        fields = self.gaussian_properties()
-        names, cols = [], []
-        for i, key in enumerate(self.property_keys):
-            name = VIEWER_NAMES.get(key, key)
-            value = fields["mean"][:, i]
-            if key == "youngs_modulus":
-                value = torch.log10(value.clamp_min(1e-12))  # display: log10 Pa
-            names.append(name)
-            cols.append(value)
-        u = self._uncertainty_index()
-        for name, f in zip(UNCERTAINTY_OUTPUTS, ("aleatoric", "epistemic", "total")):
-            v = fields[f][:, u].clamp_min(0)
-            names.append(name)
-            cols.append(v.sqrt() if self.config.uncertainty_as_std else v)
-        return names, torch.stack(cols, dim=-1).float()
+        """Per-Gaussian channels composited for the property / uncertainty outputs: the material weights of
+        the Gaussians with material evidence and that flag (`physgs_nerfstudio.viewer.display`)."""
+        gm = gaussian_materials(self)
+        return [f"pi_{i}" for i in range(self.num_materials)] + ["measured"], gaussian_channels(gm)
 
     # ------------------------------------------------------------------ rendering
     def get_empty_outputs(self, width: int, height: int, background: torch.Tensor) -> dict[str, Any]:  # type: ignore
@@ -417,14 +424,15 @@ class PhysGSModel(SplatfactoModel):
         out["material_id"] = out["accumulation"].clone()
         if self.config.render_property_outputs:
             for name in (*[VIEWER_NAMES.get(k, k) for k in self.property_keys], *UNCERTAINTY_OUTPUTS):
-                out[name] = out["accumulation"].clone()
+                out[name] = out["rgb"].clone()
         return out
 
     def get_outputs(self, camera: Cameras) -> dict[str, torch.Tensor | list]:
         """RGB, depth, accumulation, background; training adds `material_logits` [H, W, K]; evaluation adds
-        `material` [H, W, 3] (legend colours), `material_id` [H, W, 1] (0 = background) and, if enabled, the
-        property outputs `density`, `friction`, `hardness`, `stiffness` (log10 Pa), `aleatoric`, `epistemic`,
-        `total_uncertainty`, each [H, W, 1]."""
+        `material` [H, W, 3] (legend colours, or one material's probability: `viewer_settings`), `material_id`
+        [H, W, 1] (0 = background) and, if enabled, the property outputs `density`, `friction`, `hardness`,
+        `stiffness`, `aleatoric`, `epistemic`, `total_uncertainty`, each [H, W, 3]: colours on fixed scales
+        where Gaussians with material evidence cover the pixel, dimmed RGB elsewhere (README "Viewer")."""
         if not isinstance(camera, Cameras):
             CONSOLE.log("Called get_outputs with not a camera")
             return {}
@@ -507,7 +515,7 @@ class PhysGSModel(SplatfactoModel):
         else:
             labelled = None
         out.update(self._material_outputs(render[..., 3 : 3 + K], labelled, alpha, background))
-        out.update(self._property_outputs(prop_names, extra, alpha))
+        out.update(self._property_outputs(prop_names, extra, out["rgb"]))
         return out
 
     def _material_outputs(
@@ -528,19 +536,13 @@ class PhysGSModel(SplatfactoModel):
         return {"material": palette[label], "material_id": label[..., None].float()}
 
     def _property_outputs(
-        self, names: list[str], composited: Float[Tensor, "h w c"], alpha: Float[Tensor, "h w 1"]
+        self, names: list[str], composited: Float[Tensor, "h w c"], rgb: Float[Tensor, "h w 3"]
     ) -> dict[str, Tensor]:
-        """One [H, W, 1] output per property / uncertainty channel: the alpha-normalised composite on the
-        foreground; the background shows the foreground minimum, so the viewer's normalised colormap spans
-        the object."""
-        fg = alpha > self.config.material_alpha_thresh
-        values = composited[..., : len(names)] / alpha.clamp_min(1e-10)
-        out = {}
-        for i, name in enumerate(names):
-            v = values[..., i : i + 1]
-            fill = v[fg].min() if bool(fg.any()) else v.new_zeros(())
-            out[name] = torch.where(fg, v, fill)
-        return out
+        """Coloured [H, W, 3] outputs on fixed scales, only where Gaussians with material evidence cover the
+        pixel, dimmed RGB elsewhere (`physgs_nerfstudio.viewer.display.viewer_outputs`)."""
+        if not names:
+            return {}
+        return viewer_outputs(self, composited[..., : len(names)], rgb, VIEWER_NAMES)
 
     def _training_outputs(self, camera: Cameras, c2w: Tensor, Ks: Tensor, W: int, H: int) -> dict[str, Any]:
         """Training: splatfacto's RGB(+depth) pass (SH evaluated in the rasterizer), plus, every
