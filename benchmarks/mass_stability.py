@@ -1,0 +1,72 @@
+"""Mass stability over the documented range of every geometry option, on finished demo runs.
+
+    python benchmarks/mass_stability.py /tmp/ms/table_s101 /tmp/ms/chair_s101 --jobs 4
+
+For each run folder (a `physgs demo --output-dir` folder, trained and exported), re-exports the mass with each
+option set to each end of its documented range (one option at a time, the rest at their defaults) and prints
+the mean mass relative to the default export. Issue 12's target: every change within 20%.
+Results: a JSON per run folder (`mass_stability.json` inside it) and one line per setting.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+# option -> the ends of its documented range (GeometryConfig / CarveConfig docs)
+SETTINGS: dict[str, list[str]] = {
+    "default": [],
+    "resolution=96": ["--mass.geometry.resolution", "96"],
+    "resolution=160": ["--mass.geometry.resolution", "160"],
+    "min_votes=1": ["--mass.geometry.carve.min-votes", "1"],
+    "min_votes=3": ["--mass.geometry.carve.min-votes", "3"],
+    "min_vote_fraction=0.1": ["--mass.geometry.carve.min-vote-fraction", "0.1"],
+    "min_vote_fraction=0.25": ["--mass.geometry.carve.min-vote-fraction", "0.25"],
+    "mask_margin_px=-0.5": ["--mass.geometry.carve.mask-margin-px", "-0.5"],
+    "mask_margin_px=+0.5": ["--mass.geometry.carve.mask-margin-px", "0.5"],
+    "depth_margin_voxels=0.5": ["--mass.geometry.carve.depth-margin-voxels", "0.5"],
+    "depth_margin_voxels=2": ["--mass.geometry.carve.depth-margin-voxels", "2"],
+    "min_voxel_evidence=0.25": ["--mass.geometry.min-voxel-evidence", "0.25"],
+    "min_voxel_evidence=1": ["--mass.geometry.min-voxel-evidence", "1"],
+    "no_variants": ["--mass.geometry.no-variants"],
+}
+
+
+def export(run: Path, name: str, flags: list[str]) -> dict:
+    cfg = next((run / "runs").glob("**/config.yml"))
+    out = run / "stability" / name.replace("=", "_").replace("+", "p")
+    cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "export", "--load-config", str(cfg), "--output-dir",
+           str(out), "--outputs", "mass", "--overwrite", *flags]  # fmt: skip
+    proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
+    if proc.returncode != 0:
+        return {"setting": name, "error": (proc.stderr.strip().splitlines() or ["failed"])[-1]}
+    rep = json.loads((out / "report.json").read_text())["mass"]
+    return {"setting": name, "mean_kg": rep["mean_kg"], "interval_kg": rep["interval_kg"],
+            "volume_m3": rep["volume_m3"]}  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("runs", nargs="+", type=Path, help="physgs demo output folders")
+    ap.add_argument("--jobs", type=int, default=1)
+    a = ap.parse_args()
+    for run in a.runs:
+        with ThreadPoolExecutor(max(1, a.jobs)) as pool:
+            rows = list(pool.map(lambda kv: export(run, *kv), SETTINGS.items()))
+        base = rows[0].get("mean_kg")
+        for r in rows:
+            if base and "mean_kg" in r:
+                r["relative_to_default"] = r["mean_kg"] / base
+            print(run.name, json.dumps(r), flush=True)
+        ok = [abs(r["relative_to_default"] - 1) for r in rows if "relative_to_default" in r]
+        worst = max(ok) if ok else float("nan")
+        print(f"{run.name}: largest change {worst:.1%} over {len(ok) - 1} settings (target <= 20%)")
+        (run / "mass_stability.json").write_text(json.dumps({"rows": rows, "largest_change": worst}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
