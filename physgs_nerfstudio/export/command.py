@@ -82,33 +82,29 @@ def load_run(
     known_length: Sequence[float] | None = None,
     env: str | None = None,
     max_view_width: int | None = 640,
+    capture: bool = True,
 ) -> LoadedRun:
-    """Load a trained run through nerfstudio's ``eval_setup``: its property field, cameras, object masks and
-    perception's per-mask answers."""
-    from nerfstudio.utils.eval_utils import eval_setup
-
+    """Load a trained run: its property field and cameras (:func:`.loader.load_run_model`: no datamanager,
+    no image opened) and, with ``capture``, the object masks and perception's per-mask answers (mass and
+    voxels need them; the PLY and the maps do not)."""
+    from .loader import load_run_model
     from .scale import read_dataparser_scale
 
-    config_path = Path(config_path)
-    if not config_path.exists():
-        raise FileNotFoundError(f"{config_path} not found: pass the config.yml of an `ns-train physgs` run.")
-    config, pipeline, _, _ = eval_setup(config_path, test_mode="inference")
+    rm = load_run_model(Path(config_path))
+    config, dpo = rm.config, rm.dataparser_outputs
     dp_scale = read_dataparser_scale(config.get_base_dir())
-    pf = PropertyField.from_model(pipeline.model, dp_scale, scale=scale, known_length=known_length, env=env)
-    dm = pipeline.datamanager
-    dpo = getattr(dm, "train_dataparser_outputs", None)
-    cameras = dpo.cameras if dpo is not None else getattr(getattr(dm, "train_dataset", None), "cameras", None)
+    pf = PropertyField.from_model(rm.model, dp_scale, scale=scale, known_length=known_length, env=env)
     views: list[CaptureView] = []
     observations: list[MaskObservation] = []
     data_dir = Path(config.pipeline.datamanager.data) if getattr(config.pipeline.datamanager, "data", None) else None
     if data_dir is not None and data_dir.suffix == ".json":
         data_dir = data_dir.parent
-    if dpo is not None and data_dir is not None and (data_dir / "transforms.json").exists():
+    if capture and data_dir is not None and (data_dir / "transforms.json").exists():
         labels = dpo.metadata.get("material_filenames")
         views = load_capture(dpo.cameras, dpo.image_filenames, data_dir, label_paths=labels,
                              max_width=max_view_width)  # fmt: skip
         observations = load_observations(data_dir)
-    return LoadedRun(pf, cameras, views, observations, data_dir)
+    return LoadedRun(pf, dpo.cameras, views, observations, data_dir)
 
 
 def object_geometry(run: LoadedRun, cfg: GeometryConfig, progress: Any = None) -> ObjectGeometry:
@@ -228,7 +224,8 @@ class ExportCommand:
         return replace(m, **kw)
 
     def main(self) -> ExportResult:
-        run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env)
+        run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env,
+                       capture=bool({"mass", "voxels"} & set(self.outputs)))
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
         run.field = run.field.to(device)
         cameras = run.cameras
