@@ -29,6 +29,7 @@ from ..mass import MassConfig, MassReport, integrate_mass, library_thickness
 from .field import PropertyField
 from .maps import View, save_property_maps, viewmat_from_c2w
 from .ply import write_property_ply
+from .progress import stage
 from .report import print_mass_table, write_report
 from .voxel import write_voxel_grid
 
@@ -145,18 +146,19 @@ def run_export(
         console.log(f"PLY: {files['ply'][0]} ({pf.num_gaussians} Gaussians)")
     report = None
     if "mass" in outputs or "voxels" in outputs:
-        with console.status("object geometry") as status:
-            geo = object_geometry(run, mass.geometry, progress=lambda s: status.update(f"object geometry: {s}"))
-        console.log(f"object geometry: {geo.selection.num_selected} Gaussians selected, {int(geo.solid.sum())} "
-                    f"solid voxels, {geo.num_parts} parts, {len(geo.variant_names)} carving variants")  # fmt: skip
+        with stage(console, "object geometry", unit="steps") as st:
+            geo = object_geometry(run, mass.geometry, progress=lambda s: st.advance(1, s))
+            st.result = (f"{geo.selection.num_selected} Gaussians selected, {int(geo.solid.sum())} solid voxels, "
+                         f"{geo.num_parts} parts, {len(geo.variant_names)} carving variants")  # fmt: skip
         if "mass" in outputs:
             report = integrate_mass(pf, geo, mass)
         if "voxels" in outputs:
             files["voxels"] = [write_voxel_grid(pf, out / "voxels.npz", geo)]
             console.log(f"voxel grid: {files['voxels'][0]}")
     if "maps" in outputs and views:
-        files["maps"] = save_property_maps(pf, views, out / "maps")
-        console.log(f"property maps: {len(files['maps'])} view(s) in {out / 'maps'}")
+        with stage(console, "property maps", total=len(views), unit="views") as st:
+            files["maps"] = save_property_maps(pf, views, out / "maps", on_view=lambda name: st.advance(1, name))
+            st.result = str(out / "maps")
     if report is not None:
         extra: dict[str, Any] = {"files": {k: [str(p) for p in v] for k, v in files.items()},
                                  "legend": pf.legend(), "simulated": pf.simulated}  # fmt: skip
