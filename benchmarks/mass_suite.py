@@ -2,6 +2,7 @@
 
     python benchmarks/mass_suite.py --seeds 101 --out /tmp/mass_suite            # CPU, demo settings
     python benchmarks/mass_suite.py --objects chair table --seeds 101 102          # a subset
+    python benchmarks/mass_suite.py --seeds 202 303 --jobs 12                      # 12 demos at once (one core each)
 
 Per object: truth, predicted mean, interval, covered, APE, and the error split into geometry (carved vs true
 part volume: solid parts' volume, shells' wall volume), density (predicted vs true density of the dominant
@@ -14,23 +15,39 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 OBJECTS = ("mug", "chair", "hammer", "bottle", "shoe", "table", "pan", "lamp", "crate", "stool", "dumbbell", "vase")
 
 
-def run_one(obj: str, seed: int, out: Path, extra: list[str]) -> dict:
+def run_one(obj: str, seed: int, out: Path, extra: list[str], jobs: int = 1,
+            export_args: list[str] | None = None) -> dict:  # fmt: skip
     d = out / f"{obj}_s{seed}"
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "demo", "--object", obj, "--seed", str(seed),
            "--output-dir", str(d), *extra]  # fmt: skip
-    proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
+    env = dict(os.environ)
+    if jobs > 1:  # one core per demo
+        env.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    proc = subprocess.run(cmd, check=False, capture_output=True, text=True, env=env)
+    (out / f"{obj}_s{seed}.log").write_text(proc.stdout[-20000:] + proc.stderr[-20000:])
     if proc.returncode != 0:
         return {"object": obj, "seed": seed, "error": proc.stderr.strip().splitlines()[-1:] or ["failed"]}
     gt = json.loads((d / "scene" / "ground_truth.json").read_text())
-    rep = json.loads((d / "export" / "report.json").read_text())["mass"]
+    export = d / "export"
+    if export_args is not None:
+        cfg = next((d / "runs").glob("**/config.yml"))
+        export = d / "export_alt"
+        cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "export", "--load-config", str(cfg), "--output-dir",
+               str(export), "--outputs", "mass", "--overwrite", *export_args]  # fmt: skip
+        proc = subprocess.run(cmd, check=False, capture_output=True, text=True, env=env)
+        if proc.returncode != 0:
+            return {"object": obj, "seed": seed, "error": proc.stderr.strip().splitlines()[-1:] or ["failed"]}
+    rep = json.loads((export / "report.json").read_text())["mass"]
     truth = float(gt["total_mass_kg"])
     pred = float(rep["mean_kg"])
     lo, hi = rep["interval_kg"]
@@ -44,7 +61,15 @@ def run_one(obj: str, seed: int, out: Path, extra: list[str]) -> dict:
     return {"object": obj, "seed": seed, "truth_kg": truth, "pred_kg": pred, "interval_kg": [lo, hi],
             "covered": lo <= truth <= hi, "ape": abs(pred - truth) / truth,
             "volume_ratio": pred_vol / true_vol if true_vol > 0 else None,
-            "structure_right": (sum(right) / len(right)) if right else None}  # fmt: skip
+            "structure_right": (sum(right) / len(right)) if right else None,
+            "true_parts": [{k: p[k] for k in ("name", "material", "volume_model", "volume_m3", "enclosed_volume_m3",
+                                              "surface_area_m2", "mass_kg") if k in p} for p in gt["parts"]],
+            "parts": [{"material": p["material"], "volume_m3": p["volume_m3"], "area_m2": p["area_m2"],
+                       "p_hollow": p["structure"]["p_hollow"], "thickness_m": p["structure"]["thickness_m"],
+                       "observation_weight": p["structure"]["observation_weight"], "mass_mean_kg": p["mass_mean_kg"],
+                       "mixture": p.get("mixture")} for p in rep["parts"]],
+            "density_mean": {m["name"]: m["density_mean"] for m in rep["materials"]},
+            "volume_by_variant_m3": rep["geometry"].get("volume_by_variant_m3")}  # fmt: skip
 
 
 def main() -> None:
@@ -53,18 +78,28 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="*", type=int, default=[101])
     ap.add_argument("--out", type=Path, default=Path("/tmp/physgs_mass_suite"))
     ap.add_argument("--demo-args", nargs="*", default=[])
+    ap.add_argument("--export-args", nargs="*", default=None,
+                    help="re-export every finished demo with these extra `physgs export` flags (into export_alt/) "
+                         "and score that export instead: a side-by-side comparison of geometry options")
+    ap.add_argument("--jobs", type=int, default=1, help="demos run at once (each limited to one thread)")
     a = ap.parse_args()
-    rows = []
-    for s in a.seeds:
-        for o in a.objects:
-            rows.append(run_one(o, s, a.out, a.demo_args))
-            print(json.dumps(rows[-1]), flush=True)
+    a.out.mkdir(parents=True, exist_ok=True)
+    todo = [(o, s) for s in a.seeds for o in a.objects]
+
+    def one(item: tuple[str, int]) -> dict:
+        row = run_one(item[0], item[1], a.out, a.demo_args, a.jobs, a.export_args)
+        short = {k: v for k, v in row.items() if k not in ("parts", "true_parts")}
+        print(json.dumps(short), flush=True)
+        return row
+
+    with ThreadPoolExecutor(max(1, a.jobs)) as pool:
+        rows = list(pool.map(one, todo))
     ok = [r for r in rows if "error" not in r]
     if ok:
         print(f"median APE {statistics.median(r['ape'] for r in ok):.3f}; covered {sum(r['covered'] for r in ok)}/"
               f"{len(ok)}; off by more than 2x: {sum(r['pred_kg'] > 2 * r['truth_kg'] or r['pred_kg'] < r['truth_kg'] / 2 for r in ok)}")  # fmt: skip
-    (a.out / "mass_suite.json").parent.mkdir(parents=True, exist_ok=True)
-    (a.out / "mass_suite.json").write_text(json.dumps(rows, indent=2))
+    name = "mass_suite.json" if a.export_args is None else "mass_suite_alt.json"
+    (a.out / name).write_text(json.dumps({"export_args": a.export_args, "rows": rows}, indent=2))
 
 
 if __name__ == "__main__":

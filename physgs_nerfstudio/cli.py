@@ -50,14 +50,26 @@ def entrypoint(argv: list[str] | None = None) -> None:
 
     import tyro
 
+    from physgs_nerfstudio.errors import PhysGSError
+
+    args = _upgrade(list(sys.argv[1:] if argv is None else argv))
     options = tuple(Annotated[_load(name), tyro.conf.subcommand(name)] for name in COMMANDS)
-    config = tyro.cli(
-        Union[options],  # type: ignore[valid-type]
-        prog="physgs",
-        description="PhysGS for nerfstudio: physical properties with uncertainty on Gaussian splats.",
-        args=_upgrade(list(sys.argv[1:] if argv is None else argv)),
-    )
-    config.main()
+    try:
+        config = tyro.cli(
+            Union[options],  # type: ignore[valid-type]
+            prog="physgs",
+            description="PhysGS for nerfstudio: physical properties with uncertainty on Gaussian splats.",
+            args=args,
+        )
+        config.main()
+    except PhysGSError as err:  # a user error: one line, no traceback
+        print(f"physgs {args[0] if args else ''}: error: {one_line(err)}", file=sys.stderr)
+        raise SystemExit(1) from None
+
+
+def one_line(err: BaseException) -> str:
+    """An error's message on one line (user-facing errors are printed without a traceback)."""
+    return " ".join(str(err).split()) or type(err).__name__
 
 
 if __name__ == "__main__":

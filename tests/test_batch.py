@@ -147,7 +147,7 @@ def test_ray_backend_without_ray_says_how_to_install(tmp_path, monkeypatch):
         BatchCommand(scenes=tmp_path / "s", output_dir=tmp_path / "o", backend="ray", device="cpu").run()
 
 
-def test_batch_eval_scores_abo500_split_with_clamp(tmp_path):
+def test_batch_eval_scores_abo500_split_unclamped(tmp_path):
     from rich.console import Console
 
     from physgs_nerfstudio.batch.summary import collect, run_batch_eval, totals
@@ -169,7 +169,7 @@ def test_batch_eval_scores_abo500_split_with_clamp(tmp_path):
     states = collect(out, [s.name for s in scene_set.scenes])
     result = run_batch_eval(out, scene_set, states, Console(quiet=True))
     preds = {r.item: r.pred for r in result.items}
-    assert preds == {"A1_x": pytest.approx(3.0), "B2_y": pytest.approx(100.0)}  # clamped to [0.01, 100] kg
+    assert preds == {"A1_x": pytest.approx(3.0), "B2_y": pytest.approx(250.0)}  # as predicted: no clamp (issue 17)
     assert (out / "eval" / "eval.json").is_file() and (out / "eval" / "summary.csv").is_file()
     tot = totals(states)
     assert tot["gpu_seconds"] == pytest.approx(14.0) and tot["complete"] == 0  # perceive never ran

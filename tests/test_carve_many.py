@@ -53,8 +53,7 @@ def _bilinear(img: np.ndarray, u: float, v: float) -> float:
 
 
 def _oracle(grid, views, renders, cfg):
-    empty = np.zeros(grid.num_voxels, int)
-    seen = np.zeros(grid.num_voxels, int)
+    empty, seen, by_depth, direct = (np.zeros(grid.num_voxels, int) for _ in range(4))
     _, Y, Z = grid.shape
     for flat in range(grid.num_voxels):
         i, j, k = flat // (Y * Z), (flat // Z) % Y, flat % Z
@@ -69,9 +68,11 @@ def _oracle(grid, views, renders, cfg):
             dist = _bilinear(signed_mask_distance(v.mask).numpy().astype(np.float64), u, w)
             d, a = float(r.depth[int(w), int(u)]), float(r.alpha[int(w), int(u)])
             margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
-            by_depth = cfg.use_depth and a >= cfg.min_alpha and pc[2] < d - margin
-            empty[flat] += int(dist > cfg.mask_margin_px or by_depth)
-    return empty, seen
+            inside = cfg.use_depth and dist <= cfg.mask_margin_px and a >= cfg.min_alpha
+            by_depth[flat] += int(inside and pc[2] < d - margin)
+            direct[flat] += int(inside and pc[2] <= d + margin)
+            empty[flat] += int(dist > cfg.mask_margin_px or (inside and pc[2] < d - margin))
+    return empty, seen, by_depth, direct
 
 
 def test_many_settings_in_one_pass_match_the_rule_and_single_calls() -> None:
@@ -80,10 +81,10 @@ def test_many_settings_in_one_pass_match_the_rule_and_single_calls() -> None:
             CarveConfig(depth_margin_voxels=2.0), CarveConfig(use_depth=False, min_alpha=0.2)]  # fmt: skip
     many = carve_votes_many(grid, views, renders, cfgs, chunk=300)
     for cfg, got in zip(cfgs, many):
-        empty, seen = _oracle(grid, views, renders, cfg)
-        assert np.array_equal(got.seen.numpy(), seen)
         # float32 vs float64 projection: a voxel exactly on a threshold may flip; none does in this scene
-        assert np.array_equal(got.empty.numpy(), empty), cfg
+        for name, want in zip(("empty", "seen", "depth_empty", "direct"), _oracle(grid, views, renders, cfg)):
+            assert np.array_equal(getattr(got, name).numpy(), want), (name, cfg)
         one = carve_votes(grid, views, renders, cfg)
-        assert torch.equal(one.empty, got.empty) and torch.equal(one.seen, got.seen)
+        for name in ("empty", "seen", "depth_empty", "direct"):
+            assert torch.equal(getattr(one, name), getattr(got, name)), name
     assert len({tuple(v.empty.tolist()) for v in many}) == len(cfgs)  # the settings really differ here

@@ -37,17 +37,17 @@ def _agg(result, method, group="all"):
     return next(a for a in result.aggregates if a.method == method and a.group == group)
 
 
-def test_n2p_midpoint_clamp_and_our_reports_one_scorer(tmp_path):
+def test_n2p_midpoint_with_clamp_option_and_our_reports_one_scorer(tmp_path):
     _abo(tmp_path)
     n2p = tmp_path / "preds_mass.json"
     n2p.write_text(json.dumps({"A1_x": [1.0, 3.0], "B2_y": [150.0, 250.0], "C3_z": [0.001, 0.003]}))
     res = tmp_path / "results"
     _report(res / "A1_x" / "report.json", 2.5, 2.0, 3.0, 0.9)
     _report(res / "B2_y" / "export" / "report.json", 9.0)
-    result = run_eval(EvalCommand(dataset="abo500", ground_truth=tmp_path, split="test",
+    result = run_eval(EvalCommand(dataset="abo500", ground_truth=tmp_path, split="test", clamp=(0.01, 100.0),
                                   predictions=(f"n2p={n2p}", f"ours={res}")))
     rows = {(r.method, r.item): r for r in result.items}
-    # midpoints, clamped to [0.01, 100] kg
+    # midpoints, clamped to [0.01, 100] kg (--clamp 0.01 100; the default scores them as predicted)
     assert rows[("n2p", "A1_x")].pred == pytest.approx(2.0)
     assert rows[("n2p", "B2_y")].pred == pytest.approx(100.0)
     assert rows[("n2p", "C3_z")].pred == pytest.approx(0.01)

@@ -11,15 +11,15 @@ import pytest
 import torch
 from plyfile import PlyData
 
-from physgs_nerfstudio.export.command import run_export
-from physgs_nerfstudio.export.maps import View, viewmat_from_c2w
-from physgs_nerfstudio.export.command import LoadedRun
-from physgs_nerfstudio.geometry import GeometryConfig, reconstruct_object
-from physgs_nerfstudio.mass import MassConfig
+from physgs_nerfstudio.export.command import LoadedRun, run_export
+from physgs_nerfstudio.export.maps import View
 from physgs_nerfstudio.export.ply import read_ply_legend, write_property_ply
 from physgs_nerfstudio.export.scale import resolve_scale
 from physgs_nerfstudio.export.shapes import field_from, solid_box
 from physgs_nerfstudio.export.voxel import load_voxel_grid, write_voxel_grid
+from physgs_nerfstudio.geometry import GeometryConfig, reconstruct_object
+from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
+from physgs_nerfstudio.mass import MassConfig
 
 
 def _views(pf):

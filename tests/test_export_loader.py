@@ -12,7 +12,8 @@ from test_nerfstudio_fixtures import write_blob_scene
 from method_configs.physgs_config import physgs_lite_trainer_config
 from physgs_nerfstudio.export.command import load_run
 from physgs_nerfstudio.export.field import PropertyField
-from physgs_nerfstudio.export.loader import latest_checkpoint, load_run_model
+from physgs_nerfstudio.export.loader import load_run_model
+from physgs_nerfstudio.export.runcheck import check_run
 
 STEP = 7
 
@@ -51,7 +52,8 @@ def test_light_loader_matches_eval_setup(saved_run) -> None:
     from nerfstudio.utils.eval_utils import eval_setup
 
     _, pipeline, _, step = eval_setup(saved_run, test_mode="inference")
-    rm = load_run_model(saved_run)
+    files = check_run(saved_run)
+    rm = load_run_model(files.config, files.checkpoint)
     assert rm.step == step == STEP
     want = pipeline.model.state_dict()
     got = rm.model.state_dict()
@@ -75,12 +77,3 @@ def test_load_run_reads_masks_only_when_asked(saved_run) -> None:
     assert light.views == [] and light.observations == []
     assert len(full.views) == int(light.cameras.camera_to_worlds.shape[0]) > 0
     assert torch.equal(light.field.means, full.field.means)
-
-
-def test_latest_checkpoint_errors(tmp_path) -> None:
-    with pytest.raises(FileNotFoundError, match="no checkpoint"):
-        latest_checkpoint(tmp_path)
-    (tmp_path / "step-000000002.ckpt").write_bytes(b"")
-    assert latest_checkpoint(tmp_path) == (tmp_path / "step-000000002.ckpt", 2)
-    with pytest.raises(FileNotFoundError, match="load_step 5"):
-        latest_checkpoint(tmp_path, 5)

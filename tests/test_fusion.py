@@ -105,3 +105,20 @@ def test_fuse_view_input_checks():
     with pytest.raises(ValueError, match="mask ids"):
         fuse_view(np.ones((1, 2, 2), bool), ["part"], [3], [0], [1.0], 1)
     assert torch.is_tensor(torch.zeros(1))
+
+
+def test_jsonable_gives_plain_json_types() -> None:
+    from dataclasses import dataclass
+    from pathlib import Path
+
+    from physgs_nerfstudio.fusion.writer import jsonable
+
+    @dataclass
+    class Cfg:
+        path: Path
+        sizes: tuple[int, int]
+        budget: float
+
+    doc = jsonable({1: Cfg(Path("a/b"), (2, 3), math.inf), "x": [np.float32(0.5), np.int64(4), np.bool_(True)]})
+    assert doc == {"1": {"path": "a/b", "sizes": [2, 3], "budget": None}, "x": [0.5, 4, True]}
+    assert json.loads(json.dumps(doc, allow_nan=False)) == doc  # strict JSON: no Infinity / NaN

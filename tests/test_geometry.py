@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from physgs_nerfstudio.export.maps import viewmat_from_c2w
 from physgs_nerfstudio.export.shapes import field_from, shell_sphere
 from physgs_nerfstudio.geometry import CaptureView, GeometryConfig, MaskObservation, reconstruct_object
+from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.geometry.select import capture_centre
 from physgs_nerfstudio.mass import MassConfig, integrate_mass
@@ -223,3 +223,26 @@ def test_mass_interval_from_the_same_samples(box):
     assert rep.interval_kg[0] <= rep.median_kg <= rep.interval_kg[1]
     assert rep.interval_kg[0] <= rep.mean_kg <= rep.interval_kg[1]
     assert 0.75 * 700 * 0.024 <= rep.mean_kg <= 1.3 * 700 * 0.024
+
+
+def test_material_quantiles_keep_spatial_shares_and_switch_ambiguous_parts_together():
+    """A part whose voxels are sure but differ keeps its volume shares at every level; a part whose voxels are
+    all equally unsure switches material as a whole at the mixture's cumulative weight (brute-force oracle)."""
+    from physgs_nerfstudio.geometry.parts import material_quantiles
+
+    rng = np.random.default_rng(3)
+    parts = np.full((6, 5, 4), -1)
+    parts[:3] = 0
+    parts[3:] = 1
+    mixture = np.zeros((6, 5, 4, 3))
+    sure = rng.random((3, 5, 4)) < 0.2  # part 0: 20% of its voxels surely material 2, the rest surely 0
+    mixture[:3, ..., 2] = sure
+    mixture[:3, ..., 0] = ~sure
+    mixture[3:] = [0.7, 0.3, 0.0]  # part 1: every voxel 70/30 between materials 0 and 1
+    pm = np.stack([mixture[:3].reshape(-1, 3).mean(0), mixture[3:].reshape(-1, 3).mean(0)])
+    q = material_quantiles(parts, mixture, 2, pm, levels=20)
+    np.testing.assert_allclose(q.sum(-1), 1.0)
+    np.testing.assert_allclose(q[0, :, 2], sure.mean())
+    u = (np.arange(20) + 0.5) / 20
+    brute = np.stack([(u < 0.7), (u >= 0.7), np.zeros(20, bool)], -1).astype(float)
+    np.testing.assert_allclose(q[1], brute)

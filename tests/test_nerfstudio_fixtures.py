@@ -156,7 +156,7 @@ def write_blob_scene(
 ) -> dict:
     """Renders the blob scene into a nerfstudio dataset at `root` with material maps; returns ground truth
     label maps by frame file_path."""
-    from physgs_nerfstudio.nerfstudio.model import world_to_camera
+    from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
     from physgs_nerfstudio.render import rasterize
 
     root = Path(root)
@@ -168,7 +168,7 @@ def write_blob_scene(
         ang = 2 * math.pi * i / num_views
         eye = np.array([1.6 * math.cos(ang), 1.6 * math.sin(ang), 0.5 + 0.3 * math.sin(3 * ang)])
         c2w = look_at_c2w(eye)
-        viewmat = world_to_camera(torch.tensor(c2w[None, :3, :4], dtype=torch.float32))
+        viewmat = viewmat_from_c2w(torch.tensor(c2w[None, :3, :4], dtype=torch.float32))
         Ks = torch.tensor([[[fl, 0, size / 2], [0, fl, size / 2], [0, 0, 1]]], dtype=torch.float32)
         onehot = torch.nn.functional.one_hot(scene["labels"] - 1, 2).float()
         colors = torch.cat([scene["colors"], onehot], dim=-1)

@@ -13,10 +13,11 @@ from method_configs.physgs_config import physgs_lite_trainer_config
 from physgs_nerfstudio.bayes import vacuity
 from physgs_nerfstudio.nerfstudio import PhysGSDatamanagerConfig, PhysGSDataParserConfig, PhysGSModelConfig
 from physgs_nerfstudio.nerfstudio.model import EVIDENCE_KEY, LOGITS_KEY, WEIGHT_KEY, PhysGSModel
+from physgs_nerfstudio.nerfstudio.pipeline import lift_material_maps
 
-OUTPUTS_1CH = ("density", "friction", "hardness", "stiffness", "aleatoric", "epistemic", "total_uncertainty",
-               "material_id", "depth", "accumulation")  # fmt: skip
-OUTPUTS_3CH = ("rgb", "material", "background")
+OUTPUTS_1CH = ("material_id", "depth", "accumulation")
+OUTPUTS_3CH = ("rgb", "material", "background", "density", "friction", "hardness", "stiffness", "aleatoric",
+               "epistemic", "total_uncertainty")  # property outputs are colours on fixed scales (viewer/display.py)
 
 
 @pytest.fixture(scope="module")
@@ -39,6 +40,18 @@ def make_model(dm, **config) -> PhysGSModel:
         seed_points=(meta["points3D_xyz"], meta["points3D_rgb"]),
     )
     return model
+
+
+def lift(model: PhysGSModel, dm, confidence_scale: float = 1.0) -> torch.Tensor:
+    """The pipeline's lifting pass over the training views (confidences scaled, labels unchanged), handed to the
+    model; returns the evidence."""
+    cameras, cached = dm.material_views("train")
+    if confidence_scale != 1.0:
+        cached = [dict(d, material_confidence=(d["material_confidence"].float() * confidence_scale).to(torch.uint8))
+                  for d in cached]  # fmt: skip
+    lifted = lift_material_maps(model, cameras, cached)
+    model.set_material_evidence(lifted)
+    return lifted.evidence
 
 
 def attach_optimizers(model: PhysGSModel) -> Optimizers:
@@ -68,6 +81,9 @@ def test_outputs_on_cpu(blob_dm) -> None:
     for key in OUTPUTS_3CH:
         assert out[key].shape == (H, W, 3), key
     assert "material_logits" not in out  # not a viewer output (K channels)
+    # unlifted: nothing was measured, so no pixel gets a property colour (dimmed RGB everywhere)
+    for key in ("density", "epistemic"):
+        assert torch.allclose(out[key], model.viewer_settings.dim * out["rgb"]), key
     # unlifted: every Gaussian holds the prior -> density is the prior mixture mean everywhere
     props = model.gaussian_properties()
     assert torch.allclose(props["mean"], props["mean"][:1].expand_as(props["mean"]))
@@ -158,7 +174,7 @@ def test_lifting_prior_for_unseen_and_checkpoint(blob_dm) -> None:
                 torch.cat([p, extra]), requires_grad=p.requires_grad
             )
     model.eval()
-    evidence = model.run_lifting(blob_dm)
+    evidence = lift(model, blob_dm)
     assert int(model.lifted_views) == len(blob_dm.train_dataset) - sum(
         int(d["material"].max()) == 0 for d in blob_dm.cached_train
     )
@@ -202,31 +218,18 @@ def test_model_needs_the_legend() -> None:
         )
 
 
-class _ScaledConfidence:
-    """A datamanager view whose material confidences are scaled (labels unchanged)."""
-
-    def __init__(self, dm, factor: float):
-        self.dm, self.factor = dm, factor
-
-    def material_views(self, split: str):
-        cameras, cached = self.dm.material_views(split)
-        scaled = [dict(d, material_confidence=(d["material_confidence"].float() * self.factor).to(torch.uint8))
-                  for d in cached]  # fmt: skip
-        return cameras, scaled
-
-
 def test_labelled_fraction_ignores_confidence_and_old_checkpoints_fall_back(blob_dm) -> None:
     from physgs_nerfstudio.export.field import PropertyField
     from physgs_nerfstudio.nerfstudio.model import LABELLED_KEY
 
     model = make_model(blob_dm)
     model.eval()
-    full = model.run_lifting(blob_dm)
+    full = lift(model, blob_dm)
     frac = model.labelled_fraction()[:, 0].clone()
     seen = model.gauss_params[WEIGHT_KEY][:, 0] > 0.05
     assert seen.sum() > 50 and torch.all((frac >= 0) & (frac <= 1))
     # low-confidence answers: 3x less evidence, the same share of labelled pixels
-    weak = model.run_lifting(_ScaledConfidence(blob_dm, 0.3))
+    weak = lift(model, blob_dm, confidence_scale=0.3)
     assert float(weak.sum()) == pytest.approx(0.3 * float(full.sum()), rel=0.05)
     assert torch.allclose(model.labelled_fraction()[:, 0], frac, atol=1e-5)
     pf = PropertyField.from_model(model)

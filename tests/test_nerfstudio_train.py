@@ -80,7 +80,7 @@ def test_ns_train_physgs_lite_end_to_end(tmp_path: Path) -> None:
         accs.append(float((pred[fg] == truth[fg]).mean()))
         bg_ok.append(float((pred[~fg] == 0).mean()))
         for key in ("density", "stiffness", "epistemic", "total_uncertainty"):
-            assert out[key].shape == (*truth.shape, 1) and torch.isfinite(out[key]).all()
+            assert out[key].shape == (*truth.shape, 3) and torch.isfinite(out[key]).all()
     acc = float(np.mean(accs))
     report = {"train_s": round(train_s, 1), "eval_views": len(accs), "fg_material_acc": round(acc, 4),
               "bg_unknown_frac": round(float(np.mean(bg_ok)), 4), "num_gaussians": model.num_points}  # fmt: skip

@@ -90,7 +90,7 @@ def test_failed_requests_are_reported_and_retried_next_run(tmp_path, monkeypatch
     root = make_scene(tmp_path / "scene", num_views=1)
     from perception_server import ok
 
-    with FakeServer(lambda i, b: (401, {}, {"error": "nope"}, 0.0) if i == 0 else ok()) as srv:
+    with FakeServer(lambda i, b: (404, {}, {"error": "nope"}, 0.0) if i == 0 else ok()) as srv:
         r1 = run_perception(_config(root, srv, max_concurrency=1))
         r2 = run_perception(_config(root, srv))
     assert len(r1.failed) == 1 and r2.calls == 1 and r2.resumed_masks == r1.masks - 1

@@ -57,7 +57,8 @@ def test_success_usage_and_payload(request_, monkeypatch):
     assert resp.usage.prompt_tokens == 100 and resp.usage.completion_tokens == 20 and not resp.simulated
     assert be.cost_usd(resp.usage) == pytest.approx(0.1 + 0.04)
     body = srv.requests[0]
-    assert body["model"] == "test-model" and body["response_format"] == {"type": "json_object"}
+    assert body["model"] == "test-model" and body["response_format"]["type"] == "json_schema"
+    assert body["response_format"]["json_schema"]["strict"] is True
     content = body["messages"][1]["content"]
     assert content[1]["image_url"]["url"].startswith("data:image/png;base64,")
     assert srv.auth[0] == f"Bearer {KEY}"
@@ -118,7 +119,8 @@ def test_client_error_not_retried_and_json_mode_auto_disabled(request_, monkeypa
         be = _backend(srv, monkeypatch)
         assert "ceramic" in be.query(request_).text
         assert "ceramic" in be.query(request_).text
-    assert ["response_format" in b for b in srv.requests] == [True, False, False]
+    formats = [b.get("response_format", {}).get("type") for b in srv.requests]
+    assert formats == ["json_schema", "json_object", None, None]  # each refused once, then plain text
     with FakeServer(lambda i, b: (401, {}, {"error": "unauthorized"}, 0.0)) as srv:
         be = _backend(srv, monkeypatch)
         with pytest.raises(VLMError, match="HTTP 401"):

@@ -106,10 +106,11 @@ def run_perceive(scene: Scene, settings: StageSettings, out: Path, overwrite: bo
         vlm = ReplayConfig(source="openai", model=settings.model)
     else:
         vlm = SimulatedConfig()
+    # strict: an unreadable frame fails the scene (ns-train would stop on it), as failed requests do
     cfg = PerceptionConfig(data=scene.data, vlm=vlm, segmenter=BuiltinSegmenterConfig(),
                            env=_scene_env(scene, settings), cache_dir=Path(settings.cache_dir) if settings.cache_dir else None,
                            max_concurrency=settings.max_concurrency, max_views=settings.max_views, progress=False,
-                           overwrite=overwrite)  # fmt: skip
+                           overwrite=overwrite, strict=True)  # fmt: skip
     try:
         res = run_perception(cfg)
     except (OSError, ValueError) as err:  # unreadable/broken images and datasets

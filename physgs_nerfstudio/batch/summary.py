@@ -122,9 +122,9 @@ def run_batch_eval(output_dir: Path, scene_set: SceneSet, states: dict[str, dict
     if not truth or not exported:
         return None
     preds = read_results_dir(Path(output_dir) / "scenes", method="physgs")
-    if scene_set.kind == "abo500":  # NeRF2Physics' protocol: items by id, point estimates clamped
-        preds = abo500.clamp_point_estimates(abo500.align_to_items(preds, [m.item for m in truth]), 0.01, 100.0)
-        protocol["clamp_kg"] = (0.01, 100.0)
+    if scene_set.kind == "abo500":  # NeRF2Physics' protocol: items by id, point estimates as predicted (no clamp)
+        preds = abo500.align_to_items(preds, [m.item for m in truth])
+        protocol["clamp_kg"] = None
     protocol["predictions"] = [str(Path(output_dir) / "scenes")]
     result = score(truth, preds, ScoreConfig(), protocol)
     print_result(result, console=console)

@@ -25,17 +25,21 @@ from ..geometry import (
     load_observations,
     reconstruct_object,
 )
+from ..geometry.capture import viewmat_from_c2w
 from ..mass import MassConfig, MassReport, integrate_mass, library_thickness
 from .field import PropertyField
-from .maps import View, save_property_maps, viewmat_from_c2w
+from .maps import View, save_property_maps
 from .ply import write_property_ply
 from .progress import stage
 from .report import print_mass_table, write_report
+from .runcheck import check_run
+from .staging import ExportStage, ExportWriteError, check_output_dir
 from .voxel import write_voxel_grid
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ExportCommand", "ExportResult", "LoadedRun", "load_run", "object_geometry", "run_export", "views_from_cameras"]
+__all__ = ["ExportCommand", "ExportResult", "LoadedRun", "load_run", "object_geometry", "run_export", "run_from_pipeline",
+           "views_from_cameras", "write_export"]
 
 Output = Literal["ply", "voxels", "maps", "mass"]
 
@@ -85,27 +89,57 @@ def load_run(
     max_view_width: int | None = 640,
     capture: bool = True,
 ) -> LoadedRun:
-    """Load a trained run: its property field and cameras (:func:`.loader.load_run_model`: no datamanager,
-    no image opened) and, with ``capture``, the object masks and perception's per-mask answers (mass and
-    voxels need them; the PLY and the maps do not)."""
+    """Load a trained run after the run checks (:func:`.runcheck.check_run`: safe YAML, method, checkpoint beside
+    a moved config): its property field and cameras (:func:`.loader.load_run_model`: no datamanager, no image
+    opened) and, with ``capture``, the object masks and perception's per-mask answers (mass and voxels need
+    them; the PLY and the maps do not)."""
     from .loader import load_run_model
+
+    run_files = check_run(Path(config_path))  # safe YAML, method, checkpoint (beside the config if moved)
+    rm = load_run_model(run_files.config, run_files.checkpoint)
+    dm = rm.config.pipeline.datamanager
+    return _assemble_run(run_files.run_dir, rm.model, rm.dataparser_outputs, getattr(dm, "data", None),
+                         scale=scale, known_length=known_length, env=env, max_view_width=max_view_width,
+                         capture=capture)  # fmt: skip
+
+
+def run_from_pipeline(
+    run_dir: Path,
+    pipeline: Any,
+    *,
+    scale: float | None = None,
+    known_length: Sequence[float] | None = None,
+    env: str | None = None,
+    max_view_width: int | None = 640,
+) -> LoadedRun:
+    """:func:`load_run` on a pipeline already loaded (e.g. the viewer's); ``run_dir``: the folder of its
+    config.yml and dataparser_transforms.json."""
+    dm = pipeline.datamanager
+    dpo = getattr(dm, "train_dataparser_outputs", None)
+    return _assemble_run(run_dir, pipeline.model, dpo, getattr(getattr(dm, "config", None), "data", None),
+                         scale=scale, known_length=known_length, env=env, max_view_width=max_view_width,
+                         cameras=getattr(getattr(dm, "train_dataset", None), "cameras", None))  # fmt: skip
+
+
+def _assemble_run(run_dir: Path, model: Any, dpo: Any, data: Path | None, *, scale: float | None,
+                  known_length: Sequence[float] | None, env: str | None, max_view_width: int | None,
+                  capture: bool = True, cameras: Any = None) -> LoadedRun:  # fmt: skip
     from .scale import read_dataparser_scale
 
-    rm = load_run_model(Path(config_path))
-    config, dpo = rm.config, rm.dataparser_outputs
-    dp_scale = read_dataparser_scale(config.get_base_dir())
-    pf = PropertyField.from_model(rm.model, dp_scale, scale=scale, known_length=known_length, env=env)
+    dp_scale = read_dataparser_scale(Path(run_dir))
+    pf = PropertyField.from_model(model, dp_scale, scale=scale, known_length=known_length, env=env)
+    cameras = dpo.cameras if dpo is not None else cameras
     views: list[CaptureView] = []
     observations: list[MaskObservation] = []
-    data_dir = Path(config.pipeline.datamanager.data) if getattr(config.pipeline.datamanager, "data", None) else None
+    data_dir = Path(data) if data else None
     if data_dir is not None and data_dir.suffix == ".json":
         data_dir = data_dir.parent
-    if capture and data_dir is not None and (data_dir / "transforms.json").exists():
+    if capture and dpo is not None and data_dir is not None and (data_dir / "transforms.json").exists():
         labels = dpo.metadata.get("material_filenames")
         views = load_capture(dpo.cameras, dpo.image_filenames, data_dir, label_paths=labels,
                              max_width=max_view_width)  # fmt: skip
         observations = load_observations(data_dir)
-    return LoadedRun(pf, dpo.cameras, views, observations, data_dir)
+    return LoadedRun(pf, cameras, views, observations, data_dir)
 
 
 def object_geometry(run: LoadedRun, cfg: GeometryConfig, progress: Any = None) -> ObjectGeometry:
@@ -118,7 +152,28 @@ def object_geometry(run: LoadedRun, cfg: GeometryConfig, progress: Any = None) -
                               material_names=pf.material_names, progress=progress)  # fmt: skip
 
 
-def run_export(
+def run_export(run: LoadedRun, output_dir: Path, *, overwrite: bool = False, source: Path | None = None,
+               **kwargs: Any) -> ExportResult:  # fmt: skip
+    """Write the chosen outputs of ``run`` into ``output_dir`` as one unit (:mod:`.staging`: staged beside it,
+    checked, swapped in; a failure leaves the previous export as it was) and print the mass table. ``kwargs``:
+    those of :func:`write_export`; ``overwrite`` replaces a folder that is not a previous export."""
+    stage = ExportStage.open(output_dir, overwrite=overwrite, protect=(source, run.data_dir))
+    try:
+        result = write_export(run, stage.path, final_dir=stage.final, **kwargs)
+        result.files = stage.commit(result.files, {"source": str(source) if source else None})
+    except OSError as err:
+        stage.abort()
+        if isinstance(err, ExportWriteError):
+            raise
+        raise ExportWriteError(f"{stage.final}: writing the export failed ({err}); nothing there was changed (the "
+                               "previous export is kept). Free space or fix the cause and rerun.") from None  # fmt: skip
+    except BaseException:
+        stage.abort()
+        raise
+    return result
+
+
+def write_export(
     run: LoadedRun,
     output_dir: Path,
     *,
@@ -129,8 +184,10 @@ def run_export(
     truth_kg: float | None = None,
     title: str | None = None,
     quiet: bool = False,
+    final_dir: Path | None = None,
 ) -> ExportResult:
-    """Write the chosen outputs of ``run`` into ``output_dir`` and print the mass table."""
+    """Write the chosen outputs of ``run`` straight into ``output_dir`` (no staging; ``final_dir``: where the
+    report says the files are) and print the mass table."""
     from rich.console import Console
 
     console = Console(quiet=quiet)
@@ -160,7 +217,8 @@ def run_export(
             files["maps"] = save_property_maps(pf, views, out / "maps", on_view=lambda name: st.advance(1, name))
             st.result = str(out / "maps")
     if report is not None:
-        extra: dict[str, Any] = {"files": {k: [str(p) for p in v] for k, v in files.items()},
+        shown = Path(final_dir or out)
+        extra: dict[str, Any] = {"files": {k: [str(shown / p.relative_to(out)) for p in v] for k, v in files.items()},
                                  "legend": pf.legend(), "simulated": pf.simulated}  # fmt: skip
         if truth_kg is not None:
             extra["ground_truth_kg"] = truth_kg
@@ -196,6 +254,9 @@ class ExportCommand:
     truth_kg: float | None = None
     """ground-truth mass, if known: printed and checked against the interval"""
     device: Literal["auto", "cpu", "cuda"] = "auto"
+    overwrite: bool = False
+    """replace a non-empty --output-dir that is not a previous physgs export (a previous export is always
+    replaced, as a unit, once the new one is complete)"""
     resolution: int | None = None
     """(deprecated spelling of --mass.geometry.resolution)"""
     bbox: tuple[float, float, float, float, float, float] | None = None
@@ -226,6 +287,7 @@ class ExportCommand:
         return replace(m, **kw)
 
     def main(self) -> ExportResult:
+        check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
         run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env,
                        capture=bool({"mass", "voxels"} & set(self.outputs)))
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
@@ -235,5 +297,5 @@ class ExportCommand:
         if "maps" in self.outputs and cameras is None:
             logger.warning("no training cameras found in the run: property maps skipped")
         return run_export(run, self.output_dir, mass=self.mass_config(), outputs=self.outputs, views=views,
-                          top_k=self.top_k, truth_kg=self.truth_kg,
+                          top_k=self.top_k, truth_kg=self.truth_kg, overwrite=self.overwrite, source=self.load_config,
                           title=f"Mass of {self.load_config.parent.name}")  # fmt: skip

@@ -21,7 +21,7 @@ import torch
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["RunModel", "latest_checkpoint", "load_run_model"]
+__all__ = ["RunModel", "load_run_model"]
 
 
 @dataclass
@@ -34,20 +34,6 @@ class RunModel:
     """the training split's DataparserOutputs (cameras in the scene frame, image and map paths, legend)"""
     checkpoint: Path
     step: int
-
-
-def latest_checkpoint(load_dir: Path, load_step: int | None = None) -> tuple[Path, int]:
-    """The checkpoint nerfstudio's ``eval_setup`` loads: ``load_step`` or the latest ``step-*.ckpt``."""
-    load_dir = Path(load_dir)
-    steps = sorted(int(p.stem.split("-")[1]) for p in load_dir.glob("step-*.ckpt")) if load_dir.is_dir() else []
-    if load_step is None and not steps:
-        raise FileNotFoundError(f"no checkpoint (step-*.ckpt) in {load_dir}: pass the config.yml of a run that "
-                                "saved at least one checkpoint (nerfstudio saves every --steps-per-save steps).")
-    step = steps[-1] if load_step is None else int(load_step)
-    path = load_dir / f"step-{step:09d}.ckpt"
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint {path} not found (load_step {load_step}): pick a saved step.")
-    return path, step
 
 
 def _model_state(checkpoint: Path) -> tuple[dict[str, torch.Tensor], int]:
@@ -66,15 +52,9 @@ def _model_state(checkpoint: Path) -> tuple[dict[str, torch.Tensor], int]:
     return state, int(loaded.get("step", 0))
 
 
-def load_run_model(config_path: Path) -> RunModel:
-    """The trained model and the training split's dataparser outputs of the run whose ``config.yml`` is given
-    (module doc)."""
-    import yaml
-
-    config_path = Path(config_path)
-    if not config_path.exists():
-        raise FileNotFoundError(f"{config_path} not found: pass the config.yml of an `ns-train physgs` run.")
-    config = yaml.load(config_path.read_text(), Loader=yaml.Loader)
+def load_run_model(config: Any, checkpoint: Path) -> RunModel:
+    """The trained model and the training split's dataparser outputs of a run: its ``config`` (the TrainerConfig
+    that :func:`.runcheck.check_run` read safely) and the ``checkpoint`` it chose (module doc)."""
     dm = config.pipeline.datamanager
     dp_config = dm.dataparser
     if getattr(dm, "data", None) is not None:  # as the datamanager does
@@ -86,12 +66,11 @@ def load_run_model(config_path: Path) -> RunModel:
     dataparser = dp_config.setup()
     dataparser.downscale_factor = 1  # as eval_setup(test_mode="inference"): never open an image
     dpo = dataparser.get_dataparser_outputs(split="train")
-    checkpoint, step = latest_checkpoint(config.get_checkpoint_dir(), getattr(config, "load_step", None))
-    state, saved_step = _model_state(checkpoint)
+    state, step = _model_state(Path(checkpoint))
     model = config.pipeline.model.setup(scene_box=dpo.scene_box, num_train_data=len(dpo.image_filenames),
                                         metadata=dpo.metadata, device="cpu", grad_scaler=None, seed_points=None,
                                         placeholder_gaussians=True)  # fmt: skip
-    model.update_to_step(saved_step or step)
+    model.update_to_step(step)
     try:
         model.load_state_dict(state, strict=True)
     except RuntimeError as err:  # as nerfstudio's Pipeline.load_state_dict: retry without strict key matching
@@ -99,4 +78,4 @@ def load_run_model(config_path: Path) -> RunModel:
                        checkpoint, str(err).splitlines()[0][:160])  # fmt: skip
         model.load_state_dict(state, strict=False)
     model.eval()
-    return RunModel(config, model, dpo, checkpoint, step)
+    return RunModel(config, model, dpo, Path(checkpoint), step)

@@ -23,9 +23,7 @@ from torch import Tensor
 from .field import PropertyField
 from .ply import PROPERTY_UNITS
 
-__all__ = ["View", "render_property_maps", "save_property_maps", "viewmat_from_c2w"]
-
-from ..geometry.capture import viewmat_from_c2w
+__all__ = ["View", "render_property_maps", "save_property_maps"]
 
 _SH_C0 = 0.28209479177387814
 _LOG_KEYS = ("density", "youngs_modulus")

@@ -15,6 +15,7 @@ import numpy as np
 from ..materials import MaterialLibrary, PriorConfig
 from .maps import MapFusionConfig, fuse_view
 from .properties import fuse_properties, legend_names
+from .transaction import DatasetTransaction
 from .writer import (
     frame_names,
     legend_colors,
@@ -59,7 +60,9 @@ def write_dataset_outputs(
     source: dict,
     simulated: bool,
 ) -> DatasetOutputs:
-    """Fuse ``observations`` into materials.json and per-frame maps of ``views``; update transforms.json."""
+    """Fuse ``observations`` into materials.json and per-frame maps of ``views``; update transforms.json.
+    Every file is staged first and the dataset changes in one step (transaction.py): an error, a full disk
+    included, leaves it as it was."""
     names = legend_names(observations, library, legend)
     post = fuse_properties(observations, library, names, prior)
     colors = [library[n].color for n in names]
@@ -68,28 +71,29 @@ def write_dataset_outputs(
     by_view = _view_records(observations, index)
     out_names = frame_names(list(views))
     paths: dict[str, tuple[str, str]] = {}
-    for view in views:
-        got = view_masks(view)
-        if got is None:
-            continue  # never segmented (e.g. the run stopped before this frame)
-        image, stack, levels = got
-        recs = by_view.get(view, [])
-        maps = fuse_view(
-            stack,
-            levels,
-            [int(r["mask_id"]) for r in recs],
-            [index[r["material"]] for r in recs],
-            [float(r["confidence"]) for r in recs],
-            len(names),
-            fusion,
-        )
-        paths[view] = write_view_maps(root, out_names[view], maps, palette, image)
-    simulated = simulated or any(o.get("simulated") for o in observations)
-    doc = materials_document(post, library, simulated, fusion, {**source, "observations": len(observations)})
-    materials_json = write_materials_json(root, doc)
-    write_legend(root, names, colors)
-    if paths:
-        update_transforms(root, paths)
+    with DatasetTransaction(root) as txn:  # all of it or none of it (transaction.py)
+        for view in views:
+            got = view_masks(view)
+            if got is None:
+                continue  # never segmented (e.g. the run stopped before this frame) or unreadable
+            image, stack, levels = got
+            recs = by_view.get(view, [])
+            maps = fuse_view(
+                stack,
+                levels,
+                [int(r["mask_id"]) for r in recs],
+                [index[r["material"]] for r in recs],
+                [float(r["confidence"]) for r in recs],
+                len(names),
+                fusion,
+            )
+            paths[view] = write_view_maps(root, out_names[view], maps, palette, image, txn)
+        simulated = simulated or any(o.get("simulated") for o in observations)
+        doc = materials_document(post, library, simulated, fusion, {**source, "observations": len(observations)})
+        materials_json = write_materials_json(root, doc, txn)
+        write_legend(root, names, colors, txn)
+        if paths:
+            update_transforms(root, paths, txn=txn)
     return DatasetOutputs(
         names,
         materials_json,

@@ -6,24 +6,30 @@
   image, for people) and ``materials/legend.png``;
 * ``transforms.json``: ``material_path`` and ``material_confidence_path`` per frame, every other key
   preserved; written atomically, with ``transforms.json.bak`` kept from before the first modification.
+
+Each writer takes an optional :class:`~.transaction.DatasetTransaction`: with one, files are staged and
+the dataset changes only when it commits (dataset.py uses one for a whole run's outputs).
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
-import os
 import re
-import shutil
 from collections.abc import Mapping, Sequence
+from dataclasses import asdict, is_dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..errors import DatasetError
 from ..materials import CANONICAL_SCALE, PROPERTY_KEYS, MaterialLibrary
+from . import transaction as _transaction
 from .maps import MapFusionConfig, ViewMaps
 from .properties import PropertyPosteriors, posterior_means
+from .transaction import DatasetTransaction
 
 MATERIALS_JSON_VERSION = 1
 LABEL_DIR = "materials/labels"
@@ -31,24 +37,43 @@ CONFIDENCE_DIR = "materials/confidence"
 PREVIEW_DIR = "materials/preview"
 
 
+def jsonable(obj: Any) -> Any:
+    """`obj` in plain JSON types: dataclasses and mappings as dicts (string keys), tuples and lists as lists,
+    paths as strings, numpy scalars as Python numbers, non-finite floats as None (JSON has no inf / nan)."""
+    if is_dataclass(obj) and not isinstance(obj, type):
+        return {k: jsonable(v) for k, v in asdict(obj).items()}
+    if isinstance(obj, Mapping):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return jsonable(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
 def atomic_write_text(path: Path, text: str) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    """``path`` replaced by ``text`` in one rename (transaction.atomic_write_bytes)."""
+    _transaction.atomic_write_bytes(Path(path), text.encode("utf-8"))
 
 
-def _atomic_write_png(path: Path, image: np.ndarray) -> None:
+def encode_png(image: np.ndarray) -> bytes:
     from PIL import Image
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    Image.fromarray(image).save(tmp, format="PNG")
-    os.replace(tmp, path)
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _put(root: Path, rel: str, data: bytes, txn: DatasetTransaction | None) -> None:
+    """Stage ``rel`` in ``txn``, or (no transaction) replace ``root / rel`` atomically on its own."""
+    if txn is not None:
+        txn.write_bytes(rel, data)
+    else:
+        _transaction.atomic_write_bytes(Path(root) / rel, data)
 
 
 def frame_names(file_paths: Sequence[str]) -> dict[str, str]:
@@ -114,10 +139,9 @@ def materials_document(
     }
 
 
-def write_materials_json(root: Path, document: dict) -> Path:
-    path = Path(root) / "materials.json"
-    atomic_write_text(path, json.dumps(document, indent=2))
-    return path
+def write_materials_json(root: Path, document: dict, txn: DatasetTransaction | None = None) -> Path:
+    _put(root, "materials.json", json.dumps(document, indent=2).encode("utf-8"), txn)
+    return Path(root) / "materials.json"
 
 
 def legend_colors(colors: Sequence[Sequence[int]]) -> np.ndarray:
@@ -135,20 +159,26 @@ def preview_image(labels: np.ndarray, palette: np.ndarray, image: np.ndarray | N
 
 
 def write_view_maps(
-    root: Path, name: str, maps: ViewMaps, palette: np.ndarray, image: np.ndarray | None = None
+    root: Path,
+    name: str,
+    maps: ViewMaps,
+    palette: np.ndarray,
+    image: np.ndarray | None = None,
+    txn: DatasetTransaction | None = None,
 ) -> tuple[str, str]:
     """Write the label, confidence and preview PNGs of one frame; returns the two dataset-relative paths."""
-    root = Path(root)
     label_rel = f"{LABEL_DIR}/{name}.png"
     conf_rel = f"{CONFIDENCE_DIR}/{name}.png"
-    _atomic_write_png(root / label_rel, maps.labels.astype(np.uint8))
+    _put(root, label_rel, encode_png(maps.labels.astype(np.uint8)), txn)
     conf8 = np.clip(np.round(maps.confidence * 255.0), 0, 255).astype(np.uint8)
-    _atomic_write_png(root / conf_rel, conf8)
-    _atomic_write_png(root / PREVIEW_DIR / f"{name}.png", preview_image(maps.labels, palette, image))
+    _put(root, conf_rel, encode_png(conf8), txn)
+    _put(root, f"{PREVIEW_DIR}/{name}.png", encode_png(preview_image(maps.labels, palette, image)), txn)
     return label_rel, conf_rel
 
 
-def write_legend(root: Path, names: Sequence[str], colors: Sequence[Sequence[int]]) -> Path:
+def write_legend(
+    root: Path, names: Sequence[str], colors: Sequence[Sequence[int]], txn: DatasetTransaction | None = None
+) -> Path:
     """A swatch + name per material (materials/legend.png)."""
     import cv2
 
@@ -167,26 +197,31 @@ def write_legend(root: Path, names: Sequence[str], colors: Sequence[Sequence[int
             1,
             cv2.LINE_AA,
         )
-    path = Path(root) / "materials" / "legend.png"
-    _atomic_write_png(path, img)
-    return path
+    _put(root, "materials/legend.png", encode_png(img), txn)
+    return Path(root) / "materials" / "legend.png"
 
 
 def update_transforms(
-    root: Path, paths: Mapping[str, tuple[str, str]], transforms_name: str = "transforms.json"
+    root: Path,
+    paths: Mapping[str, tuple[str, str]],
+    transforms_name: str = "transforms.json",
+    txn: DatasetTransaction | None = None,
 ) -> Path:
     """Set ``material_path`` / ``material_confidence_path`` of the frames whose ``file_path`` is a key of
     ``paths``; every other key (top level and per frame) and the key order are preserved. The original file
     is copied to ``transforms.json.bak`` before the first modification; the write is atomic."""
     path = Path(root) / transforms_name
-    text = path.read_text(encoding="utf-8")
-    data = json.loads(text)
-    frames = data.get("frames")
+    raw = path.read_bytes()
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except ValueError as err:
+        raise DatasetError(f"{path} is not valid JSON ({err}); fix the file or regenerate it") from None
+    frames = data.get("frames") if isinstance(data, dict) else None
     if not isinstance(frames, list):
-        raise ValueError(f"{path} has no 'frames' list")
+        raise DatasetError(f"{path} has no 'frames' list")
     changed = False
     for frame in frames:
-        fp = frame.get("file_path")
+        fp = frame.get("file_path") if isinstance(frame, dict) else None
         if fp in paths:
             label_rel, conf_rel = paths[fp]
             if frame.get("material_path") != label_rel or frame.get("material_confidence_path") != conf_rel:
@@ -195,8 +230,7 @@ def update_transforms(
                 changed = True
     if not changed:
         return path
-    backup = path.with_name(path.name + ".bak")
-    if not backup.exists():
-        shutil.copy2(path, backup)
-    atomic_write_text(path, json.dumps(data, indent=4) + "\n")
+    if not path.with_name(path.name + ".bak").exists():
+        _put(root, transforms_name + ".bak", raw, txn)
+    _put(root, transforms_name, (json.dumps(data, indent=4) + "\n").encode("utf-8"), txn)
     return path

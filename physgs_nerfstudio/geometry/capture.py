@@ -36,13 +36,17 @@ MASK_DIR = "perception/masks"
 _LEVELS = ("whole", "part", "subpart")
 
 
-def viewmat_from_c2w(c2w: Float[Tensor, "3 4"]) -> Float[Tensor, "4 4"]:
-    """World-to-camera (OpenCV axes) from a nerfstudio camera-to-world (OpenGL axes: y up, z backward)."""
+def viewmat_from_c2w(c2w: Float[Tensor, "*batch 3 4"]) -> Float[Tensor, "*batch 4 4"]:
+    """World-to-camera (OpenCV axes, as gsplat) from a nerfstudio camera-to-world (OpenGL axes: y up, z backward),
+    float32 on the input's device; one matrix or a batch. The package's one copy: nerfstudio's own
+    (`splatfacto.get_viewmat`) is wrapped in torch.compile, which costs about 20 s on the first CPU call."""
     c2w = torch.as_tensor(c2w, dtype=torch.float32)
-    R = c2w[:3, :3] @ torch.diag(torch.tensor([1.0, -1.0, -1.0]))
-    out = torch.eye(4)
-    out[:3, :3] = R.T
-    out[:3, 3:4] = -R.T @ c2w[:3, 3:4]
+    R = c2w[..., :3, :3] * torch.tensor([1.0, -1.0, -1.0], device=c2w.device)  # flip camera y and z
+    R_t = R.transpose(-1, -2)
+    out = torch.zeros((*c2w.shape[:-2], 4, 4), device=c2w.device)
+    out[..., 3, 3] = 1.0
+    out[..., :3, :3] = R_t
+    out[..., :3, 3:4] = -R_t @ c2w[..., :3, 3:4]
     return out
 
 

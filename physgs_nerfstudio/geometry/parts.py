@@ -1,12 +1,26 @@
 """The carved solid's material mixture per voxel, its 3-D parts, and each part's volume and wall area.
 
 * **Material per voxel.** The object's Gaussians are binned into the voxels that hold their centres (weights:
-  opacity x mixture weights ``pi``, the field's material weights). A solid voxel without a Gaussian (the
-  inside of a 3DGS object: Gaussians sit on surfaces) takes the mixture of the nearest voxel that has one
-  (Euclidean distance transform), i.e. interior voxels take the nearest surface evidence.
+  opacity x observed share x mixture weights ``pi``, the field's material weights). The observed share is the
+  part of a Gaussian's blending weight that fell on labelled pixels (``PropertyField.labelled``): a Gaussian
+  that no labelled view saw (the underside of a box, the inside of a cavity) holds only its prior and gives
+  no material. A voxel *has evidence* when its summed opacity x observed share reaches ``min_evidence`` (half
+  an opaque, fully observed Gaussian by default). A solid voxel without evidence (the inside of a 3DGS object:
+  Gaussians sit on surfaces; or a surface no view labelled) takes the mixture of the nearest voxel that has
+  it (Euclidean distance transform), i.e. it takes the nearest observed surface evidence.
 * **Parts.** Connected components (26-connectivity) of solid voxels sharing a dominant (argmax) material;
   parts below ``min_part_fraction`` of the object's volume are pooled into one residual part.
-* **Wall area per part.** Marching cubes of the solid (level 0.5); each face belongs to the part of the solid
+* **Material draws within a part** (:func:`material_quantiles`). The mass's Monte Carlo draws one level
+  ``u ~ U(0, 1)`` per part and sample; each voxel of the part then takes the material where its own mixture's
+  cumulative sum (materials in the order of the part's mean mixture) first reaches ``u``. Where the voxels are
+  equally unsure (oak or walnut everywhere) the whole part switches together, which keeps the ambiguity in the
+  interval; where they are sure but differ (a leg voxel steel, a top voxel oak), each keeps its own material,
+  so a 5% steel share of a part's volume stays 5% of its volume instead of becoming a 5% chance that the whole
+  part is steel. The draw is tabulated at ``levels`` quantiles as the part's volume share per material.
+* **Wall area per part.** Marching cubes (level 0.5) of the solid smoothed by a Gaussian of ``area_sigma`` = 0.5
+  voxel: on the raw 0/1 grid the staircase overstates the area (by 4% on a turned box, 9% on a sphere, 11-15%
+  on a tilted two-voxel sheet); smoothed, by at most 1.5%, 4% and 9%, and a one-voxel sheet survives (a
+  wider kernel erases it). Each face belongs to the part of the solid
   voxel nearest to it. A face counts fully where the solid under it is bulky (a closed hollow part, filled
   because no view sees its inside) and half where the solid is a sheet at most ``2 * sheet_voxels`` voxels
   thick (an open wall whose two sides were both reconstructed: each side is one copy of the wall).
@@ -23,19 +37,28 @@ from torch import Tensor
 
 from .grid import VoxelGrid
 
-__all__ = ["PartGeometry", "part_areas", "part_labels", "voxel_mixture"]
+__all__ = ["PartGeometry", "material_quantiles", "part_areas", "part_labels", "voxel_mixture"]
 
 
-def voxel_mixture(grid: VoxelGrid, solid: np.ndarray, means: Tensor, opacities: Tensor, pi: Tensor) -> np.ndarray:
-    """float64 [X, Y, Z, K] mixture on the solid's voxels (zeros elsewhere); module doc."""
+def voxel_mixture(grid: VoxelGrid, solid: np.ndarray, means: Tensor, opacities: Tensor, pi: Tensor,
+                  observed: Tensor | None = None, *, min_evidence: float = 0.5) -> np.ndarray:  # fmt: skip
+    """float64 [X, Y, Z, K] mixture on the solid's voxels (zeros elsewhere); module doc. ``observed``: per
+    Gaussian observed share in [0, 1] (None: every Gaussian counts as observed)."""
     K = pi.shape[1]
     idx = grid.index_of(means.float()).cpu().numpy()
     shape = np.asarray(grid.shape)
     ok = ((idx >= 0) & (idx < shape)).all(1)
     acc = np.zeros((*grid.shape, K))
-    w = (opacities.double()[:, None] * pi.double()).cpu().numpy()
+    conf = opacities.double().reshape(-1)
+    if observed is not None:
+        conf = conf * observed.double().reshape(-1).clamp(0.0, 1.0)
+    w = (conf[:, None] * pi.double()).cpu().numpy()
     np.add.at(acc, tuple(idx[ok].T), w[ok])
-    has = acc.sum(-1) > 0
+    strength = np.zeros(grid.shape)
+    np.add.at(strength, tuple(idx[ok].T), conf.cpu().numpy()[ok])
+    has = strength >= min_evidence
+    if not has.any():  # nothing reached the bar: every voxel with any evidence counts
+        has = acc.sum(-1) > 0
     out = np.zeros_like(acc)
     if not has.any():
         out[solid] = 1.0 / K
@@ -82,7 +105,7 @@ class PartGeometry:
 
 
 def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts: int, *,
-               sheet_voxels: float = 1.5) -> PartGeometry:  # fmt: skip
+               sheet_voxels: float = 1.5, area_sigma: float = 0.5) -> PartGeometry:  # fmt: skip
     """Per-part volume and wall area of ``solid`` (module doc)."""
     h = grid.voxel_size
     vol = np.bincount(parts[solid], minlength=num_parts).astype(np.float64) * h**3
@@ -91,11 +114,14 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     total_area = np.zeros(num_parts)
     if solid.sum() == 0:
         return PartGeometry(vol, area, sheet_area)
-    padded = np.pad(solid, 1).astype(np.float32)
+    pad = 2
+    padded = np.pad(solid, pad).astype(np.float32)
+    if area_sigma > 0:
+        padded = ndimage.gaussian_filter(padded, area_sigma)
     verts, faces, _, _ = marching_cubes(padded, 0.5)
     tri = verts[faces]  # [T, 3, 3] in padded voxel index units
     fa = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) * h**2
-    centroid = tri.mean(1) - 1.0  # unpadded voxel-index coordinates (voxel i has its centre at i)
+    centroid = tri.mean(1) - pad  # unpadded voxel-index coordinates (voxel i has its centre at i)
     fv = np.clip(np.rint(centroid).astype(np.int64), 0, np.asarray(solid.shape) - 1)
     _, near = ndimage.distance_transform_edt(~solid, return_indices=True)
     nv = tuple(near[a][fv[:, 0], fv[:, 1], fv[:, 2]] for a in range(3))
@@ -112,3 +138,23 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     np.add.at(total_area, pid[ok], fa[ok])
     share = np.divide(sheet_area, total_area, out=np.zeros_like(area), where=total_area > 0)
     return PartGeometry(vol, area, share)
+
+
+def material_quantiles(parts: np.ndarray, mixture: np.ndarray, num_parts: int, part_mixture: np.ndarray,
+                       levels: int = 32) -> np.ndarray:  # fmt: skip
+    """float64 [P, levels, K]: per part and quantile level ``u_j = (j + 1/2) / levels``, the share of the part's
+    voxels that take each material (module doc, "Material draws within a part"); rows sum to 1 (a part without
+    voxels: its ``part_mixture``)."""
+    K = mixture.shape[-1]
+    sel = parts >= 0
+    pid = parts[sel]
+    mix = mixture[sel]
+    order = np.argsort(-part_mixture, axis=1, kind="stable")  # [P, K]
+    cum = np.cumsum(np.take_along_axis(mix, order[pid], 1), 1)  # [N, K]
+    out = np.zeros((num_parts, levels, K))
+    for j in range(levels):  # quantile levels, not voxels
+        rank = np.minimum((cum < (j + 0.5) / levels).sum(1), K - 1)
+        mat = order[pid, rank]
+        np.add.at(out[:, j, :], (pid, mat), 1.0)
+    tot = out.sum(-1, keepdims=True)
+    return np.where(tot > 0, out / np.maximum(tot, 1e-300), part_mixture[:, None, :])

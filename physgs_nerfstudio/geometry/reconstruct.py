@@ -22,7 +22,7 @@ from .capture import CaptureView, MaskObservation
 from .carve import CarveConfig, carve_votes_many, signed_mask_distance, solid_from_votes
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
-from .parts import PartGeometry, part_areas, part_labels, voxel_mixture
+from .parts import PartGeometry, material_quantiles, part_areas, part_labels, voxel_mixture
 from .select import ObjectSelection, SelectConfig, select_object
 from .structure import PartStructure, StructureConfig, fuse_structure
 
@@ -53,6 +53,9 @@ class GeometryConfig:
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1"""
     min_part_fraction: float = 2e-3
+    min_voxel_evidence: float = 0.5
+    """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
+    (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
     object_mask_dilate_px: int = 2
     """the object's own silhouette (its Gaussians rendered alone) is dilated by this before it cuts the
     foreground masks, so that other objects in the views do not count as this one"""
@@ -91,6 +94,9 @@ class ObjectGeometry:
     views_used: int
     mask_sources: dict[str, int]
     """views per mask source, after the silhouette replacements of :func:`_object_views`"""
+    material_levels: np.ndarray | None = None
+    """[P, J, K]: per part and quantile level, the volume share per material
+    (:func:`physgs_nerfstudio.geometry.parts.material_quantiles`); None = each part one material"""
 
     @property
     def num_parts(self) -> int:
@@ -219,7 +225,9 @@ def reconstruct_object(
                          "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
     step("materials and parts")
     sel = selection.selected
-    mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi[sel])
+    labelled = getattr(g, "labelled", None)
+    mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi[sel],
+                            labelled[sel] if labelled is not None else None, min_evidence=cfg.min_voxel_evidence)
     parts = part_labels(union, mixture, cfg.min_part_fraction)
     P = int(parts.max()) + 1
     K = pi.shape[1]
@@ -242,5 +250,5 @@ def reconstruct_object(
         grid=grid, solid=solids[0], parts=parts, part_mixture=pm, mixture=mixture, variant_names=names,
         volumes=np.stack([gm.volume for gm in geos]), areas=np.stack([gm.area for gm in geos]),
         sheet_share=geos[0].sheet_share, structure=structure, selection=selection, views_used=len(views),
-        mask_sources=sources,
+        mask_sources=sources, material_levels=material_quantiles(parts, mixture, P, pm),
     )  # fmt: skip

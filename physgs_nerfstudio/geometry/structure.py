@@ -8,9 +8,16 @@ where that part is the visible surface (a z-buffer of the solid's boundary voxel
 answer is conditional on its material ("if this is cast iron, it is a 4 mm shell"), so it counts as far as
 the part is made of that material.
 
-* Hollowness of part ``s``: Beta(a, b) with ``a = a0 + sum p w [hollow]``, ``b = b0 + sum p w [solid]``. The
-  prior has ``prior_strength`` pseudo-observations with mean ``prior_hollow_if_library_shell`` when the part's
-  dominant material has a typical wall thickness in the material library, else ``prior_hollow_otherwise``.
+* Hollowness of part ``s``: Beta(a, b) with ``a = a0 + sum p w [hollow]``, ``b = b0 + sum p w [solid]``, the
+  posterior of ``theta_s``, the rate at which a view of the part answers "hollow". The prior has
+  ``prior_strength`` pseudo-observations with mean ``prior_hollow_if_library_shell`` when the part's dominant
+  material has a typical wall thickness in the material library, else ``prior_hollow_otherwise``.
+* The part itself is hollow or solid, not a blend: it is hollow when most views would say so,
+  ``theta_s > 1/2``, and ``p_hollow = P(theta_s > 1/2)`` under the Beta posterior. Why not ``E[theta_s]``:
+  that is the chance that the *next answer* says hollow. With answers wrong at a rate ``e`` (the simulated
+  VLM flips 10%), ``E[theta]`` stays near ``1 - e`` however many views agree, and a vase whose cavity is 8x
+  its wall volume would carry a 10% "solid" branch worth ~0.8x its mass. ``P(theta > 1/2)`` goes to 1 as
+  agreeing answers accumulate and stays near 1/2 when they split, which is the uncertainty we want.
 * Wall thickness: a Normal-Inverse-Gamma posterior on ``log t`` (:func:`physgs_nerfstudio.bayes.nig_posterior`)
   from the hollow answers (weights ``p w``), with prior mean the log of the library's typical thickness (else
   ``default_thickness_m``), ``kappa0`` = 1 and a prior spread of a factor ``prior_thickness_spread`` (90%).
@@ -27,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.special import betainc
 
 from ..bayes.nig import NIG, Moments, nig_posterior
 from .capture import CaptureView, MaskObservation
@@ -64,7 +72,17 @@ class PartStructure:
 
     @property
     def p_hollow(self) -> np.ndarray:
+        """P(theta > 1/2): the probability that the part is hollow (module doc)."""
+        return 1.0 - betainc(self.hollow_a, self.hollow_b, 0.5)
+
+    @property
+    def answer_rate(self) -> np.ndarray:
+        """E[theta]: the posterior mean rate of "hollow" answers."""
         return self.hollow_a / (self.hollow_a + self.hollow_b)
+
+    def sample_hollow(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """bool [n, P]: hollow per sample and part, theta ~ Beta(a, b), hollow = theta > 1/2."""
+        return rng.beta(self.hollow_a[None, :], self.hollow_b[None, :], size=(n, len(self.hollow_a))) > 0.5
 
     def thickness_m(self) -> np.ndarray:
         """Posterior median thickness per part (metres)."""
@@ -72,7 +90,9 @@ class PartStructure:
 
     def to_list(self) -> list[dict]:
         t = self.thickness
-        return [{"p_hollow": float(self.p_hollow[i]), "beta": [float(self.hollow_a[i]), float(self.hollow_b[i])],
+        ph, rate = self.p_hollow, self.answer_rate
+        return [{"p_hollow": float(ph[i]), "hollow_answer_rate": float(rate[i]),
+                 "beta": [float(self.hollow_a[i]), float(self.hollow_b[i])],
                  "thickness_m": float(math.exp(float(t.tau[i]))),
                  "log_thickness_nig": {"tau": float(t.tau[i]), "kappa": float(t.kappa[i]), "a": float(t.a[i]),
                                        "b": float(t.b[i])},

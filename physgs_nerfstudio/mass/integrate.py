@@ -4,14 +4,16 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
 
 * **Geometry**: one carving variant (:mod:`physgs_nerfstudio.geometry.reconstruct`), uniformly; it fixes every
   part's volume ``V_p`` and wall area ``A_p``.
-* **Material**: each part draws one material from its volume-weighted mixture (a part is the unit perception
-  labels as a whole; voxel-independent draws would average the ambiguity away).
+* **Material**: each part draws one quantile level ``u``; each of its voxels takes the material at ``u`` of its
+  own mixture (:func:`physgs_nerfstudio.geometry.parts.material_quantiles`): equally unsure voxels switch
+  together (the ambiguity stays in the interval), sure but different voxels keep their own materials (a part's
+  5% steel share stays 5% of its volume).
 * **Density**: one draw per material from the posterior of its mean (NIG: Student-t(2a, tau, sqrt(b/(a kappa))),
   in log space where configured; ``density_draw="predictive"`` uses the full predictive). Every part of that
   material uses the same draw (densities are fully correlated across the object).
-* **Structure**: each part is hollow with its posterior predictive probability ``E[theta_p]`` (Beta posterior
-  of :mod:`physgs_nerfstudio.geometry.structure`); a hollow part draws its wall thickness ``t_p`` from the
-  posterior of its log-thickness mean.
+* **Structure**: each part draws its "hollow" answer rate ``theta_p`` from its Beta posterior
+  (:mod:`physgs_nerfstudio.geometry.structure`) and is hollow when ``theta_p > 1/2``; a hollow part draws its
+  wall thickness ``t_p`` from the posterior of its log-thickness mean.
 * Part mass: ``rho x V_p`` (solid) or ``rho x min(V_p, A_p t_p)`` (hollow); the object's mass is the sum.
 
 The reported mean, median and central ``level`` interval all come from these same samples.
@@ -127,7 +129,7 @@ def _structure_draws(geo: ObjectGeometry, cfg: MassConfig, rng: np.random.Genera
     S, P = cfg.n_samples, geo.num_parts
     st = geo.structure
     if cfg.structure == "auto":
-        hollow = rng.random((S, P)) < st.p_hollow[None, :]
+        hollow = st.sample_hollow(rng, S)
     else:
         hollow = np.full((S, P), cfg.structure == "hollow")
     t = st.thickness
@@ -135,6 +137,19 @@ def _structure_draws(geo: ObjectGeometry, cfg: MassConfig, rng: np.random.Genera
     scale = np.sqrt(b / (a * kappa))
     thick = np.exp(tau[None, :] + scale[None, :] * rng.standard_t(2 * a[None, :], size=(S, P)))
     return hollow, thick
+
+
+def _material_shares(geo: ObjectGeometry, rng: np.random.Generator, S: int) -> np.ndarray:
+    """[S, P, K] volume share per material of each part in each sample (module doc, "Material")."""
+    levels = geo.material_levels
+    if levels is None:  # one material per part, drawn from its mixture
+        levels = np.eye(geo.part_mixture.shape[1])[None].repeat(geo.num_parts, 0)  # [P, K, K]
+        cum = np.cumsum(geo.part_mixture, 1)
+        cum[:, -1] = 1.0
+        j = np.minimum((rng.random((S, geo.num_parts))[:, :, None] > cum[None]).sum(-1), cum.shape[1] - 1)
+    else:
+        j = rng.integers(levels.shape[1], size=(S, geo.num_parts))
+    return levels[np.arange(geo.num_parts)[None, :], j]
 
 
 def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, *,
@@ -149,13 +164,12 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
     gi = rng.integers(G, size=S) if G > 1 else np.zeros(S, np.int64)
     V = geo.volumes[gi] * mpu**3  # [S, P] m^3
     A = geo.areas[gi] * mpu**2  # [S, P] m^2
-    cum = np.cumsum(geo.part_mixture, 1)
-    cum[:, -1] = 1.0
-    c = np.minimum((rng.random((S, P))[:, :, None] > cum[None]).sum(-1), K - 1)  # [S, P] material index
+    share = _material_shares(geo, rng, S)  # [S, P, K]
     rho = _density_draws(pf, cfg, rng)  # [S, K]
     hollow, thick = _structure_draws(geo, cfg, rng)
     vol = np.where(hollow, np.minimum(V, A * thick), V)
-    m = np.take_along_axis(rho, c, 1) * vol  # [S, P]
+    m_pk = share * rho[:, None, :] * vol[:, :, None]  # [S, P, K]
+    m = m_pk.sum(-1)  # [S, P]
     total = m.sum(1)
     lo_q, hi_q = (1 - cfg.level) / 2, (1 + cfg.level) / 2
     q = lambda x: (float(np.quantile(x, lo_q)), float(np.quantile(x, hi_q)))
@@ -171,7 +185,7 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
     p_h = np.divide((vk * st.p_hollow[:, None]).sum(0), vk.sum(0), out=np.zeros(K), where=vk.sum(0) > 0)
     t_med = st.thickness_m()
     for k in range(K):  # materials, not voxels
-        per = np.where(c == k, m, 0.0).sum(1)
+        per = m_pk[:, :, k].sum(1)
         model = "shell" if p_h[k] > 0.75 else "solid" if p_h[k] < 0.25 else "mixed"
         w = vk[:, k] * st.p_hollow
         t_k = float(np.exp((w * np.log(t_med)).sum() / w.sum())) if w.sum() > 0 else None

@@ -8,16 +8,17 @@ Per Gaussian g, on top of splatfacto's parameters:
 - `dirichlet_evidence` [N, K] (not trainable, in `gauss_params` so densification splits / clones / prunes it
   with everything else; children of a split inherit their parent's evidence): the lifted evidence
   e_gk = sum over training pixels of (T * alpha)_g(pixel) * confidence(pixel) * [label(pixel) = k],
-  computed by `run_lifting` through `physgs_nerfstudio.lifting.lift_evidence`. Posterior
+  computed by the pipeline (`pipeline.PhysGSPipeline`, through `physgs_nerfstudio.lifting.lift_evidence`) and
+  handed to the model by `set_material_evidence`. Posterior
   alpha_g = alpha0 + lambda * e_g; a Gaussian with (near) zero evidence keeps the prior (maximal
   epistemic uncertainty).
 
 How the two combine: the Dirichlet posterior is *the* Bayesian belief used for every physical property and
 its uncertainty (mixture predictive over the per-material NIG posteriors of `materials.json`,
 `bayes.property_fields`); the logits only drive the rendered material map (they are a point estimate fit by
-gradient descent, good at pixel-sharp boundaries, with no calibrated uncertainty). Lifting runs when
-densification stops (`lifting_step`, default `stop_split_at`), at the last training iteration and on demand
-(`run_lifting(datamanager)`); before the first lifting every Gaussian shows the prior.
+gradient descent, good at pixel-sharp boundaries, with no calibrated uncertainty). The pipeline lifts when
+densification stops (its `lifting_step`, default `stop_split_at`), at the last training iteration and on demand
+(`PhysGSPipeline.lift()`); before the first lifting every Gaussian shows the prior.
 
 Lifting also records, per Gaussian, its total (per-view normalised) blending weight `lifting_weight` [N, 1]
 and the part of it that fell on labelled pixels (label != 0, whatever the confidence) `labelled_weight`
@@ -38,14 +39,13 @@ evaluated from the SH coefficients before rasterization so that RGB and the extr
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import torch
 import torch.nn.functional as F
 from gsplat.strategy import DefaultStrategy
 from jaxtyping import Float
 from nerfstudio.cameras.cameras import Cameras
-from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.model_components.lib_bilagrid import BilateralGrid
 from nerfstudio.models.splatfacto import (
     RGB2SH,
@@ -61,9 +61,16 @@ from torch import Tensor
 from torch.nn import Parameter
 
 from physgs_nerfstudio.bayes import NIG, dirichlet_posterior, property_fields
+from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 from physgs_nerfstudio.render import eval_sh_colors, rasterize
+from physgs_nerfstudio.viewer.display import (
+    ViewerSettings,
+    gaussian_channels,
+    gaussian_materials,
+    viewer_outputs,
+)
 
-from .keys import EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY, world_to_camera
+from .keys import EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY
 from .legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
 
 PROPERTY_OUTPUTS = ("density", "friction", "hardness", "stiffness")
@@ -95,27 +102,13 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     """Dirichlet prior concentration per material; None = `alpha0` of materials.json (1.0 if absent)."""
     dirichlet_lambda: float | None = None
     """Evidence strength lambda (evidence in pixel-weight units); None = `lambda` of materials.json (1.0 if absent)."""
-    min_evidence: float = 1e-3
-    """Gaussians with less total lifted evidence than this keep the exact prior (never seen)."""
-    evidence_per_view: Literal["view", "pixels"] = "view"
-    """How a view's lifted evidence counts in the Dirichlet. "view": divided by the Gaussian's blending weight in
-    that view, so every view that sees the Gaussian (weight above `min_view_weight`) is one confidence-weighted
-    observation, split over the labels of the pixels it covers: the concentration grows with the number of
-    consistent views, not with the Gaussian's size on screen. "pixels": the raw pixel sum (every covered pixel
-    counts as an observation: far more confident for large Gaussians, far less for sub-pixel ones)."""
-    min_view_weight: float = 0.05
-    """With evidence_per_view="view": a view counts for a Gaussian only if its total blending weight there (in
-    pixels) exceeds this; below it the Gaussian is treated as unseen in that view."""
-    lifting_step: int | None = None
-    """Step at which to lift the material maps onto the Gaussians; None = `stop_split_at` (densification end)."""
-    lift_at_end: bool = True
-    """Lift again at the last training iteration (so the checkpoint's evidence matches the final Gaussians)."""
     material_weights: Literal["dominant", "predictive"] = "dominant"
     """How a Gaussian's Dirichlet posterior weights the materials' property posteriors, for the viewer outputs
     and every `physgs export` writer (saved with the run's config): "dominant", the posterior that a material
     is the Gaussian's dominant label (bayes.dominance_probability); "predictive", alpha / sum(alpha)."""
     uncertainty_property: Literal["density", "friction", "hardness", "stiffness"] = "density"
-    """Property whose aleatoric / epistemic / total uncertainty the viewer outputs show."""
+    """Property whose aleatoric / epistemic / total uncertainty the viewer outputs show at start (the viewer
+    panel's *Uncertainty of* changes it while the viewer runs)."""
     uncertainty_as_std: bool = True
     """Show uncertainties as standard deviations (property units) instead of variances."""
     material_alpha_thresh: float = 0.5
@@ -129,6 +122,19 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     """auto: gsplat on CUDA, the pure-torch reference rasterizer elsewhere."""
     compute_lpips: bool = True
     """LPIPS in eval metrics (needs torchvision's AlexNet weights; skipped with a warning when absent)."""
+
+
+class MaterialEvidence(NamedTuple):
+    """A lifting pass's result for the Gaussians as they stand (`PhysGSModel.set_material_evidence`)."""
+
+    evidence: Float[Tensor, "n k"]
+    """confidence-weighted label evidence (per-view normalised or pixel sums); 0 rows keep the prior"""
+    weight: Float[Tensor, "n 1"]
+    """total blending weight (`lifting_weight`)"""
+    labelled: Float[Tensor, "n 1"]
+    """the part of it on labelled pixels (`labelled_weight`)"""
+    views: int
+    """training views with at least one labelled pixel"""
 
 
 class _LazyLPIPS:
@@ -171,6 +177,8 @@ class PhysGSModel(SplatfactoModel):
 
     # ------------------------------------------------------------------ setup
     def populate_modules(self):
+        """The material head (legend, Dirichlet prior, per-material NIG buffers), the Gaussians, then
+        splatfacto's training modules."""
         legend = self.kwargs.get("metadata", {}).get("material_legend")
         if not isinstance(legend, MaterialLegend):
             raise ValueError(  # noqa: TRY004  (a missing input, reported as a configuration error)
@@ -191,8 +199,25 @@ class PhysGSModel(SplatfactoModel):
             self.register_buffer(f"nig_{f}", v.clone().reshape(K, P))
         self.register_buffer("material_colors", legend.colors.clone().reshape(K, 3))
         self.register_buffer("lifted_views", torch.zeros((), dtype=torch.long))
+        self.gauss_params = self._initial_gaussians(K)
+        self._populate_training_modules()
+        self._populate_viewer()
 
-        # --- Gaussians, seeded device-agnostically (splatfacto's populate_modules moves SH to CUDA)
+    def _populate_viewer(self) -> None:
+        """What the property outputs show (`viewer_settings`) and the viewer's "Physical properties" panel
+        (`physgs_nerfstudio.viewer.panel`: parameter-free, nothing in checkpoints)."""
+        from physgs_nerfstudio.viewer.panel import PhysicalPropertiesPanel
+
+        self.viewer_settings = ViewerSettings(
+            uncertainty_property=self.property_keys[self._uncertainty_index()],
+            min_coverage=self.config.material_alpha_thresh, min_labelled=self.config.material_min_labelled,
+        )  # fmt: skip
+        self.physical_properties = PhysicalPropertiesPanel(self)
+
+    def _initial_gaussians(self, num_materials: int) -> torch.nn.ParameterDict:
+        """splatfacto's Gaussians plus the material tensors, seeded device-agnostically (splatfacto's
+        populate_modules moves SH to CUDA)."""
+        K = num_materials
         seed = self.seed_points
         if seed is not None and not self.config.random_init:
             means = seed[0].detach().float().clone()
@@ -214,7 +239,7 @@ class PhysGSModel(SplatfactoModel):
             features_dc = RGB2SH(rgb) if self.config.sh_degree > 0 else torch.logit(rgb, eps=1e-10)
         else:
             features_dc = torch.rand(n, 3)
-        self.gauss_params = torch.nn.ParameterDict(
+        return torch.nn.ParameterDict(
             {
                 "means": Parameter(means),
                 "scales": Parameter(scales),
@@ -229,6 +254,8 @@ class PhysGSModel(SplatfactoModel):
             }
         )
 
+    def _populate_training_modules(self) -> None:
+        """splatfacto's camera optimizer, metrics, background, bilateral grid and gsplat densification strategy."""
         self.camera_optimizer = self.config.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
@@ -332,37 +359,29 @@ class PhysGSModel(SplatfactoModel):
         for key in NON_TRAINABLE_KEYS:
             self.gauss_params[key].requires_grad_(False)
 
-    def get_training_callbacks(
-        self, training_callback_attributes: TrainingCallbackAttributes
-    ) -> list[TrainingCallback]:
-        cbs = super().get_training_callbacks(training_callback_attributes)
-        cbs.append(
-            TrainingCallback(
-                [TrainingCallbackLocation.AFTER_TRAIN_ITERATION],
-                self._lifting_callback,
-                args=[training_callback_attributes],
-            )
-        )
-        return cbs
-
-    def _lifting_callback(self, attrs: TrainingCallbackAttributes, step: int) -> None:
-        lift_at = (
-            self.config.lifting_step if self.config.lifting_step is not None else self.config.stop_split_at
-        )
-        last = None
-        if attrs.trainer is not None:
-            last = attrs.trainer._start_step + attrs.trainer.config.max_num_iterations - 1
-        if step == lift_at or (self.config.lift_at_end and step == last):
-            assert attrs.pipeline is not None
-            self.run_lifting(attrs.pipeline.datamanager)
-
     # ------------------------------------------------------------------ Bayesian head
     @torch.no_grad()
-    def run_lifting(self, datamanager) -> Tensor:
-        """Lift the training views' material maps onto the Gaussians (`lifting_pass.lift_material_maps`)."""
-        from .lifting_pass import lift_material_maps
-
-        return lift_material_maps(self, datamanager)
+    def set_material_evidence(self, lifted: MaterialEvidence) -> None:
+        """Replace the lifted per-Gaussian tensors (`dirichlet_evidence`, `lifting_weight`, `labelled_weight`) and
+        the count of lifted views with a lifting pass over the Gaussians as they stand (the pipeline's)."""
+        N, K = self.num_points, self.num_materials
+        shapes = {"evidence": (N, K), "weight": (N, 1), "labelled": (N, 1)}
+        for name, want in shapes.items():
+            got = tuple(getattr(lifted, name).shape)
+            if got != want:
+                raise ValueError(
+                    f"set_material_evidence: {name} has shape {got}, the model has {want} "
+                    "(lift again after densification changed the Gaussians)"
+                )
+        self.gauss_params[EVIDENCE_KEY].data = lifted.evidence.to(self.device)
+        self.gauss_params[WEIGHT_KEY].data = lifted.weight.to(self.device)
+        self.gauss_params[LABELLED_KEY].data = lifted.labelled.to(self.device)
+        self._labelled_legacy = False
+        self.lifted_views.fill_(int(lifted.views))
+        CONSOLE.log(
+            f"PhysGS lifting: {int(lifted.views)} views -> evidence on "
+            f"{int((lifted.evidence.sum(-1) > 0).sum())}/{N} Gaussians"
+        )
 
     def dirichlet_alpha(self) -> Float[Tensor, "n k"]:
         """Per-Gaussian Dirichlet posterior alpha0 + lambda * evidence (the prior where evidence is 0)."""
@@ -397,22 +416,10 @@ class PhysGSModel(SplatfactoModel):
 
     @torch.no_grad()
     def _property_channels(self) -> tuple[list[str], Float[Tensor, "n c"]]:
-        """Per-Gaussian values composited into the property / uncertainty outputs."""
-        fields = self.gaussian_properties()
-        names, cols = [], []
-        for i, key in enumerate(self.property_keys):
-            name = VIEWER_NAMES.get(key, key)
-            value = fields["mean"][:, i]
-            if key == "youngs_modulus":
-                value = torch.log10(value.clamp_min(1e-12))  # display: log10 Pa
-            names.append(name)
-            cols.append(value)
-        u = self._uncertainty_index()
-        for name, f in zip(UNCERTAINTY_OUTPUTS, ("aleatoric", "epistemic", "total")):
-            v = fields[f][:, u].clamp_min(0)
-            names.append(name)
-            cols.append(v.sqrt() if self.config.uncertainty_as_std else v)
-        return names, torch.stack(cols, dim=-1).float()
+        """Per-Gaussian channels composited for the property / uncertainty outputs: the material weights of
+        the Gaussians with material evidence and that flag (`physgs_nerfstudio.viewer.display`)."""
+        gm = gaussian_materials(self)
+        return [f"pi_{i}" for i in range(self.num_materials)] + ["measured"], gaussian_channels(gm)
 
     # ------------------------------------------------------------------ rendering
     def get_empty_outputs(self, width: int, height: int, background: torch.Tensor) -> dict[str, Any]:  # type: ignore
@@ -421,149 +428,143 @@ class PhysGSModel(SplatfactoModel):
         out["material_id"] = out["accumulation"].clone()
         if self.config.render_property_outputs:
             for name in (*[VIEWER_NAMES.get(k, k) for k in self.property_keys], *UNCERTAINTY_OUTPUTS):
-                out[name] = out["accumulation"].clone()
+                out[name] = out["rgb"].clone()
         return out
 
     def get_outputs(self, camera: Cameras) -> dict[str, torch.Tensor | list]:
         """RGB, depth, accumulation, background; training adds `material_logits` [H, W, K]; evaluation adds
-        `material` [H, W, 3] (legend colours), `material_id` [H, W, 1] (0 = background) and, if enabled, the
-        property outputs `density`, `friction`, `hardness`, `stiffness` (log10 Pa), `aleatoric`, `epistemic`,
-        `total_uncertainty`, each [H, W, 1]."""
+        `material` [H, W, 3] (legend colours, or one material's probability: `viewer_settings`), `material_id`
+        [H, W, 1] (0 = background) and, if enabled, the property outputs `density`, `friction`, `hardness`,
+        `stiffness`, `aleatoric`, `epistemic`, `total_uncertainty`, each [H, W, 3]: colours on fixed scales
+        where Gaussians with material evidence cover the pixel, dimmed RGB elsewhere (README "Viewer")."""
         if not isinstance(camera, Cameras):
             CONSOLE.log("Called get_outputs with not a camera")
             return {}
         assert camera.shape[0] == 1, "PhysGSModel renders one camera at a time"
         if self.training:
             c2w = self.camera_optimizer.apply_to_camera(camera)
-        else:
-            c2w = camera.camera_to_worlds
-
+            Ks, W, H = self._render_intrinsics(camera)
+            return self._training_outputs(camera, c2w, Ks, W, H)
         crop_ids = None
-        if self.crop_box is not None and not self.training:
+        if self.crop_box is not None:
             crop_ids = self.crop_box.within(self.means).squeeze()
             if crop_ids.sum() == 0:
                 return self.get_empty_outputs(
                     int(camera.width.item()), int(camera.height.item()), self.background_color.to(self.device)
                 )
+        Ks, W, H = self._render_intrinsics(camera)
+        return self._eval_outputs(camera.camera_to_worlds, Ks, W, H, crop_ids)
 
-        def crop(t: Tensor) -> Tensor:
-            return t if crop_ids is None else t[crop_ids]
-
+    def _render_intrinsics(self, camera: Cameras) -> tuple[Float[Tensor, "1 3 3"], int, int]:
+        """Intrinsics, width and height of the render (splatfacto's training downscale applied)."""
         d = self._get_downscale_factor()
         camera.rescale_output_resolution(1 / d)
         Ks = camera.get_intrinsics_matrices().to(self.device)
         W, H = int(camera.width.item()), int(camera.height.item())
         self.last_size = (H, W)
         camera.rescale_output_resolution(d)
-        viewmat = world_to_camera(c2w.to(self.device))
+        return Ks, W, H
 
-        means = crop(self.means)
-        if self.training:
-            return self._training_outputs(camera, c2w, Ks, W, H, d)
-        if self.config.sh_degree > 0:
-            sh_degree = min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
-            coeffs = torch.cat((crop(self.features_dc)[:, None, :], crop(self.features_rest)), dim=1)
-            dirs = means.detach() - c2w[0, :3, 3].to(self.device)
-            rgb_g = torch.clamp_min(eval_sh_colors(sh_degree, dirs, coeffs) + 0.5, 0.0)
-        else:
-            rgb_g = torch.sigmoid(crop(self.features_dc))
-        K = self.num_materials
-        channels = [rgb_g, crop(self.material_logits)]
-        prop_names: list[str] = []
+    def _view_colors(self, c2w: Tensor, crop) -> Float[Tensor, "n 3"]:
+        """View-dependent RGB per Gaussian, evaluated from the SH coefficients (so RGB shares the pass with
+        the extra channels)."""
+        if self.config.sh_degree <= 0:
+            return torch.sigmoid(crop(self.features_dc))
+        sh_degree = min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
+        coeffs = torch.cat((crop(self.features_dc)[:, None, :], crop(self.features_rest)), dim=1)
+        dirs = crop(self.means).detach() - c2w[0, :3, 3].to(self.device)
+        return torch.clamp_min(eval_sh_colors(sh_degree, dirs, coeffs) + 0.5, 0.0)
+
+    def _eval_outputs(
+        self, c2w: Tensor, Ks: Tensor, W: int, H: int, crop_ids: Tensor | None
+    ) -> dict[str, Any]:
+        """Evaluation / viewer: one pass of RGB, the K material logits, (once lifted) the labelled fraction
+        and the property channels, plus depth."""
+
+        def crop(t: Tensor) -> Tensor:
+            return t if crop_ids is None else t[crop_ids]
+
+        channels = [self._view_colors(c2w, crop), crop(self.material_logits)]
         lifted = bool(self.lifted_views > 0)
-        if not self.training:
-            if lifted:  # share of labelled pixels among those each Gaussian was seen in
-                channels.append(crop(self.labelled_fraction()).float())
-            if self.config.render_property_outputs:
-                prop_names, prop_g = self._property_channels()
-                channels.append(crop(prop_g))
-        with_depth = self.config.output_depth_during_training or not self.training
+        if lifted:  # share of labelled pixels among those each Gaussian was seen in
+            channels.append(crop(self.labelled_fraction()).float())
+        prop_names: list[str] = []
+        if self.config.render_property_outputs:
+            prop_names, prop_g = self._property_channels()
+            channels.append(crop(prop_g))
         render, alpha, self.info = rasterize(
-            means=means,
+            means=crop(self.means),
             quats=crop(self.quats),
             scales=torch.exp(crop(self.scales)),
             opacities=torch.sigmoid(crop(self.opacities)).squeeze(-1),
             colors=torch.cat(channels, dim=-1),
-            viewmats=viewmat,
-            Ks=Ks,
-            width=W,
-            height=H,
-            packed=False,
-            near_plane=0.01,
-            far_plane=1e10,
-            render_mode="RGB+ED" if with_depth else "RGB",
-            sh_degree=None,
-            sparse_grad=False,
-            absgrad=self.strategy.absgrad,
-            rasterize_mode=self.config.rasterize_mode,
-            backend=self.config.rasterize_backend,
-        )
-        if self.training:
-            self.strategy.step_pre_backward(
-                self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info
-            )
+            viewmats=viewmat_from_c2w(c2w.to(self.device)),
+            Ks=Ks, width=W, height=H, packed=False, near_plane=0.01, far_plane=1e10, render_mode="RGB+ED",
+            sh_degree=None, sparse_grad=False, absgrad=self.strategy.absgrad,
+            rasterize_mode=self.config.rasterize_mode, backend=self.config.rasterize_backend,
+        )  # fmt: skip
         render, alpha = render[0], alpha[0]  # [H, W, X], [H, W, 1]
-
         background = self._get_background_color()
-        rgb = torch.clamp(render[..., :3] + (1 - alpha) * background, 0.0, 1.0)
-        if (
-            self.config.use_bilateral_grid
-            and self.training
-            and camera.metadata
-            and "cam_idx" in camera.metadata
-        ):
-            rgb = self._apply_bilateral_grid(rgb[None], camera.metadata["cam_idx"], H, W)[0]
-        logits = render[..., 3 : 3 + K]
-        depth = None
-        if with_depth:
-            depth = render[..., -1:]
-            depth = torch.where(alpha > 0, depth, depth.detach().max())
-
-        out: dict[str, Any] = {"rgb": rgb, "depth": depth, "accumulation": alpha}
-        if self.training:
-            out["background"] = background
-            out[LOGITS_KEY] = logits
-            return out
-
-        out["background"] = background.expand(H, W, 3) if background.shape[0] == 3 else background
-        extra = render[..., 3 + K :]
-        fg = alpha > self.config.material_alpha_thresh  # [H, W, 1]
-        known = fg
-        # after lifting, only where the Gaussians were seen in labelled pixels (label 0 stays unknown)
+        depth = render[..., -1:]
+        out: dict[str, Any] = {
+            "rgb": torch.clamp(render[..., :3] + (1 - alpha) * background, 0.0, 1.0),
+            "depth": torch.where(alpha > 0, depth, depth.detach().max()),
+            "accumulation": alpha,
+            "background": background.expand(H, W, 3) if background.shape[0] == 3 else background,
+        }
+        K = self.num_materials
+        extra = render[..., 3 + K : -1]
         if lifted:
-            labelled = extra[..., :1] / alpha.clamp_min(1e-10)
-            known = fg & (labelled > self.config.material_min_labelled)
-            extra = extra[..., 1:]
-        label = torch.where(known[..., 0], logits.argmax(-1) + 1, 0)  # [H, W]
-        palette = torch.cat([background[None].to(self.material_colors), self.material_colors], dim=0)
-        out["material"] = palette[label]
-        out["material_id"] = label[..., None].float()
-        if prop_names:
-            values = extra[..., : len(prop_names)] / alpha.clamp_min(1e-10)
-            for i, name in enumerate(prop_names):
-                v = values[..., i : i + 1]
-                # background shows the foreground minimum, so the viewer's normalised colormap spans the object
-                fill = v[fg].min() if bool(fg.any()) else v.new_zeros(())
-                out[name] = torch.where(fg, v, fill)
+            labelled, extra = extra[..., :1] / alpha.clamp_min(1e-10), extra[..., 1:]
+        else:
+            labelled = None
+        out.update(self._material_outputs(render[..., 3 : 3 + K], labelled, alpha, background))
+        out.update(self._property_outputs(prop_names, extra, out["rgb"]))
         return out
 
-    def _training_outputs(self, camera: Cameras, c2w: Tensor, Ks: Tensor, W: int, H: int, d: int) -> dict[str, Any]:
+    def _material_outputs(
+        self,
+        logits: Float[Tensor, "h w k"],
+        labelled: Float[Tensor, "h w 1"] | None,
+        alpha: Float[Tensor, "h w 1"],
+        background: Tensor,
+    ) -> dict[str, Tensor]:
+        """`material` (legend colours) and `material_id` (label, 0 = background): the argmax of the rendered
+        logits where the opacity exceeds `material_alpha_thresh` and, once lifted (`labelled` given), where the
+        composited labelled fraction exceeds `material_min_labelled` (label 0 stays unknown)."""
+        known = alpha > self.config.material_alpha_thresh  # [H, W, 1]
+        if labelled is not None:
+            known = known & (labelled > self.config.material_min_labelled)
+        label = torch.where(known[..., 0], logits.argmax(-1) + 1, 0)  # [H, W]
+        palette = torch.cat([background[None].to(self.material_colors), self.material_colors], dim=0)
+        return {"material": palette[label], "material_id": label[..., None].float()}
+
+    def _property_outputs(
+        self, names: list[str], composited: Float[Tensor, "h w c"], rgb: Float[Tensor, "h w 3"]
+    ) -> dict[str, Tensor]:
+        """Coloured [H, W, 3] outputs on fixed scales, only where Gaussians with material evidence cover the
+        pixel, dimmed RGB elsewhere (`physgs_nerfstudio.viewer.display.viewer_outputs`)."""
+        if not names:
+            return {}
+        return viewer_outputs(self, composited[..., : len(names)], rgb, VIEWER_NAMES)
+
+    def _training_outputs(self, camera: Cameras, c2w: Tensor, Ks: Tensor, W: int, H: int) -> dict[str, Any]:
         """Training: splatfacto's RGB(+depth) pass (SH evaluated in the rasterizer), plus, every
         `material_every` steps, a pass of the K material logits at 1/`material_downscale` resolution."""
-        viewmat = world_to_camera(c2w.to(self.device))
-        geometry = dict(
-            means=self.means,
-            quats=self.quats,
-            scales=torch.exp(self.scales),
-            opacities=torch.sigmoid(self.opacities).squeeze(-1),
-            viewmats=viewmat,
-            packed=False,
-            near_plane=0.01,
-            far_plane=1e10,
-            sparse_grad=False,
-            rasterize_mode=self.config.rasterize_mode,
-            backend=self.config.rasterize_backend,
-        )
+        viewmat = viewmat_from_c2w(c2w.to(self.device))
+        geometry = {
+            "means": self.means,
+            "quats": self.quats,
+            "scales": torch.exp(self.scales),
+            "opacities": torch.sigmoid(self.opacities).squeeze(-1),
+            "viewmats": viewmat,
+            "packed": False,
+            "near_plane": 0.01,
+            "far_plane": 1e10,
+            "sparse_grad": False,
+            "rasterize_mode": self.config.rasterize_mode,
+            "backend": self.config.rasterize_backend,
+        }
         if self.config.sh_degree > 0:
             sh_degree = min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
             colors = torch.cat((self.features_dc[:, None, :], self.features_rest), dim=1)

@@ -55,6 +55,7 @@ from ..fusion.maps import MapFusionConfig
 from ..fusion.properties import property_row
 from ..materials import PROPERTY_KEYS, MaterialLibrary, PriorConfig, log_space_flags
 from .config import PerceptionConfig
+from .lock import DatasetLock
 from .pipeline import Outcome, PerceptionResult, PerceptionRun, Query, load_image
 
 logger = logging.getLogger(__name__)
@@ -364,7 +365,9 @@ class ActiveScheduler:
         """Segment every view, build the selector and feed it the answers of earlier runs."""
         masks, stacks, levels, feats = {}, {}, {}, {}
         for view in run.views:
-            image = load_image(run.root, view)
+            image = run.frame_image(view)
+            if image is None:  # unreadable: skipped (reported at the end)
+                continue
             ms = masks[view] = run.masks(view, image)
             stacks[view] = np.stack([m.segmentation for m in ms]) if ms else np.zeros((0,) + image.shape[:2], bool)
             levels[view] = [m.level for m in ms]
@@ -372,7 +375,8 @@ class ActiveScheduler:
             run.result.masks += len(ms)
         run.result.candidates = run.result.masks
         cfg = run.config
-        selector = ActiveSelector(run.views, stacks, levels, feats, run.library, self.config, cfg.fusion, cfg.prior)
+        views = [v for v in run.views if v in masks]
+        selector = ActiveSelector(views, stacks, levels, feats, run.library, self.config, cfg.fusion, cfg.prior)
         by_mask: dict[tuple[str, int], list[dict]] = {}
         for o in run.store.observations():
             by_mask.setdefault((str(o["view"]), int(o["mask_id"])), []).append(o)
@@ -444,9 +448,10 @@ def run_active_perception(
     """
     if config.prompt != "triplet":
         raise ValueError("active querying chooses masks, so it needs --prompt triplet")
-    run = PerceptionRun(config, backend=backend, segmenter=segmenter, library=library, on_commit=on_commit,
-                        result_type=ActiveResult)  # fmt: skip
-    return run.run(ActiveScheduler(active))
+    with DatasetLock(config.data, wait=config.wait_for_lock):
+        run = PerceptionRun(config, backend=backend, segmenter=segmenter, library=library, on_commit=on_commit,
+                            result_type=ActiveResult)  # fmt: skip
+        return run.run(ActiveScheduler(active))
 def _write_active_log(
     root: Path, active: ActiveConfig, result: ActiveResult, selector: ActiveSelector
 ) -> None:

@@ -23,6 +23,7 @@ def summary_table(result: PerceptionResult):
     table.add_column("value")
     rows = [
         ("frames", str(len(result.views))),
+        ("frames skipped (unreadable image)", str(len(result.skipped_frames))),
         ("masks", str(result.masks)),
         ("backend / model", f"{result.backend} / {result.model}"),
         ("VLM calls made (uncached)", str(result.calls)),
@@ -108,6 +109,7 @@ class PerceiveCommand(PerceptionConfig):
         import logging
 
         from rich.console import Console
+        from rich.markup import escape
 
         logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
         result = self.run()
@@ -119,3 +121,7 @@ class PerceiveCommand(PerceptionConfig):
             console.print(
                 f"[yellow]... and {len(result.failed) - 5} more failures; rerun to retry them[/yellow]"
             )
+        for msg in result.skipped_frames:
+            console.print(f"[yellow]skipped frame:[/yellow] {escape(msg)}", highlight=False)
+        if result.skipped_frames:
+            console.print(f"[yellow]{len(result.skipped_frames)} frame(s) skipped; --strict makes this fatal[/yellow]")

@@ -72,7 +72,13 @@ class PerceptionConfig:
     overwrite: bool = False
     """Start over even if observations.jsonl exists (old files kept as .bak)."""
     strict: bool = False
-    """Raise at the end if any request failed (default: report failures and fuse what arrived)."""
+    """Fail on the first unreadable frame image and at the end if any request failed (default: skip such
+    frames with a warning, report them and the failures at the end, and fuse what arrived)."""
+    wait_for_lock: bool = False
+    """When another run is perceiving this dataset, wait for it to finish instead of refusing to start."""
+    allow_outside_paths: bool = False
+    """Read frames whose file_path leaves the dataset (../x.png, absolute paths, symlinks out of it); by default
+    such a dataset is refused, so a downloaded one cannot make the run upload images from elsewhere."""
     legend: Literal["observed", "library"] = "observed"
     """Materials in materials.json: the observed ones, or the whole library."""
     write_outputs: bool = True

@@ -15,26 +15,35 @@ masks are skipped, and answers received before the kill are in the cache.
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field, is_dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
+from ..errors import DatasetError, PhysGSError
+from ..fusion.transaction import WriteFailed
+from ..fusion.transaction import recover as recover_dataset
+from ..fusion.writer import jsonable
 from ..materials import PROPERTY_KEYS, MaterialLibrary, load_library
+from ..urls import redact_urls
 from .cache import ResponseCache
 from .config import PerceptionConfig
+from .images import BadFrame, read_image
+from .lock import DatasetLock
 from .prompts import SCHEMA_VERSION, PromptConfig, VLMRequest, build_request
 from .segment import Mask, Segmenter, load_masks, save_masks
 from .store import MaskDone, ObservationStore
 from .validate import Candidate, Validator
-from .vlm import CachedBackend, Usage, VLMError, VLMResponse
+from .vlm import CachedBackend, Usage, VLMAuthError, VLMError, VLMResponse
 
 logger = logging.getLogger(__name__)
 
@@ -70,6 +79,12 @@ class PerceptionResult:
     confidence_paths: dict[str, str] = field(default_factory=dict)
     materials_json: Path | None = None
     seconds: float = 0.0
+    skipped_frames: list[str] = field(default_factory=list)
+    """One line per frame left out because its image could not be read."""
+
+
+class NoObservations(PhysGSError, RuntimeError):
+    """The run ended without a single observation: nothing was written into the dataset."""
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -78,14 +93,51 @@ class PerceptionResult:
 
 
 def load_frames(root: Path) -> tuple[dict, list[dict]]:
+    """transforms.json and its frames with a ``file_path``; :class:`DatasetError` naming the file when it
+    is missing, not JSON, not an object or without frames."""
     path = Path(root) / "transforms.json"
     if not path.is_file():
-        raise FileNotFoundError(f"{path} not found: --data must be a nerfstudio dataset directory")
-    meta = json.loads(path.read_text(encoding="utf-8"))
-    frames = [f for f in meta.get("frames", []) if isinstance(f, dict) and "file_path" in f]
+        raise DatasetError(f"{path} not found: --data must be a nerfstudio dataset directory")
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as err:
+        raise DatasetError(f"{path} is not UTF-8 text ({err.reason} at byte {err.start}); "
+                           "write it as UTF-8 JSON") from None  # fmt: skip
+    except json.JSONDecodeError as err:
+        raise DatasetError(f"{path} is not valid JSON ({err.msg}, line {err.lineno} column {err.colno}); "
+                           "fix the file or regenerate it (ns-process-data)") from None  # fmt: skip
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{path} holds a JSON {type(meta).__name__}, not an object; nerfstudio expects "
+                           '{"frames": [{"file_path": ...}, ...], ...}')  # fmt: skip
+    raw = meta.get("frames")
+    if not isinstance(raw, list):
+        raise DatasetError(f"{path} has no 'frames' list; nerfstudio expects one entry per image")
+    frames = [f for f in raw if isinstance(f, dict) and isinstance(f.get("file_path"), str) and f["file_path"]]
     if not frames:
-        raise ValueError(f"{path} lists no frames with a file_path")
+        raise DatasetError(f"{path} lists no frames with a file_path")
+    if len(frames) < len(raw):
+        logger.warning("%s: %d frame entries without a file_path ignored", path, len(raw) - len(frames))
     return meta, frames
+
+
+def check_frame_paths(root: Path, frames: Sequence[dict], allow_outside: bool = False) -> None:
+    """Refuse frames whose image lies outside the dataset (``../x.png``, an absolute path, a symlink out of
+    it): a downloaded dataset could otherwise make a run upload any image on this disk to the VLM."""
+    if allow_outside:
+        return
+    base = os.path.realpath(root)
+    outside = []
+    for f in frames:
+        target = os.path.realpath(os.path.join(base, f["file_path"]))
+        if os.path.commonpath([base, target]) != base:
+            outside.append(f"{f['file_path']!r} -> {target}")
+    if outside:
+        more = f" and {len(outside) - 3} more" if len(outside) > 3 else ""
+        raise DatasetError(
+            f"{Path(root) / 'transforms.json'}: {len(outside)} frame(s) point outside the dataset "
+            f"({'; '.join(outside[:3])}{more}); their images would be read and sent to the VLM. Move them into "
+            "the dataset, or pass --allow-outside-paths if that is intended."
+        )
 
 
 def select_views(frames: Sequence[dict], max_views: int | None) -> list[dict]:
@@ -99,31 +151,15 @@ def select_views(frames: Sequence[dict], max_views: int | None) -> list[dict]:
 
 
 def load_image(root: Path, file_path: str) -> np.ndarray:
-    from PIL import Image
-
-    path = Path(root) / file_path
-    if not path.is_file():
-        raise FileNotFoundError(f"frame image {path} not found")
-    with Image.open(path) as im:
-        return np.asarray(im.convert("RGB"), dtype=np.uint8)
-
-
-def _jsonable(obj):
-    if is_dataclass(obj):
-        return {k: _jsonable(v) for k, v in asdict(obj).items()}
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
+    """A frame's image as uint8 RGB (16-bit and float images scaled, images.py); :class:`BadFrame` when it
+    cannot be read."""
+    return read_image(Path(root) / file_path, file_path)
 
 
 def run_fingerprint(
     config: PerceptionConfig, segmenter_fp: str, backend: CachedBackend, library: MaterialLibrary
 ) -> str:
-    prompt = _jsonable(config.prompt_options)
+    prompt = jsonable(config.prompt_options)
     prompt["kind"] = config.prompt
     return json.dumps(
         {
@@ -293,11 +329,14 @@ class PerceptionRun:
         self.config = config
         self.root = root = Path(config.data)
         self.frames = select_views(load_frames(root)[1], config.max_views)
+        check_frame_paths(root, self.frames, config.allow_outside_paths)
+        recover_dataset(root)  # finish (or drop) a dataset update a killed run left behind
         self.views = [f["file_path"] for f in self.frames]
+        self.bad_views: set[str] = set()
         self.library = library or load_library(config.env, extra_files=config.library_files)
         if backend is None:
             cache = ResponseCache(config.cache_dir or root / "perception" / "cache")
-            backend = CachedBackend(config.vlm.setup(root, self.library), cache)
+            backend = CachedBackend(config.vlm.setup(root, self.library), cache, config.validation.max_text_chars)
         self.backend = backend
         self.segmenter = None
         self.seg_fp = "baseline:full-image"
@@ -319,6 +358,20 @@ class PerceptionRun:
         self._task = None
 
     # -- pieces -----------------------------------------------------------------------------------------
+    def frame_image(self, view: str) -> np.ndarray | None:
+        """The view's image; None for a frame that cannot be read, which is skipped with a warning and
+        reported at the end (``config.strict``: raised)."""
+        try:
+            return load_image(self.root, view)
+        except BadFrame as err:
+            if self.config.strict:
+                raise
+            if view not in self.bad_views:
+                self.bad_views.add(view)
+                self.result.skipped_frames.append(str(err))
+                logger.warning("skipping a frame: %s", err)
+            return None
+
     def masks(self, view: str, image: np.ndarray) -> list[Mask]:
         """The view's masks: the saved ones when they match the segmenter, else segmented now and saved."""
         h, w = image.shape[:2]
@@ -369,6 +422,8 @@ class PerceptionRun:
             q = in_flight[fut]
             try:
                 response = fut.result()
+            except VLMAuthError as err:  # every further request would be refused too: stop the run
+                raise VLMAuthError(f"{err} The dataset was not changed; answers received so far are cached.") from None
             except Exception as err:  # noqa: BLE001  (a failed query must not lose the other answers)
                 msg = failure_message(q.request, err)
                 self.result.failed.append(msg)
@@ -413,6 +468,11 @@ class PerceptionRun:
                 while batch := scheduler.step_batch(self, state):
                     for outcome in self.ask(batch):
                         scheduler.step_answer(self, state, outcome)
+        except OSError as err:
+            if err.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            raise WriteFailed(f"the disk is full ({err.filename or self.root}); free some space and run again: "
+                              "what was recorded is kept and resumed") from None  # fmt: skip
         finally:
             # let requests already sent finish (their answers land in the cache), drop the queued ones
             self.pool.shutdown(wait=True, cancel_futures=True)
@@ -423,15 +483,20 @@ class PerceptionRun:
         return self.result
 
     def view_masks(self, view: str) -> tuple[np.ndarray, np.ndarray, list[str]] | None:
-        """For fusion: the view's image, mask stack and levels (None if it was never segmented)."""
-        if self.segmenter is None:
-            image = load_image(self.root, view)
-            masks = [whole_image_mask(*image.shape[:2])]
-        else:
+        """For fusion: the view's image, mask stack and levels (None if it was never segmented or its image
+        cannot be read)."""
+        if view in self.bad_views:
+            return None
+        masks = None
+        if self.segmenter is not None:
             masks = load_masks(mask_path(self.root, view), self.seg_fp)
             if masks is None:
                 return None
-            image = load_image(self.root, view)
+        image = self.frame_image(view)
+        if image is None:
+            return None
+        if masks is None:
+            masks = [whole_image_mask(*image.shape[:2])]
         stack = np.stack([m.segmentation for m in masks]) if masks else np.zeros((0,) + image.shape[:2], bool)
         return image, stack, [m.level for m in masks]
 
@@ -445,7 +510,13 @@ class PerceptionRun:
         result.observations = len(observations)
         for o in observations:
             result.material_counts[o["material"]] = result.material_counts.get(o["material"], 0) + 1
-        if config.write_outputs:
+        if config.write_outputs and not observations:
+            asked = (result.failed or result.calls or result.cache_hits or result.resumed_masks or result.skipped_frames
+                     or not result.masks)
+            if asked:  # questions were asked (or could not be) and nothing came of them: a failed run
+                raise NoObservations(no_observations_message(result))
+            logger.warning("no mask was asked in this run (budget or stop rule): the dataset outputs are not written")
+        if config.write_outputs and observations:
             segmenter = config.segmenter.name if self.segmenter is not None else "none (baseline prompt)"
             source = {"backend": result.backend, "model": result.model, "segmenter": segmenter,
                       "prompt": config.prompt}  # fmt: skip
@@ -469,7 +540,9 @@ class ExhaustiveScheduler:
         while state["next_view"] < len(run.views):
             view = run.views[state["next_view"]]
             state["next_view"] += 1
-            image = load_image(run.root, view)
+            image = run.frame_image(view)
+            if image is None:
+                continue
             masks = run.masks(view, image)
             run.result.masks += len(masks)
             batch = [run.query(view, i, m, image) for i, m in enumerate(masks) if not run.store.is_done(view, i)]
@@ -496,17 +569,42 @@ def run_perception(
 ) -> PerceptionResult:
     """Run perception on every mask of ``config.data`` and (unless ``write_outputs=False``) fuse and write
     the outputs (:class:`PerceptionRun` documents the overrides)."""
-    run = PerceptionRun(config, backend=backend, segmenter=segmenter, library=library, on_commit=on_commit)
-    return run.run(ExhaustiveScheduler())
+    with DatasetLock(config.data, wait=config.wait_for_lock):
+        run = PerceptionRun(config, backend=backend, segmenter=segmenter, library=library, on_commit=on_commit)
+        return run.run(ExhaustiveScheduler())
+
+
+def no_observations_message(result: PerceptionResult) -> str:
+    """Why a run ended without observations, and what to do."""
+    why = []
+    if result.failed:
+        why.append(f"{len(result.failed)} request(s) failed (first: {result.failed[0]})")
+    if result.skipped_frames:
+        why.append(f"{len(result.skipped_frames)} frame(s) could not be read (first: {result.skipped_frames[0]})")
+    if result.skipped_budget:
+        why.append(f"{result.skipped_budget} mask(s) left out by --budget / --max-calls")
+    if result.reasons:
+        why.append(f"validation dropped every answer ({result.reasons} notes in perception/progress.jsonl)")
+    if not result.masks and not result.skipped_frames:
+        why.append("no mask was found")
+    return (
+        f"no observations for {result.data}: {'; '.join(why) or 'no answer arrived'}. materials.json, "
+        "transforms.json and the material maps were not changed; fix the cause and run again (answers already "
+        "received are cached)."
+    )
 
 
 def _write_run_summary(root: Path, config: PerceptionConfig, result: PerceptionResult) -> None:
     from ..fusion.writer import atomic_write_text
 
     summary = {
-        "config": _jsonable(config),
+        "config": jsonable(config),
         "result": {
-            k: _jsonable(v) for k, v in asdict(result).items() if k not in ("label_paths", "confidence_paths")
+            k: jsonable(v) for k, v in asdict(result).items() if k not in ("label_paths", "confidence_paths")
         },
     }
-    atomic_write_text(root / "perception" / "run.json", json.dumps(summary, indent=2, default=str))
+    text = redact_urls(json.dumps(summary, indent=2, default=str))  # no user:password@ of a --vlm.base-url
+    try:
+        atomic_write_text(root / "perception" / "run.json", text)
+    except OSError as err:  # the dataset outputs are written; the summary is only a record
+        logger.warning("could not write %s: %s", root / "perception" / "run.json", err)

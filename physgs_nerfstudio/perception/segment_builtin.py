@@ -6,8 +6,8 @@ Built by ``BuiltinSegmenterConfig.setup()``; the protocol, the mask type and the
 
 from __future__ import annotations
 
-from typing import ClassVar
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -253,6 +253,29 @@ def _solidity(mask: np.ndarray) -> float:
     return float(eroded.sum()) / max(1, int(mask.sum()))
 
 
+def _downscale(image: np.ndarray, work_size: int) -> np.ndarray:
+    """`image` shrunk (area interpolation) so its longer side is at most `work_size`."""
+    full_h, full_w = image.shape[:2]
+    scale = work_size / max(full_h, full_w)
+    if scale >= 1:
+        return image
+    import cv2
+
+    size = (max(1, round(full_w * scale)), max(1, round(full_h * scale)))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+
+def _upscale(masks: list[Mask], width: int, height: int) -> list[Mask]:
+    """Masks resized (nearest) to the full image, areas recounted."""
+    import cv2
+
+    up = []
+    for m in masks:
+        seg = cv2.resize(m.segmentation.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST)
+        up.append(Mask(seg.astype(bool), int(seg.astype(bool).sum()), m.predicted_iou, m.stability, m.level))
+    return up
+
+
 class BuiltinSegmenter:
     """Weight-free three-level segmenter (see module docstring; weaker than SAM).
 
@@ -281,68 +304,28 @@ class BuiltinSegmenter:
         return f"builtin-slic-rag:{self.config!r}"
 
     def segment(self, image: np.ndarray) -> list[Mask]:
-        from skimage.measure import label as cc_label
         from skimage.segmentation import slic
 
         cfg = self.config
         image = check_image(image)
         full_h, full_w = image.shape[:2]
-        scale = cfg.work_size / max(full_h, full_w)
-        if scale < 1:
-            import cv2
-
-            image = cv2.resize(
-                image,
-                (max(1, round(full_w * scale)), max(1, round(full_h * scale))),
-                interpolation=cv2.INTER_AREA,
-            )
+        image = _downscale(image, cfg.work_size)
         h, w = image.shape[:2]
         min_area = max(cfg.min_area_px, int(cfg.min_area_frac * h * w))
         lab = _lab(image)
         ring = max(2, int(round(3 * max(h, w) / 512)))
-
         superpixels = _relabel(
             slic(
                 image, n_segments=cfg.n_segments, compactness=cfg.compactness, start_label=0, convert2lab=True
             )
         )
-        # fine -> coarse, each level merged further from the previous one (a monotone hierarchy)
-        t_whole, t_part, t_sub = cfg.thresholds
-        merger = _RegionMerger(superpixels, lab, cfg.colour_weight)
-        by_level: dict[str, np.ndarray] = {}
-        perturbed: dict[str, np.ndarray] = {}
-        merger.merge(t_sub)
-        by_level["subpart"] = merger.labels()
-        perturbed["subpart"] = merger.copy().merge(t_sub * cfg.perturb).labels()
-        merger.merge(t_part)
-        by_level["part"] = merger.labels()
-        perturbed["part"] = merger.copy().merge(t_part * cfg.perturb).labels()
-        merger.merge(t_whole)
-        coarse = merger.labels()
-        coarse_perturbed = merger.merge(t_whole * cfg.perturb).labels()
-        background = _background(coarse, cfg.border_frac)
-        by_level["whole"] = cc_label(~background, connectivity=1).astype(np.int32)
-        perturbed["whole"] = cc_label(~_background(coarse_perturbed, cfg.border_frac), connectivity=1).astype(
-            np.int32
-        )
-
+        by_level, perturbed, background = self._hierarchy(superpixels, lab)
         raw: list[Mask] = []
         for li, level in enumerate(LEVELS):
             if level not in cfg.levels:
                 continue
-            lbl = by_level[level]
-            sizes = np.bincount(lbl.reshape(-1))
-            bg_counts = np.bincount(lbl[background], minlength=len(sizes))
-            first = 1 if level == "whole" else 0  # whole: label 0 is the background
-            ids = [
-                i
-                for i in range(first, len(sizes))
-                if sizes[i] >= min_area and bg_counts[i] <= cfg.max_background_frac * sizes[i]
-            ]
             level_masks = []
-            for i in ids:
-                m = lbl == i
-                area = int(sizes[i])
+            for m, area in self._regions(by_level[level], background, level == "whole", min_area):
                 if _solidity(m) < cfg.min_solidity:
                     continue
                 piou = _contrast_score(m, lab, ring)
@@ -354,13 +337,45 @@ class BuiltinSegmenter:
             raw.extend(level_masks[: cfg.max_masks_per_level[li]])
         masks = deduplicate(raw, cfg.dedup_iou)
         if (h, w) != (full_h, full_w):
-            import cv2
-
-            up = []
-            for m in masks:
-                seg = cv2.resize(
-                    m.segmentation.astype(np.uint8), (full_w, full_h), interpolation=cv2.INTER_NEAREST
-                ).astype(bool)
-                up.append(Mask(seg, int(seg.sum()), m.predicted_iou, m.stability, m.level))
-            masks = up
+            masks = _upscale(masks, full_w, full_h)
         return sort_masks(masks)
+
+    def _hierarchy(
+        self, superpixels: np.ndarray, lab: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], np.ndarray]:
+        """Label maps per level, fine -> coarse, each merged further from the previous one (a monotone
+        hierarchy); the same with perturbed thresholds (for stability); the background of the coarsest."""
+        from skimage.measure import label as cc_label
+
+        cfg = self.config
+        t_whole, t_part, t_sub = cfg.thresholds
+        merger = _RegionMerger(superpixels, lab, cfg.colour_weight)
+        by_level: dict[str, np.ndarray] = {}
+        perturbed: dict[str, np.ndarray] = {}
+        for level, t in (("subpart", t_sub), ("part", t_part)):
+            merger.merge(t)
+            by_level[level] = merger.labels()
+            perturbed[level] = merger.copy().merge(t * cfg.perturb).labels()
+        merger.merge(t_whole)
+        coarse = merger.labels()
+        coarse_perturbed = merger.merge(t_whole * cfg.perturb).labels()
+        background = _background(coarse, cfg.border_frac)
+        by_level["whole"] = cc_label(~background, connectivity=1).astype(np.int32)
+        perturbed["whole"] = cc_label(~_background(coarse_perturbed, cfg.border_frac), connectivity=1).astype(
+            np.int32
+        )
+        return by_level, perturbed, background
+
+    def _regions(
+        self, lbl: np.ndarray, background: np.ndarray, whole: bool, min_area: int
+    ) -> list[tuple[np.ndarray, int]]:
+        """(mask, area) of a level's regions at least `min_area` large and mostly off the background (at the
+        whole level label 0 is the background itself)."""
+        sizes = np.bincount(lbl.reshape(-1))
+        bg_counts = np.bincount(lbl[background], minlength=len(sizes))
+        limit = self.config.max_background_frac
+        return [
+            (lbl == i, int(sizes[i]))
+            for i in range(1 if whole else 0, len(sizes))
+            if sizes[i] >= min_area and bg_counts[i] <= limit * sizes[i]
+        ]

@@ -128,6 +128,9 @@ class ObservationStore:
         progress, torn_p = _read_jsonl(self.progress_path)
         obs, torn_o = _read_jsonl(self.obs_path)
         header = progress[0] if progress and progress[0].get("type") == "header" else None
+        if header is not None and len(progress) == 1 and not obs:  # nothing recorded: nothing to mix
+            header = None
+            progress = []
         if header is None:
             if progress or obs:
                 raise StoreMismatch(

@@ -314,16 +314,37 @@ class Validator:
 
     # -- pieces --------------------------------------------------------------------------------------
     def _validate(self, text: Any, reasons: list[str]) -> ValidatedResponse:
+        env = self._envelope(text, reasons)
+        if env is None:
+            return ValidatedResponse([], reasons)
+        raw_list = env.candidates
+        if not raw_list:
+            reasons.append("no candidates in the answer")
+            return ValidatedResponse([], reasons, env.caption)
+        limit = self.config.max_candidates
+        if len(raw_list) > limit:
+            reasons.append(f"{len(raw_list)} candidates; only the first {limit} are used")
+            raw_list = raw_list[:limit]
+        parsed = [p for i, raw in enumerate(raw_list) if (p := self._candidate(i, raw, reasons)) is not None]
+        if not parsed:
+            if not any("dropped" in r for r in reasons):
+                reasons.append("no usable candidate")
+            return ValidatedResponse([], reasons, env.caption)
+        return ValidatedResponse(self._normalise(parsed, reasons), reasons, env.caption)
+
+    def _envelope(self, text: Any, reasons: list[str]) -> _Envelope | None:
+        """The answer's JSON as the schema's envelope (a bare list or a single candidate is wrapped); None,
+        with the reason, when it has none."""
         cfg = self.config
         if isinstance(text, str) and len(text) > cfg.max_text_chars:
             reasons.append(f"answer too long ({len(text)} > {cfg.max_text_chars} characters); dropped")
-            return ValidatedResponse([], reasons)
+            return None
         obj, problem = extract_json(text)
         if problem == _PARTIAL:
             reasons.append("answer is not a single JSON object; used the first complete JSON value inside it")
         elif problem:
             reasons.append(problem)
-            return ValidatedResponse([], reasons)
+            return None
         if isinstance(obj, list):
             obj = {"candidates": obj}
         elif (
@@ -333,67 +354,55 @@ class Validator:
         ):
             obj = {"caption": obj.get("caption", ""), "candidates": [obj]}
         try:
-            env = _Envelope.model_validate(obj)
+            return _Envelope.model_validate(obj)
         except ValidationError as err:
             reasons.append(f"answer does not match the schema: {_pydantic_summary(err)}")
-            return ValidatedResponse([], reasons)
-        raw_list = env.candidates
-        if not raw_list:
-            reasons.append("no candidates in the answer")
-            return ValidatedResponse([], reasons, env.caption)
-        if len(raw_list) > cfg.max_candidates:
-            reasons.append(f"{len(raw_list)} candidates; only the first {cfg.max_candidates} are used")
-            raw_list = raw_list[: cfg.max_candidates]
+            return None
 
-        parsed: list[tuple[Candidate, bool]] = []  # (candidate, confidence given)
-        for i, raw in enumerate(raw_list):
-            if not isinstance(raw, dict):
-                reasons.append(f"candidate {i}: not an object ({_short(raw)}); dropped")
-                continue
-            try:
-                rc = _RawCandidate.model_validate(raw)
-            except ValidationError as err:
-                reasons.append(f"candidate {i}: {_pydantic_summary(err)}; dropped")
-                continue
-            name = self.library.resolve(rc.material)
-            if name is None:
-                reasons.append(
-                    f"candidate {i}: unknown material {_short(rc.material)!r} (not in the {self.library.env} library); dropped"
-                )
-                continue
-            conf, given = self._confidence(rc.confidence, i, reasons)
-            if given and conf <= 0:
-                reasons.append(f"candidate {i} ({name}): confidence 0; dropped")
-                continue
-            props = self._properties(rc, name, i, reasons)
-            thickness = self._thickness(rc.thickness_m, name, i, reasons)
-            parsed.append(
-                (Candidate(name, conf, props, thickness, raw_material=_short(rc.material, 80)), given)
+    def _candidate(self, i: int, raw: Any, reasons: list[str]) -> tuple[Candidate, bool] | None:
+        """Candidate `i` checked against the schema and the library, and whether it gave a confidence; None,
+        with the reason, when it is dropped."""
+        if not isinstance(raw, dict):
+            reasons.append(f"candidate {i}: not an object ({_short(raw)}); dropped")
+            return None
+        try:
+            rc = _RawCandidate.model_validate(raw)
+        except ValidationError as err:
+            reasons.append(f"candidate {i}: {_pydantic_summary(err)}; dropped")
+            return None
+        name = self.library.resolve(rc.material)
+        if name is None:
+            reasons.append(
+                f"candidate {i}: unknown material {_short(rc.material)!r} (not in the {self.library.env} library); dropped"
             )
+            return None
+        conf, given = self._confidence(rc.confidence, i, reasons)
+        if given and conf <= 0:
+            reasons.append(f"candidate {i} ({name}): confidence 0; dropped")
+            return None
+        props = self._properties(rc, name, i, reasons)
+        thickness = self._thickness(rc.thickness_m, name, i, reasons)
+        return Candidate(name, conf, props, thickness, raw_material=_short(rc.material, 80)), given
 
-        if not parsed:
-            if not any("dropped" in r for r in reasons):
-                reasons.append("no usable candidate")
-            return ValidatedResponse([], reasons, env.caption)
-
+    def _normalise(self, parsed: list[tuple[Candidate, bool]], reasons: list[str]) -> list[Candidate]:
+        """Missing confidences share 1 equally, duplicates merge, and confidences are renormalised (always, or
+        when they sum above 1, per `renormalise`) and clipped to [0, 1]."""
         missing = [c for c, given in parsed if not given]
-        if missing:
-            share = 1.0 / len(parsed)
-            for c in missing:
-                c.confidence = share
+        for c in missing:
+            c.confidence = 1.0 / len(parsed)
         cands = self._merge([c for c, _ in parsed], reasons)
         total = sum(c.confidence for c in cands)
         if total <= 0 or not math.isfinite(total):  # pragma: no cover - zero confidences were dropped
             reasons.append("all confidences are 0; answer dropped")
-            return ValidatedResponse([], reasons, env.caption)
-        if cfg.renormalise == "always" or total > 1:
+            return []
+        if self.config.renormalise == "always" or total > 1:
             if total > 1 + 1e-3:
                 reasons.append(f"confidences summed to {total:.3g}; renormalised to 1")
             for c in cands:
                 c.confidence = c.confidence / total
         for c in cands:
             c.confidence = min(1.0, max(0.0, c.confidence))
-        return ValidatedResponse(cands, reasons, env.caption)
+        return cands
 
     def _confidence(self, value: Any, i: int, reasons: list[str]) -> tuple[float, bool]:
         num, unit, problem = _parse_number(value)

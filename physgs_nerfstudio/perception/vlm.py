@@ -1,13 +1,16 @@
 """VLM backends behind one protocol: ``query(request) -> VLMResponse``.
 
 * :class:`OpenAIBackend` - any OpenAI-compatible ``/chat/completions`` endpoint with image input (OpenAI,
-  vLLM, Ollama, llama.cpp server, ...), standard library only (``urllib``). Timeouts; retries with
-  exponential backoff and jitter on 408/409/429/5xx, timeouts and connection errors (``Retry-After`` /
-  ``retry-after-ms`` honoured, capped); at most ``max_concurrency`` requests in flight per backend;
-  ``response_format={"type": "json_object"}`` (switched off for the rest of the run the first time the
-  server answers 400 to a request carrying it); token accounting from ``usage`` and a cost estimate from
-  configurable $/1k-token rates. The API key is read from the environment variable named by
-  ``api_key_env`` and is redacted from every message this module produces.
+  vLLM, Ollama, llama.cpp server, ...), standard library only (transport.py). Each HTTP request has a
+  wall-clock deadline (``timeout_s``: connect, upload, wait and the whole reply) and a cap on the reply's
+  size; retries with exponential backoff and jitter on 408/409/429/5xx, timeouts, connection errors and
+  unreadable replies (``Retry-After`` / ``retry-after-ms`` honoured, capped); the first 401/403 stops
+  every further request (:class:`VLMAuthError`); at most ``max_concurrency`` requests in flight per
+  backend; structured output ``response_format`` json_schema (strict, from answer.py) -> json_object ->
+  none, moving down for the rest of the run when the server refuses one (HTTP 400 naming it); token
+  accounting from ``usage`` and a cost estimate from configurable $/1k-token rates. The API key is read from
+  the environment variable named by ``api_key_env`` and is redacted from every message this module
+  produces, as is any ``user:password@`` of the URL (urls.py).
 * :class:`CachedBackend` - wraps a backend with the disk cache (cache.py).
 * ``replay`` - see replay.py (answers only from the cache; a miss raises :class:`ReplayMiss`).
 * ``simulated`` - see simulated.py (generated scenes only; every output flagged ``simulated``).
@@ -28,14 +31,18 @@ import random
 import re
 import threading
 import time
-import urllib.error
-import urllib.request
+import urllib.parse
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
+from ..errors import PhysGSError
+from ..urls import redact_url, redact_urls, split_userinfo
+from .answer import response_format
 from .cache import ResponseCache, request_key
 from .prompts import VLMRequest
+from .transport import DeadlineExceeded, ReplyTooLarge
+from .transport import post as http_post
 
 logger = logging.getLogger(__name__)
 
@@ -119,8 +126,12 @@ def set_rate_limiter(limiter: RateLimiter | None) -> None:
     rate_limiter = limiter if limiter is not None else _NoRateLimit()
 
 
-class VLMError(RuntimeError):
+class VLMError(PhysGSError, RuntimeError):
     """A request failed for good (after retries); the message never contains the API key."""
+
+
+class VLMAuthError(VLMError):
+    """The server refused the credentials (HTTP 401 / 403): the run stops, nothing more is sent."""
 
 
 class ReplayMiss(VLMError):
@@ -196,21 +207,28 @@ class OpenAIConfig:
     """An OpenAI-compatible chat-completions endpoint with image input."""
 
     base_url: str = "https://api.openai.com/v1"
-    """Endpoint root; ``/chat/completions`` is appended (e.g. http://localhost:8000/v1 for vLLM)."""
+    """Endpoint root; ``/chat/completions`` is appended (e.g. http://localhost:8000/v1 for vLLM). A
+    ``user:password@`` in it is sent as HTTP basic authentication when no API key is used, and is never
+    written anywhere (run.json, logs and messages show ``***@``)."""
     model: str = "gpt-5"
     api_key_env: str = "OPENAI_API_KEY"
     """Name of the environment variable holding the API key ('' for a keyless local server)."""
     timeout_s: float = 120.0
-    """Socket timeout per request (connect and each read)."""
+    """Wall-clock deadline of one HTTP request: connecting, sending, waiting and reading the whole reply. A
+    request still running then is cut off (and retried like a timeout)."""
+    max_reply_bytes: int = 1_048_576
+    """Largest reply body accepted; a larger one is refused without reading it all (not retried, not cached)."""
     max_retries: int = 5
-    """Retries after the first attempt on 408/409/429/5xx, timeouts and connection errors."""
+    """Retries after the first attempt on 408/409/429/5xx, timeouts, connection errors and unreadable replies."""
     backoff_base_s: float = 1.0
     backoff_max_s: float = 60.0
     """Cap on one wait (also caps Retry-After)."""
     max_concurrency: int = 4
     """Requests in flight at once."""
-    json_mode: bool = True
-    """Send response_format={"type": "json_object"}; switched off after a 400 that may be caused by it."""
+    response_format: Literal["json_schema", "json_object", "none"] = "json_schema"
+    """Structured output asked for: json_schema (the answer's strict JSON schema, material names as an enum),
+    json_object, or none. A server that refuses it (HTTP 400 naming response_format / the schema) is asked
+    with the next one in this order for the rest of the run."""
     image_detail: str = "auto"
     """OpenAI image ``detail``: auto | low | high."""
     max_tokens: int | None = None
@@ -225,10 +243,19 @@ class OpenAIConfig:
     seed: int | None = 0
     """Seed for the retry jitter."""
 
+    def __post_init__(self) -> None:
+        if self.timeout_s <= 0 or self.max_reply_bytes <= 0:
+            raise ValueError("--vlm.timeout-s and --vlm.max-reply-bytes must be positive")
+
     def setup(self, data=None, library=None) -> OpenAIBackend:
-        """The backend of this config (``data`` and ``library``, the run's dataset and material library, are
-        not needed by a real endpoint; every VLM config's ``setup`` takes them)."""
-        return OpenAIBackend(self)
+        """The backend of this config. ``library`` (the run's material library) gives the names the answer
+        schema allows; ``data`` is not needed by a real endpoint (every VLM config's ``setup`` takes both)."""
+        return OpenAIBackend(self, material_names=list(library.names) if library is not None else None)
+
+
+RESPONSE_FORMATS = ("json_schema", "json_object", "none")
+_FORMAT_REFUSAL = re.compile(r"response_format|json_schema|json_object|structured|schema", re.IGNORECASE)
+_FELL_BACK = object()
 
 
 def _retry_after_s(headers: Any) -> float | None:
@@ -272,10 +299,20 @@ class OpenAIBackend:
     variant = ""
     simulated = False
 
-    def __init__(self, config: OpenAIConfig | None = None, sleep: Callable[[float], None] = time.sleep):
+    def __init__(
+        self,
+        config: OpenAIConfig | None = None,
+        sleep: Callable[[float], None] = time.sleep,
+        material_names: list[str] | None = None,
+    ):
         self.config = cfg = config or OpenAIConfig()
         self.model = cfg.model
-        self._url = cfg.base_url.rstrip("/") + "/chat/completions"
+        base, user, password = split_userinfo(cfg.base_url.strip())
+        if urllib.parse.urlsplit(base).scheme not in ("http", "https"):
+            raise VLMError(f"--vlm.base-url {redact_url(cfg.base_url)!r} is not an http(s) URL")
+        self._url = base.rstrip("/") + "/chat/completions"
+        self.url = redact_url(cfg.base_url.strip()).rstrip("/") + "/chat/completions"
+        """The endpoint as it may be shown (userinfo redacted)."""
         if cfg.api_key_env:
             value = os.environ.get(cfg.api_key_env, "")
             if not value:
@@ -287,8 +324,15 @@ class OpenAIBackend:
             self._key = Secret(value)
         else:
             self._key = Secret("")
+        self._basic = None if user is None or self._key else Secret(
+            base64.b64encode(f"{user}:{password or ''}".encode()).decode("ascii")
+        )  # fmt: skip
+        self._secrets = [s for s in (self._key.reveal(), password, self._basic and self._basic.reveal()) if s]
         self._sleep = sleep
-        self._json_mode = cfg.json_mode
+        self._material_names = material_names
+        self._format_level = RESPONSE_FORMATS.index(cfg.response_format)
+        self._refused: str | None = None
+        """The message of a 401/403 answer: every later query fails with it without a request."""
         self._lock = threading.Lock()
         self._slots = threading.BoundedSemaphore(max(1, cfg.max_concurrency))
         self._rng = random.Random(cfg.seed)
@@ -300,11 +344,16 @@ class OpenAIBackend:
         self.usage = Usage()
 
     def __repr__(self) -> str:
-        return f"OpenAIBackend(url={self._url!r}, model={self.model!r}, key={self._key!r})"
+        return f"OpenAIBackend(url={self.url!r}, model={self.model!r}, key={self._key!r})"
+
+    @property
+    def response_format(self) -> str:
+        """The structured-output mode requests are sent with now (after any fallback)."""
+        return RESPONSE_FORMATS[self._format_level]
 
     # -- helpers ---------------------------------------------------------------------------------
     def _redact(self, text: str) -> str:
-        return redact(text, [self._key.reveal()])
+        return redact_urls(redact(text, self._secrets))
 
     def cost_usd(self, usage: Usage) -> float:
         c = self.config
@@ -313,7 +362,7 @@ class OpenAIBackend:
             + usage.completion_tokens / 1000 * c.usd_per_1k_completion_tokens
         )
 
-    def _payload(self, request: VLMRequest, json_mode: bool) -> bytes:
+    def _payload(self, request: VLMRequest, fmt: str) -> bytes:
         cfg = self.config
         content: list[dict] = [{"type": "text", "text": request.text}]
         for data in request.images:
@@ -323,8 +372,9 @@ class OpenAIBackend:
             "model": cfg.model,
             "messages": [{"role": "system", "content": request.system}, {"role": "user", "content": content}],
         }
-        if json_mode:
-            body["response_format"] = {"type": "json_object"}
+        rf = response_format(fmt, self._material_names)
+        if rf is not None:
+            body["response_format"] = rf
         if cfg.max_tokens is not None:
             body[cfg.max_tokens_field] = int(cfg.max_tokens)
         if cfg.temperature is not None:
@@ -332,21 +382,15 @@ class OpenAIBackend:
         return json.dumps(body).encode("utf-8")
 
     def _post(self, data: bytes) -> tuple[int, Any, bytes]:
-        req = urllib.request.Request(self._url, data=data, method="POST")
-        req.add_header("Content-Type", "application/json")
+        headers = {"Content-Type": "application/json"}
         if self._key:
-            req.add_header("Authorization", "Bearer " + self._key.reveal())
+            headers["Authorization"] = "Bearer " + self._key.reveal()
+        elif self._basic:
+            headers["Authorization"] = "Basic " + self._basic.reveal()
         with self._lock:
             self.http_requests += 1
-        try:
-            with urllib.request.urlopen(req, timeout=self.config.timeout_s) as resp:
-                return resp.status, resp.headers, resp.read()
-        except urllib.error.HTTPError as err:
-            try:
-                body = err.read()
-            except Exception:  # pragma: no cover - broken connection while reading the error body
-                body = b""
-            return err.code, err.headers, body
+        cfg = self.config
+        return http_post(self._url, data, headers, deadline_s=cfg.timeout_s, max_bytes=cfg.max_reply_bytes)
 
     def _backoff(self, attempt: int, retry_after: float | None) -> float:
         cfg = self.config
@@ -356,76 +400,97 @@ class OpenAIBackend:
             jitter = 1.0 + 0.25 * self._rng.random()
         return min(cfg.backoff_max_s, cfg.backoff_base_s * (2**attempt) * jitter)
 
+    def _fail(self, message: str, error: type[VLMError] = VLMError) -> VLMError:
+        with self._lock:
+            self.failures += 1
+        return error(self._redact(message))
+
+    def _answer(self, body: bytes) -> VLMResponse:
+        """The response of a 200 reply (ValueError / TypeError / AttributeError when unreadable)."""
+        parsed = json.loads(body.decode("utf-8"))
+        text = _message_text(parsed)
+        usage = Usage.from_dict(parsed.get("usage"))
+        self.rate_limiter.acquire(0, usage.total_tokens)
+        with self._lock:
+            self.usage = Usage(
+                self.usage.prompt_tokens + usage.prompt_tokens,
+                self.usage.completion_tokens + usage.completion_tokens,
+                self.usage.total_tokens + usage.total_tokens,
+            )
+        return VLMResponse(text=text, usage=usage, cached=False, simulated=False)
+
+    def _refuse(self, request: VLMRequest, status: int, snippet: str) -> VLMAuthError:
+        cfg = self.config
+        fix = (
+            f"check the API key in ${cfg.api_key_env} (--vlm.api-key-env names another variable)"
+            if cfg.api_key_env
+            else "this server wants an API key: export it and pass --vlm.api-key-env NAME"
+        )
+        message = (
+            f"{request.describe()}: HTTP {status} from {self.url}: the server refused the credentials "
+            f"({snippet[:200].strip()}); {fix}. Stopped at the first refusal."
+        )
+        err = self._fail(message, VLMAuthError)
+        with self._lock:
+            self._refused = str(err)
+        return err
+
+    def _fall_back(self, level: int, snippet: str) -> None:
+        """The server refused response_format ``RESPONSE_FORMATS[level]``: use the next one from now on."""
+        with self._lock:
+            if self._format_level == level:
+                self._format_level = level + 1
+                logger.warning(
+                    "%s refused response_format=%s (%s); asking with %s for the rest of this run",
+                    self.url, RESPONSE_FORMATS[level], self._redact(snippet[:200]),
+                    RESPONSE_FORMATS[level + 1],
+                )  # fmt: skip
+
+    def _attempt(self, request: VLMRequest, level: int) -> VLMResponse | object | tuple[str, float | None]:
+        """One HTTP request: the response, ``_FELL_BACK`` (ask again with the next response format), or
+        (problem, Retry-After) for a retryable failure; raises VLMError for a final one."""
+        cfg = self.config
+        try:
+            status, headers, body = self._post(self._payload(request, RESPONSE_FORMATS[level]))
+        except ReplyTooLarge as err:
+            raise self._fail(f"{request.describe()}: reply from {self.url} refused: {err} "
+                             "(--vlm.max-reply-bytes)") from None  # fmt: skip
+        except DeadlineExceeded as err:
+            return f"no complete reply within --vlm.timeout-s {cfg.timeout_s:g} s ({err})", None
+        except (OSError, http.client.HTTPException) as err:
+            return f"{type(err).__name__}: {getattr(err, 'reason', err)}", None
+        if status == 200:
+            try:
+                return self._answer(body)
+            except (ValueError, AttributeError, TypeError) as err:
+                return f"unreadable reply ({type(err).__name__}: {str(err)[:120]})", None
+        snippet = body[:2000].decode("utf-8", errors="replace")
+        if status in (401, 403):
+            raise self._refuse(request, status, snippet)
+        if status in (400, 422) and level + 1 < len(RESPONSE_FORMATS) and _FORMAT_REFUSAL.search(snippet):
+            self._fall_back(level, snippet)
+            return _FELL_BACK
+        if status not in (408, 409, 429) and status < 500:
+            raise self._fail(f"{request.describe()}: HTTP {status} from {self.url}: {snippet[:500]}")
+        return f"HTTP {status}: {snippet[:200]}", _retry_after_s(headers)
+
     # -- protocol ----------------------------------------------------------------------------------
     def query(self, request: VLMRequest) -> VLMResponse:
         cfg = self.config
         attempt = 0
         with self._slots:
             while True:
-                json_mode = self._json_mode
-                retry_after: float | None = None
+                if self._refused is not None:
+                    raise VLMAuthError(self._refused)
                 self.rate_limiter.acquire(1, 0)
-                try:
-                    status, headers, body = self._post(self._payload(request, json_mode))
-                except (
-                    TimeoutError,
-                    urllib.error.URLError,
-                    ConnectionError,
-                    http.client.HTTPException,
-                    OSError,
-                ) as err:
-                    reason = getattr(err, "reason", err)
-                    problem = f"{type(err).__name__}: {reason}"
-                else:
-                    if status == 200:
-                        try:
-                            parsed = json.loads(body.decode("utf-8", errors="replace"))
-                            text = _message_text(parsed)
-                        except (ValueError, AttributeError, TypeError) as err:
-                            with self._lock:
-                                self.failures += 1
-                            raise VLMError(
-                                self._redact(
-                                    f"{request.describe()}: unreadable response from {self._url}: {err}"
-                                )
-                            ) from None
-                        usage = Usage.from_dict(parsed.get("usage") if isinstance(parsed, dict) else None)
-                        self.rate_limiter.acquire(0, usage.total_tokens)
-                        with self._lock:
-                            self.usage = Usage(
-                                self.usage.prompt_tokens + usage.prompt_tokens,
-                                self.usage.completion_tokens + usage.completion_tokens,
-                                self.usage.total_tokens + usage.total_tokens,
-                            )
-                        return VLMResponse(text=text, usage=usage, cached=False, simulated=False)
-                    snippet = body[:500].decode("utf-8", errors="replace")
-                    if status == 400 and json_mode:
-                        with self._lock:
-                            if self._json_mode:
-                                self._json_mode = False
-                                logger.warning(
-                                    "%s answered 400 to response_format=json_object (%s); retrying without it "
-                                    "for the rest of this run",
-                                    self._url,
-                                    self._redact(snippet[:200]),
-                                )
-                        continue
-                    if status not in (408, 409, 429) and status < 500:
-                        with self._lock:
-                            self.failures += 1
-                        raise VLMError(
-                            self._redact(f"{request.describe()}: HTTP {status} from {self._url}: {snippet}")
-                        )
-                    problem = f"HTTP {status}: {snippet[:200]}"
-                    retry_after = _retry_after_s(headers)
+                outcome = self._attempt(request, self._format_level)
+                if isinstance(outcome, VLMResponse):
+                    return outcome
+                if outcome is _FELL_BACK:
+                    continue
+                problem, retry_after = outcome  # type: ignore[misc]
                 if attempt >= cfg.max_retries:
-                    with self._lock:
-                        self.failures += 1
-                    raise VLMError(
-                        self._redact(
-                            f"{request.describe()}: giving up after {attempt + 1} attempts ({problem})"
-                        )
-                    )
+                    raise self._fail(f"{request.describe()}: giving up after {attempt + 1} attempts ({problem})")
                 delay = self._backoff(attempt, retry_after)
                 logger.info("retrying %s in %.2fs after %s", request.describe(), delay, self._redact(problem))
                 with self._lock:
@@ -440,11 +505,13 @@ class OpenAIBackend:
 
 
 class CachedBackend:
-    """Answers from the disk cache when it can, else asks ``inner`` and caches the answer."""
+    """Answers from the disk cache when it can, else asks ``inner`` and caches the answer; an answer longer
+    than ``max_text_chars`` (which validation rejects for its size) is passed on but not cached."""
 
-    def __init__(self, inner: VLMBackend, cache: ResponseCache):
+    def __init__(self, inner: VLMBackend, cache: ResponseCache, max_text_chars: int | None = None):
         self.inner = inner
         self.cache = cache
+        self.max_text_chars = max_text_chars
         self.name = inner.name
         self.model = inner.model
         self.variant = inner.variant
@@ -471,6 +538,10 @@ class CachedBackend:
             return hit
         key = self.key(request)
         response = self.inner.query(request)
+        if self.max_text_chars is not None and len(response.text) > self.max_text_chars:
+            logger.warning("%s: answer of %d characters not cached (over %d)", request.describe(),
+                           len(response.text), self.max_text_chars)  # fmt: skip
+            return VLMResponse(response.text, response.usage, cached=False, simulated=response.simulated, key=key)
         self.cache.put(
             key,
             response.text,

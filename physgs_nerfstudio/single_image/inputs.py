@@ -72,10 +72,12 @@ def load_rgb(path: Path, max_side: int | None) -> tuple[np.ndarray, tuple[int, i
     """uint8 [H, W, 3] with EXIF orientation applied, downscaled (area filter) to ``max_side``."""
     from PIL import Image, ImageOps, UnidentifiedImageError
 
+    from ..perception.images import to_rgb8
+
     try:
         with Image.open(path) as im:
             im = ImageOps.exif_transpose(im)
-            rgb = np.asarray(im.convert("RGB"), dtype=np.uint8)
+            rgb = to_rgb8(im)  # 16-bit and float images scaled, not clipped
     except (OSError, UnidentifiedImageError) as err:
         raise InputError(f"cannot read image {path}: {err}") from err
     h, w = rgb.shape[:2]

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -28,6 +27,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import tyro
 
+from ..fusion.writer import jsonable
 from ..materials import PROPERTY_KEYS, MaterialLibrary, load_library
 from ..perception.config import PerceptionConfig
 from ..perception.pipeline import PerceptionResult
@@ -182,20 +182,6 @@ def _segmenter_name(config: SingleImageConfig) -> str:
     if config.perception.prompt != "triplet":
         return "none (baseline prompt)"
     return config.perception.segmenter.name
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return _jsonable(obj.item())
-    return obj
 
 
 def accuracy_against_truth(maps: ImageMaps, truth: np.ndarray, truth_names: Sequence[str]) -> dict[str, float | int]:
@@ -354,7 +340,7 @@ def image_summary(
         stats[key] = {
             st: {"covered": finite_summary(arr, maps.covered), "all": finite_summary(arr)} for st, arr in maps.fields[key].items()
         }
-    return _jsonable(
+    return jsonable(
         {
             "version": SUMMARY_VERSION,
             "tool": "physgs image",
@@ -397,7 +383,7 @@ def image_summary(
 
 def run_summary(config: SingleImageConfig, result: SingleImageResult, simulated: bool) -> dict:
     p = result.perception
-    return _jsonable(
+    return jsonable(
         {
             "version": SUMMARY_VERSION,
             "tool": "physgs image",

@@ -18,7 +18,7 @@ class SynthCommand:
     """Output directory (with --suite: one sub-directory per object)."""
     object: str = "mug"
     """Object preset or scene layout; list: mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase
-    bunny armadillo (need ../shared/data meshes) indoor_room outdoor_patch."""
+    bunny armadillo (need their meshes in --mesh-dir) indoor_room outdoor_patch."""
     views: int = 24
     """Number of camera views."""
     seed: int = 0

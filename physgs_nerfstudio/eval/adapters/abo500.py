@@ -13,8 +13,9 @@ ids; predictions keyed by a scene name or by an item id both match.
 
 NeRF2Physics predictions (``preds/preds_mass.json``): ``{"<scene>": [low, high], ...}`` in kg; the point
 estimate is the midpoint; the pair is kept as an interval of unknown nominal level (coverage is reported,
-not NLL/CRPS). The benchmark clamps every method's point estimate to ``[0.01, 100]`` kg before scoring
-(NeRF2Physics' ``--clamp_min/--clamp_max``): :func:`clamp_point_estimates`.
+not NLL/CRPS). Point estimates are scored as predicted: NeRF2Physics' ``evaluation.py`` declares
+``--clamp_min/--clamp_max`` (0.01, 100 kg) but never applies them. :func:`clamp_point_estimates` is there for
+``physgs eval --clamp MIN MAX``.
 """
 
 from __future__ import annotations
@@ -177,7 +178,7 @@ def read_n2p_mass_predictions(path: Path, method: str = "nerf2physics") -> list[
 
 
 def clamp_point_estimates(preds: Sequence[Prediction], lo: float = 0.01, hi: float = 100.0) -> list[Prediction]:
-    """The ABO protocol's clamp of every point estimate to ``[lo, hi]``; intervals are left as predicted."""
+    """Clamp every point estimate to ``[lo, hi]`` (``--clamp``; off by default); intervals are left as predicted."""
     if not 0 < lo < hi:
         raise ValueError(f"clamp bounds must satisfy 0 < lo < hi, got ({lo}, {hi}).")
     out = []

@@ -1,0 +1,155 @@
+"""`PhysGSPipeline`: nerfstudio's VanillaPipeline plus the lifting of the material maps onto the Gaussians.
+
+The pipeline owns the work done at set steps (docs/architecture.md, "The nerfstudio method"): when
+densification stops (`lifting_step`, default the model's `stop_split_at`) and at the last training iteration
+(`lift_at_end`) it computes the evidence with `physgs_nerfstudio.lifting.lift_evidence` over the
+datamanager's training views (`lift_material_maps`) and hands it to the model through its one public method,
+`PhysGSModel.set_material_evidence`. `PhysGSPipeline.lift()` does the same on demand.
+
+Evidence map of a view: the confidence-weighted one-hot of its labels (label 0 contributes nothing), plus one
+channel of labelled pixels (label != 0, whatever the confidence). `lift_evidence` sums each Gaussian's
+blending weight times the map over all pixels, and its total blending weight, so that
+`labelled_fraction = labelled_weight / lifting_weight` tells Gaussians seen mostly in labelled pixels from
+those seen mostly in unknown (label 0) pixels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import torch
+from jaxtyping import Float
+from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
+from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
+from torch import Tensor
+
+from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
+from physgs_nerfstudio.lifting import label_evidence_maps, lift_evidence
+
+from .datamanager import PhysGSDatamanagerConfig
+from .model import MaterialEvidence, PhysGSModel, PhysGSModelConfig
+
+
+@dataclass
+class PhysGSPipelineConfig(VanillaPipelineConfig):
+    """VanillaPipeline with the physgs datamanager and model, plus when and how to lift the material maps."""
+
+    _target: type = field(default_factory=lambda: PhysGSPipeline)
+    datamanager: PhysGSDatamanagerConfig = field(default_factory=PhysGSDatamanagerConfig)
+    model: PhysGSModelConfig = field(default_factory=PhysGSModelConfig)
+    lifting_step: int | None = None
+    """Step at which to lift the material maps onto the Gaussians; None = the model's `stop_split_at`
+    (densification end)."""
+    lift_at_end: bool = True
+    """Lift again at the last training iteration (so the checkpoint's evidence matches the final Gaussians)."""
+    evidence_per_view: Literal["view", "pixels"] = "view"
+    """How a view's lifted evidence counts in the Dirichlet. "view": divided by the Gaussian's blending weight in
+    that view, so every view that sees the Gaussian (weight above `min_view_weight`) is one confidence-weighted
+    observation, split over the labels of the pixels it covers: the concentration grows with the number of
+    consistent views, not with the Gaussian's size on screen. "pixels": the raw pixel sum (every covered pixel
+    counts as an observation: far more confident for large Gaussians, far less for sub-pixel ones)."""
+    min_view_weight: float = 0.05
+    """With evidence_per_view="view": a view counts for a Gaussian only if its total blending weight there (in
+    pixels) exceeds this; below it the Gaussian is treated as unseen in that view."""
+    min_evidence: float = 1e-3
+    """Gaussians with less total lifted evidence than this keep the exact prior (never seen)."""
+
+
+def _view_maps(data: dict[str, Tensor], K: int, device: torch.device) -> tuple[Float[Tensor, "1 h w c"], bool]:
+    """A view's evidence maps (K confidence-weighted one-hot channels + the labelled indicator) and whether
+    it has any label."""
+    labels = data["material"][..., 0].to(device).long()
+    conf = data["material_confidence"][..., 0].to(device).float() / 255.0
+    maps = label_evidence_maps(labels[None], conf[None], K)  # [1, H, W, K]
+    return torch.cat([maps, (labels > 0)[None, ..., None].to(maps)], -1), bool((labels > 0).any())
+
+
+@torch.no_grad()
+def lift_material_maps(
+    model: PhysGSModel,
+    cameras: Cameras,
+    views: Sequence[dict[str, Tensor]],
+    *,
+    evidence_per_view: Literal["view", "pixels"] = "view",
+    min_view_weight: float = 0.05,
+    min_evidence: float = 1e-3,
+) -> MaterialEvidence:
+    """The material maps of `views` (cached data with `material` / `material_confidence`, [H, W, 1] uint8,
+    one per camera of `cameras`) lifted onto the model's Gaussians as they stand (module doc). Views without
+    a map still count for every Gaussian's total weight (labelled_fraction)."""
+    K, N, device = model.num_materials, model.num_points, model.device
+    geometry = (model.means.detach(), model.quats.detach(), torch.exp(model.scales.detach()),
+                torch.sigmoid(model.opacities.detach()).squeeze(-1))  # fmt: skip
+    evidence = torch.zeros(N, K, device=device)
+    weight = torch.zeros(N, 1, device=device)
+    labelled = torch.zeros(N, 1, device=device)
+    used = 0
+    for idx, data in enumerate(views):
+        maps, has_labels = _view_maps(data, K, device)
+        used += int(has_labels)
+        cam = cameras[idx : idx + 1].to(device)
+        cam.metadata = {"cam_idx": idx}
+        c2w = model.camera_optimizer.apply_to_camera(cam)
+        lifted = lift_evidence(
+            *geometry, viewmat_from_c2w(c2w), cam.get_intrinsics_matrices().to(device), int(cam.width.item()),
+            int(cam.height.item()), maps, backend=model.config.rasterize_backend,
+            rasterize_mode=model.config.rasterize_mode,
+        )  # fmt: skip
+        view_evidence, view_labelled = lifted.evidence[:, :K].to(evidence), lifted.evidence[:, K:].to(labelled)
+        view_weight = lifted.visibility.to(weight)[:, None]
+        if evidence_per_view == "view":
+            seen = view_weight > min_view_weight
+            norm = torch.where(seen, view_weight, torch.full_like(view_weight, float("inf")))
+            view_evidence, view_weight, view_labelled = view_evidence / norm, view_weight / norm, view_labelled / norm
+        evidence += view_evidence
+        weight += view_weight
+        labelled += view_labelled
+    evidence = evidence.clamp_min(0.0)
+    evidence[evidence.sum(-1) < min_evidence] = 0.0
+    return MaterialEvidence(evidence, weight, labelled.clamp_min(0.0), used)
+
+
+class PhysGSPipeline(VanillaPipeline):
+    """VanillaPipeline that lifts the training views' material maps onto the model at set steps."""
+
+    config: PhysGSPipelineConfig
+    model: PhysGSModel
+
+    @property
+    def lifting_step(self) -> int:
+        step = self.config.lifting_step
+        return self.model.config.stop_split_at if step is None else step
+
+    def lift(self) -> MaterialEvidence:
+        """Lift the training views' material maps onto the Gaussians now and hand the result to the model."""
+        cameras, views = self.datamanager.material_views("train")  # type: ignore[attr-defined]
+        c = self.config
+        lifted = lift_material_maps(self.model, cameras, views, evidence_per_view=c.evidence_per_view,
+                                    min_view_weight=c.min_view_weight, min_evidence=c.min_evidence)  # fmt: skip
+        self.model.set_material_evidence(lifted)
+        return lifted
+
+    def get_training_callbacks(
+        self, training_callback_attributes: TrainingCallbackAttributes
+    ) -> list[TrainingCallback]:
+        cbs = super().get_training_callbacks(training_callback_attributes)
+        trainer = training_callback_attributes.trainer
+        iterations = trainer.config.max_num_iterations if trainer is not None else None
+        cbs.append(
+            TrainingCallback(
+                [TrainingCallbackLocation.AFTER_TRAIN_ITERATION], self._lift_on_schedule, args=[iterations]
+            )
+        )
+        return cbs
+
+    def _lift_on_schedule(self, iterations: int | None, step: int) -> None:
+        """At `lifting_step` and, with `lift_at_end`, at the last of the run's `iterations` (counted from the
+        first step this run trained, so a resumed run ends where the trainer does)."""
+        if getattr(self, "_first_step", None) is None:
+            self._first_step = step
+        last = None if iterations is None else self._first_step + iterations - 1
+        if step == self.lifting_step or (self.config.lift_at_end and step == last):
+            self.lift()
