@@ -2,11 +2,15 @@
 # One GPU session's measurements, in two parts that each fit a 10-minute command (see benchmarks/README.md).
 #   bash benchmarks/gpu/run_gpu.sh kernels   # rasterizer parity, lifting, mass integration, GPU tests
 #   bash benchmarks/gpu/run_gpu.sh training  # physgs vs splatfacto-big, then a full ns-train physgs run
+#   BASE=../other_checkout bash benchmarks/gpu/run_gpu.sh perf  # issue 13: exports before/after, training cost
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-$PWD/gpu_results}; mkdir -p "$OUT"
+T0=$(date +%s)
+elapsed() { echo $(( $(date +%s) - T0 )); }
+[ "${1:-}" = perf ] && export GSPLAT_BUILD_LATER=1
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -17,9 +21,8 @@ make_scene() {
     --no-progress --max-concurrency 16
 }
 case "${1:-kernels}" in
-  kernels)
+  kernels)  # (mass: the export benchmark, `perf`, times `physgs export --outputs mass` on a trained scene)
     python3 benchmarks/gpu/bench_kernels.py --out "$OUT/kernels.json" 2>&1 | tee "$OUT/kernels.log"
-    python3 benchmarks/mass_integration.py --sizes 100000 1000000 2>&1 | tee "$OUT/mass_integration.txt"
     python3 -m pytest -q -m gpu tests/ -p no:cacheprovider 2>&1 | tail -15 | tee "$OUT/gpu_tests.txt"
     ;;
   training)
@@ -31,6 +34,33 @@ case "${1:-kernels}" in
     make_scene 2>&1 | tail -3
     (cd benchmarks/gpu && python3 profile_training.py --data "$SCENE") 2>&1 | grep -v Warning \
       > "$OUT/profile.txt"; tail -5 "$OUT/profile.txt"
+    ;;
+  perf)
+    # issue 13 in one command (about 9 minutes on an H100): a generated scene, a short `ns-train physgs`, then
+    # `physgs export` of this tree vs BASE (another checkout) side by side (bench_export.py), then the training
+    # cost of physgs vs splatfacto-big on the same scene (bench_training.py) in whatever time is left.
+    BASE=${BASE:?BASE=path of the checkout to compare against}
+    OBJECT=${OBJECT:-stool} VIEWS=${VIEWS:-40} RES=${RES:-384} STEPS=${STEPS:-3000} LIMIT=${LIMIT:-570}
+    SCENE=/tmp/physgs_${OBJECT}
+    echo "[$(elapsed) s] scene (gsplat builds beside it: setup_env.sh with GSPLAT_BUILD_LATER=1)"
+    python3 -m physgs_nerfstudio.cli synth --out "$SCENE" --object "$OBJECT" --views "$VIEWS" --resolution "$RES" \
+      --overwrite 2>&1 | tail -2
+    python3 -m physgs_nerfstudio.cli perceive --data "$SCENE" --no-progress --max-concurrency 16 vlm:simulated \
+      2>&1 | tail -2
+    wait  # the gsplat build
+    echo "[$(elapsed) s] gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
+    python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
+      --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
+      --output-dir /tmp/physgs_runs --timestamp perf 2>&1 | grep -v Warning | tail -3
+    CFG=$(ls /tmp/physgs_runs/*/physgs/perf/config.yml)
+    echo "[$(elapsed) s] exports"
+    python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" --tree "after=$PWD" --views 10 \
+      --breakdown --touch-gsplat --budget-s $((LIMIT - 200 - $(elapsed))) --out "$OUT/export.json" 2>&1 \
+      | grep -v Warning | tee "$OUT/export.log" | tail -40
+    echo "[$(elapsed) s] training cost"
+    timeout $((LIMIT - $(elapsed))) python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps 700 \
+      --warmup 200 --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -4
+    echo "[$(elapsed) s] done"
     ;;
   full)
     make_scene 2>&1 | tail -5

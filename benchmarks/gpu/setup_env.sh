@@ -10,5 +10,11 @@ export NERFSTUDIO_METHOD_CONFIGS="physgs=method_configs.physgs_config:physgs_met
 # The wheels were just unpacked, so every gsplat source is newer than a carried build: ninja would recompile
 # it all. A carried build stamped by physgs (render/gsplat_build.py) is loaded without ninja; otherwise this
 # compiles once here (about 210 s) and stamps the build, so no benchmark step pays for it.
-python3 -m physgs_nerfstudio.cli info --build-gsplat | grep -i gsplat || true
+if [ -n "${GSPLAT_BUILD_LATER:-}" ]; then  # the caller waits for $GSPLAT_BUILD_PID (and does CPU work meanwhile)
+  mkdir -p "${OUT:-.}"
+  (python3 -m physgs_nerfstudio.cli info --build-gsplat | grep -i gsplat > "${OUT:-.}/gsplat_build.txt" 2>&1) &
+  GSPLAT_BUILD_PID=$!
+else
+  python3 -m physgs_nerfstudio.cli info --build-gsplat | grep -i gsplat || true
+fi
 set +e
