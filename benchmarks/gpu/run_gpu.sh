@@ -2,7 +2,8 @@
 # One GPU session's measurements, in two parts that each fit a 10-minute command (see benchmarks/README.md).
 #   bash benchmarks/gpu/run_gpu.sh kernels   # rasterizer parity, lifting, mass integration, GPU tests
 #   bash benchmarks/gpu/run_gpu.sh training  # physgs vs splatfacto-big, then a full ns-train physgs run
-#   BASE=../other_checkout bash benchmarks/gpu/run_gpu.sh perf  # issue 13: exports before/after, training cost
+#   BASE=../other_checkout bash benchmarks/gpu/run_gpu.sh perf  # issue 13: exports before/after
+#   bash benchmarks/gpu/run_gpu.sh perf-training                  # issue 13: training cost on the same scene
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
 set -uo pipefail
@@ -10,7 +11,16 @@ cd "$(dirname "$0")/../.."
 OUT=${OUT:-$PWD/gpu_results}; mkdir -p "$OUT"
 T0=$(date +%s)
 elapsed() { echo $(( $(date +%s) - T0 )); }
-[ "${1:-}" = perf ] && export GSPLAT_BUILD_LATER=1
+OBJECT=${OBJECT:-stool} VIEWS=${VIEWS:-40} RES=${RES:-384}
+PERF_SCENE=/tmp/physgs_${OBJECT}_${VIEWS}x${RES}
+perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 px, simulated perception
+  [ -f "$PERF_SCENE/materials.json" ] && return
+  python3 -m physgs_nerfstudio.cli synth --out "$PERF_SCENE" --object "$OBJECT" --views "$VIEWS" \
+    --resolution "$RES" --overwrite 2>&1 | tail -1
+  python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
+    2>&1 | tail -1
+}
+[ "${1:-}" = perf ] && export GSPLAT_BUILD_LATER=1  # compiled beside the scene generation
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -36,30 +46,32 @@ case "${1:-kernels}" in
       > "$OUT/profile.txt"; tail -5 "$OUT/profile.txt"
     ;;
   perf)
-    # issue 13 in one command (about 9 minutes on an H100): a generated scene, a short `ns-train physgs`, then
-    # `physgs export` of this tree vs BASE (another checkout) side by side (bench_export.py), then the training
-    # cost of physgs vs splatfacto-big on the same scene (bench_training.py) in whatever time is left.
+    # issue 13 (about 9.5 minutes on an H100): a generated scene, a short `ns-train physgs`, then `physgs export`
+    # of this tree vs BASE (another checkout) side by side (bench_export.py); the gsplat build (stamped) is
+    # copied to $OUT for `perf-training`, which then needs no compilation even on a fresh machine.
     BASE=${BASE:?BASE=path of the checkout to compare against}
-    OBJECT=${OBJECT:-stool} VIEWS=${VIEWS:-40} RES=${RES:-384} STEPS=${STEPS:-3000} LIMIT=${LIMIT:-570}
-    SCENE=/tmp/physgs_${OBJECT}
+    STEPS=${STEPS:-3000} LIMIT=${LIMIT:-560}
     echo "[$(elapsed) s] scene (gsplat builds beside it: setup_env.sh with GSPLAT_BUILD_LATER=1)"
-    python3 -m physgs_nerfstudio.cli synth --out "$SCENE" --object "$OBJECT" --views "$VIEWS" --resolution "$RES" \
-      --overwrite 2>&1 | tail -2
-    python3 -m physgs_nerfstudio.cli perceive --data "$SCENE" --no-progress --max-concurrency 16 vlm:simulated \
-      2>&1 | tail -2
+    perf_scene
     wait  # the gsplat build
     echo "[$(elapsed) s] gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
-    python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
+    python3 -m nerfstudio.scripts.train physgs --data "$PERF_SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
       --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
       --output-dir /tmp/physgs_runs --timestamp perf 2>&1 | grep -v Warning | tail -3
     CFG=$(ls /tmp/physgs_runs/*/physgs/perf/config.yml)
     echo "[$(elapsed) s] exports"
     python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" --tree "after=$PWD" --views 10 \
-      --breakdown --touch-gsplat --budget-s $((LIMIT - 200 - $(elapsed))) --out "$OUT/export.json" 2>&1 \
-      | grep -v Warning | tee "$OUT/export.log" | tail -40
-    echo "[$(elapsed) s] training cost"
-    timeout $((LIMIT - $(elapsed))) python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps 700 \
-      --warmup 200 --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -4
+      --breakdown --touch-gsplat --budget-s $((LIMIT - 45 - $(elapsed))) --out "$OUT/export.json" 2>&1 \
+      | grep -v Warning > "$OUT/export.log"; tail -45 "$OUT/export.log"
+    cp .gsplat_build/gsplat_cuda/gsplat_cuda.so .gsplat_build/gsplat_cuda/physgs_build_stamp.json "$OUT/" 2>/dev/null
+    echo "[$(elapsed) s] done"
+    ;;
+  perf-training)
+    # the training cost of physgs vs splatfacto-big on the `perf` scene (run after `perf`; carry the gsplat build
+    # it returned in .gsplat_build/gsplat_cuda/ to skip the compilation on a fresh machine)
+    perf_scene
+    python3 benchmarks/gpu/bench_training.py --data "$PERF_SCENE" --steps ${TRAIN_STEPS:-1000} --warmup 300 \
+      --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -4
     echo "[$(elapsed) s] done"
     ;;
   full)
