@@ -18,6 +18,10 @@ def _version(dist: str) -> str:
 class InfoCommand:
     """Print versions, the rasterizer backend that will be used, and the material libraries."""
 
+    build_gsplat: bool = False
+    """compile gsplat's CUDA code now (once after installing or reinstalling gsplat), so that no training or
+    export run pays for it (physgs_nerfstudio/render/gsplat_build.py)"""
+
     def main(self) -> None:
         import torch
 
@@ -28,6 +32,8 @@ class InfoCommand:
         cuda = torch.cuda.is_available()
         rows.append(("CUDA available", str(cuda)))
         rows.append(("rasterizer", "gsplat (CUDA)" if cuda else "reference (pure torch, CPU)"))
+        if cuda:
+            rows.append(("gsplat CUDA build", self._gsplat_build()))
         try:
             materials = importlib.import_module("physgs_nerfstudio.materials")
             for env in ("indoor", "outdoor"):
@@ -37,6 +43,29 @@ class InfoCommand:
         width = max(len(k) for k, _ in rows)
         for key, value in rows:
             print(f"{key:<{width}}  {value}")
+
+
+    def _gsplat_build(self) -> str:
+        from physgs_nerfstudio.render.gsplat_build import build_status
+
+        status, reason = build_status()
+        if not self.build_gsplat or status in ("precompiled", "unavailable"):
+            return f"{status}: {reason}"
+        import time
+
+        import torch
+
+        from physgs_nerfstudio.render import rasterize
+
+        t0 = time.perf_counter()
+        d = torch.device("cuda")
+        one = torch.ones(1, device=d)
+        rasterize(torch.tensor([[0.0, 0.0, 2.0]], device=d), torch.tensor([[1.0, 0, 0, 0]], device=d),
+                  0.1 * torch.ones(1, 3, device=d), 0.5 * one, one[:, None].expand(1, 3).contiguous(),
+                  torch.eye(4, device=d)[None], torch.tensor([[[8.0, 0, 4], [0, 8, 4], [0, 0, 1]]], device=d), 8, 8)
+        torch.cuda.synchronize()
+        status, reason = build_status()
+        return f"{status} after {time.perf_counter() - t0:.0f} s: {reason}"
 
 
 @dataclass

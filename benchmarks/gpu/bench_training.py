@@ -136,6 +136,10 @@ def main() -> None:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--device", default="cuda", help="cuda (the figures) or cpu (a smoke test of this script)")
     args = ap.parse_args()
+    if args.device == "cuda":  # splatfacto-big calls gsplat directly: load the stamped build first (no rebuild)
+        from physgs_nerfstudio.render.gsplat_build import prepare_gsplat
+
+        print("gsplat:", prepare_gsplat(), flush=True)
     rows = [time_training(m, args.data, args.steps, args.warmup, args.window, args.device) for m in args.methods]
     for row in rows:
         print({k: v for k, v in row.items() if k != "iter_s_windows"}, flush=True)

@@ -2,11 +2,25 @@
 # One GPU session's measurements, in two parts that each fit a 10-minute command (see benchmarks/README.md).
 #   bash benchmarks/gpu/run_gpu.sh kernels   # rasterizer parity, lifting, mass integration, GPU tests
 #   bash benchmarks/gpu/run_gpu.sh training  # physgs vs splatfacto-big, then a full ns-train physgs run
+#   BASE=../other_checkout bash benchmarks/gpu/run_gpu.sh perf  # issue 13: exports before/after
+#   bash benchmarks/gpu/run_gpu.sh perf-training                  # issue 13: training cost on the same scene
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-$PWD/gpu_results}; mkdir -p "$OUT"
+T0=$(date +%s)
+elapsed() { echo $(( $(date +%s) - T0 )); }
+OBJECT=${OBJECT:-stool} VIEWS=${VIEWS:-40} RES=${RES:-384}
+PERF_SCENE=/tmp/physgs_${OBJECT}_${VIEWS}x${RES}
+perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 px, simulated perception
+  [ -f "$PERF_SCENE/materials.json" ] && return
+  python3 -m physgs_nerfstudio.cli synth --out "$PERF_SCENE" --object "$OBJECT" --views "$VIEWS" \
+    --resolution "$RES" --overwrite 2>&1 | tail -1
+  python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
+    2>&1 | tail -1
+}
+[ "${1:-}" = perf ] && export GSPLAT_BUILD_LATER=1  # compiled beside the scene generation
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -17,9 +31,8 @@ make_scene() {
     --no-progress --max-concurrency 16
 }
 case "${1:-kernels}" in
-  kernels)
+  kernels)  # (mass: the export benchmark, `perf`, times `physgs export --outputs mass` on a trained scene)
     python3 benchmarks/gpu/bench_kernels.py --out "$OUT/kernels.json" 2>&1 | tee "$OUT/kernels.log"
-    python3 benchmarks/mass_integration.py --sizes 100000 1000000 2>&1 | tee "$OUT/mass_integration.txt"
     python3 -m pytest -q -m gpu tests/ -p no:cacheprovider 2>&1 | tail -15 | tee "$OUT/gpu_tests.txt"
     ;;
   training)
@@ -31,6 +44,35 @@ case "${1:-kernels}" in
     make_scene 2>&1 | tail -3
     (cd benchmarks/gpu && python3 profile_training.py --data "$SCENE") 2>&1 | grep -v Warning \
       > "$OUT/profile.txt"; tail -5 "$OUT/profile.txt"
+    ;;
+  perf)
+    # issue 13 (about 9.5 minutes on an H100): a generated scene, a short `ns-train physgs`, then `physgs export`
+    # of this tree vs BASE (another checkout) side by side (bench_export.py); the gsplat build (stamped) is
+    # copied to $OUT for `perf-training`, which then needs no compilation even on a fresh machine.
+    BASE=${BASE:?BASE=path of the checkout to compare against}
+    STEPS=${STEPS:-3000} LIMIT=${LIMIT:-560}
+    echo "[$(elapsed) s] scene (gsplat builds beside it: setup_env.sh with GSPLAT_BUILD_LATER=1)"
+    perf_scene
+    wait  # the gsplat build
+    echo "[$(elapsed) s] gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
+    python3 -m nerfstudio.scripts.train physgs --data "$PERF_SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
+      --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
+      --output-dir /tmp/physgs_runs --timestamp perf 2>&1 | grep -v Warning | tail -3
+    CFG=$(ls /tmp/physgs_runs/*/physgs/perf/config.yml)
+    echo "[$(elapsed) s] exports"
+    python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" --tree "after=$PWD" --views 10 \
+      --breakdown --touch-gsplat --budget-s $((LIMIT - 45 - $(elapsed))) --out "$OUT/export.json" 2>&1 \
+      | grep -v Warning > "$OUT/export.log"; tail -45 "$OUT/export.log"
+    cp .gsplat_build/gsplat_cuda/gsplat_cuda.so .gsplat_build/gsplat_cuda/physgs_build_stamp.json "$OUT/" 2>/dev/null
+    echo "[$(elapsed) s] done"
+    ;;
+  perf-training)
+    # the training cost of physgs vs splatfacto-big on the `perf` scene (run after `perf`; carry the gsplat build
+    # it returned in .gsplat_build/gsplat_cuda/ to skip the compilation on a fresh machine)
+    perf_scene
+    python3 benchmarks/gpu/bench_training.py --data "$PERF_SCENE" --steps ${TRAIN_STEPS:-1000} --warmup 300 \
+      --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -4
+    echo "[$(elapsed) s] done"
     ;;
   full)
     make_scene 2>&1 | tail -5

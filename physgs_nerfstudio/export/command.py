@@ -30,6 +30,7 @@ from ..mass import MassConfig, MassReport, integrate_mass, library_thickness
 from .field import PropertyField
 from .maps import View, save_property_maps
 from .ply import write_property_ply
+from .progress import stage
 from .report import print_mass_table, write_report
 from .runcheck import check_run
 from .staging import ExportStage, ExportWriteError, check_output_dir
@@ -86,16 +87,20 @@ def load_run(
     known_length: Sequence[float] | None = None,
     env: str | None = None,
     max_view_width: int | None = 640,
+    capture: bool = True,
 ) -> LoadedRun:
-    """Load a trained run through nerfstudio's ``eval_setup``: its property field, cameras, object masks and
-    perception's per-mask answers."""
-    from nerfstudio.utils.eval_utils import eval_setup
+    """Load a trained run after the run checks (:func:`.runcheck.check_run`: safe YAML, method, checkpoint beside
+    a moved config): its property field and cameras (:func:`.loader.load_run_model`: no datamanager, no image
+    opened) and, with ``capture``, the object masks and perception's per-mask answers (mass and voxels need
+    them; the PLY and the maps do not)."""
+    from .loader import load_run_model
 
     run_files = check_run(Path(config_path))  # safe YAML, method, checkpoint (beside the config if moved)
-    config, pipeline, _, _ = eval_setup(run_files.config_path, test_mode="inference",
-                                        update_config_callback=run_files.apply)  # fmt: skip
-    return run_from_pipeline(config.get_base_dir(), pipeline, scale=scale, known_length=known_length, env=env,
-                             max_view_width=max_view_width)  # fmt: skip
+    rm = load_run_model(run_files.config, run_files.checkpoint)
+    dm = rm.config.pipeline.datamanager
+    return _assemble_run(run_files.run_dir, rm.model, rm.dataparser_outputs, getattr(dm, "data", None),
+                         scale=scale, known_length=known_length, env=env, max_view_width=max_view_width,
+                         capture=capture)  # fmt: skip
 
 
 def run_from_pipeline(
@@ -109,20 +114,27 @@ def run_from_pipeline(
 ) -> LoadedRun:
     """:func:`load_run` on a pipeline already loaded (e.g. the viewer's); ``run_dir``: the folder of its
     config.yml and dataparser_transforms.json."""
+    dm = pipeline.datamanager
+    dpo = getattr(dm, "train_dataparser_outputs", None)
+    return _assemble_run(run_dir, pipeline.model, dpo, getattr(getattr(dm, "config", None), "data", None),
+                         scale=scale, known_length=known_length, env=env, max_view_width=max_view_width,
+                         cameras=getattr(getattr(dm, "train_dataset", None), "cameras", None))  # fmt: skip
+
+
+def _assemble_run(run_dir: Path, model: Any, dpo: Any, data: Path | None, *, scale: float | None,
+                  known_length: Sequence[float] | None, env: str | None, max_view_width: int | None,
+                  capture: bool = True, cameras: Any = None) -> LoadedRun:  # fmt: skip
     from .scale import read_dataparser_scale
 
     dp_scale = read_dataparser_scale(Path(run_dir))
-    pf = PropertyField.from_model(pipeline.model, dp_scale, scale=scale, known_length=known_length, env=env)
-    dm = pipeline.datamanager
-    dpo = getattr(dm, "train_dataparser_outputs", None)
-    cameras = dpo.cameras if dpo is not None else getattr(getattr(dm, "train_dataset", None), "cameras", None)
+    pf = PropertyField.from_model(model, dp_scale, scale=scale, known_length=known_length, env=env)
+    cameras = dpo.cameras if dpo is not None else cameras
     views: list[CaptureView] = []
     observations: list[MaskObservation] = []
-    dm_config = getattr(dm, "config", None)
-    data_dir = Path(dm_config.data) if getattr(dm_config, "data", None) else None
+    data_dir = Path(data) if data else None
     if data_dir is not None and data_dir.suffix == ".json":
         data_dir = data_dir.parent
-    if dpo is not None and data_dir is not None and (data_dir / "transforms.json").exists():
+    if capture and dpo is not None and data_dir is not None and (data_dir / "transforms.json").exists():
         labels = dpo.metadata.get("material_filenames")
         views = load_capture(dpo.cameras, dpo.image_filenames, data_dir, label_paths=labels,
                              max_width=max_view_width)  # fmt: skip
@@ -191,18 +203,19 @@ def write_export(
         console.log(f"PLY: {files['ply'][0]} ({pf.num_gaussians} Gaussians)")
     report = None
     if "mass" in outputs or "voxels" in outputs:
-        with console.status("object geometry") as status:
-            geo = object_geometry(run, mass.geometry, progress=lambda s: status.update(f"object geometry: {s}"))
-        console.log(f"object geometry: {geo.selection.num_selected} Gaussians selected, {int(geo.solid.sum())} "
-                    f"solid voxels, {geo.num_parts} parts, {len(geo.variant_names)} carving variants")  # fmt: skip
+        with stage(console, "object geometry", unit="steps") as st:
+            geo = object_geometry(run, mass.geometry, progress=lambda s: st.advance(1, s))
+            st.result = (f"{geo.selection.num_selected} Gaussians selected, {int(geo.solid.sum())} solid voxels, "
+                         f"{geo.num_parts} parts, {len(geo.variant_names)} carving variants")  # fmt: skip
         if "mass" in outputs:
             report = integrate_mass(pf, geo, mass)
         if "voxels" in outputs:
             files["voxels"] = [write_voxel_grid(pf, out / "voxels.npz", geo)]
             console.log(f"voxel grid: {files['voxels'][0]}")
     if "maps" in outputs and views:
-        files["maps"] = save_property_maps(pf, views, out / "maps")
-        console.log(f"property maps: {len(files['maps'])} view(s) in {out / 'maps'}")
+        with stage(console, "property maps", total=len(views), unit="views") as st:
+            files["maps"] = save_property_maps(pf, views, out / "maps", on_view=lambda name: st.advance(1, name))
+            st.result = str(out / "maps")
     if report is not None:
         shown = Path(final_dir or out)
         extra: dict[str, Any] = {"files": {k: [str(shown / p.relative_to(out)) for p in v] for k, v in files.items()},
@@ -275,7 +288,8 @@ class ExportCommand:
 
     def main(self) -> ExportResult:
         check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
-        run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env)
+        run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env,
+                       capture=bool({"mass", "voxels"} & set(self.outputs)))
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
         run.field = run.field.to(device)
         cameras = run.cameras

@@ -260,16 +260,14 @@ class PropertyField:
         known_length: Sequence[float] | None = None,
         env: str | None = None,
     ) -> PropertyField:
-        """Load a trained run (its ``config.yml``) through nerfstudio's ``eval_setup`` and snapshot it."""
-        from nerfstudio.utils.eval_utils import eval_setup
-
+        """Load a trained run (its ``config.yml``) through :func:`.loader.load_run_model` and snapshot it."""
+        from .loader import load_run_model
         from .runcheck import check_run
 
         run_files = check_run(Path(config_path))  # safe YAML, PhysGS method, checkpoint (beside the config if moved)
-        config, pipeline, _, _ = eval_setup(run_files.config_path, test_mode="inference",
-                                            update_config_callback=run_files.apply)  # fmt: skip
-        dp_scale = read_dataparser_scale(config.get_base_dir())
-        return cls.from_model(pipeline.model, dp_scale, scale=scale, known_length=known_length, env=env)
+        rm = load_run_model(run_files.config, run_files.checkpoint)
+        dp_scale = read_dataparser_scale(run_files.run_dir)
+        return cls.from_model(rm.model, dp_scale, scale=scale, known_length=known_length, env=env)
 
 
 def load_thickness(

@@ -11,7 +11,7 @@ standard deviation.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,21 +93,22 @@ def save_property_maps(
     min_alpha: float = 0.2,
     backend: str = "auto",
     dpi: int = 100,
+    on_view: Callable[[str], None] | None = None,
 ) -> list[Path]:
-    """One PNG per view under ``out_dir`` (``maps_<name>.png``) plus ``maps_<name>.npz`` with the raw maps."""
+    """One PNG per view under ``out_dir`` (``maps_<name>.png``) plus ``maps_<name>.npz`` with the raw maps;
+    ``on_view(name)`` is called after each view (the caller's progress display)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap, LogNorm
     from matplotlib.patches import Patch
-    from tqdm.auto import tqdm
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     colors = np.asarray(pf.material_colors, dtype=np.float64) / 255.0
-    for view in tqdm(views, desc="property maps", unit="view", leave=False):
+    for view in views:
         maps = render_property_maps(pf, view, min_alpha=min_alpha, backend=backend)
         panels = ["rgb", "material", *pf.property_keys, "density_aleatoric_sd", "density_epistemic_sd",
                   "density_total_sd"]  # fmt: skip
@@ -157,5 +158,7 @@ def save_property_maps(
         plt.close(fig)
         np.savez_compressed(out_dir / f"maps_{view.name}.npz", **{k: v for k, v in maps.items()})
         paths.append(path)
+        if on_view is not None:
+            on_view(view.name)
     _ = ListedColormap  # (kept for users who want a discrete material colormap)
     return paths

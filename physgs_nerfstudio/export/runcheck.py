@@ -1,7 +1,7 @@
 """Check a trained run's files before nerfstudio loads it; one line naming the file and the fix otherwise.
 
-:func:`check_run` is what ``physgs export`` (and :meth:`PropertyField.from_checkpoint`) call before
-``eval_setup``. In order:
+:func:`check_run` is what ``physgs export`` (and :meth:`PropertyField.from_checkpoint`) call before loading a
+run (:mod:`.loader`; ``eval_setup`` for others). In order:
 
 1. ``config.yml`` is read through :mod:`physgs_nerfstudio.safe_yaml` (a crafted file cannot run code);
 2. it is a nerfstudio run of a PhysGS method (a splatfacto/nerfacto run is named as such, instead of failing
@@ -81,9 +81,11 @@ def _method_of(config_path: Path, config: Any) -> None:
             f"{config_path}: a run of method {config.method_name!r}, not PhysGS: physgs export needs a run of "
             "`ns-train physgs` or `physgs-lite` (for that run's plain splat use `ns-export gaussian-splat`)."
         )
-    from nerfstudio.configs.method_configs import all_methods
+    # the plugin registry alone (entry points, NERFSTUDIO_METHOD_CONFIGS): nerfstudio.configs.method_configs would
+    # also import every built-in method and build its external-method stubs (inspect.stack() each), seconds
+    from nerfstudio.plugins.registry import discover_methods
 
-    if config.method_name not in all_methods:
+    if config.method_name not in discover_methods()[0]:
         raise RunFilesError(f"{config_path}: method {config.method_name!r} is not registered with nerfstudio in this "
                             "environment; install physgs-nerfstudio here (pip install -e .) and retry.")  # fmt: skip
 

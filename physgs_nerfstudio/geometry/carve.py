@@ -53,7 +53,8 @@ from .capture import CaptureView
 from .gaussians import ViewRender
 from .grid import VoxelGrid
 
-__all__ = ["CarveConfig", "CarveVotes", "carve_votes", "signed_mask_distance", "solid_from_votes"]
+__all__ = ["CarveConfig", "CarveVotes", "carve_votes", "carve_votes_many", "signed_mask_distance",
+           "solid_from_votes"]
 
 
 @dataclass
@@ -145,24 +146,38 @@ def carve_votes(
     device: torch.device | str = "cpu",
 ) -> CarveVotes:
     """Empty and seen votes for every voxel of ``grid`` (flattened C order)."""
+    return carve_votes_many(grid, views, renders, [cfg], sdf=sdf, chunk=chunk, device=device)[0]
+
+
+@torch.no_grad()
+def carve_votes_many(
+    grid: VoxelGrid,
+    views: Sequence[CaptureView],
+    renders: Sequence[ViewRender] | None,
+    cfgs: Sequence[CarveConfig],
+    *,
+    sdf: Sequence[Tensor] | None = None,
+    chunk: int = 1 << 20,
+    device: torch.device | str = "cpu",
+) -> list[CarveVotes]:
+    """:func:`carve_votes` under several settings in one pass: each voxel centre is projected into each view,
+    and its mask distance and rendered depth are looked up, once; then it is voted on under every setting
+    (per setting the same arithmetic as a call of its own, so the votes are identical)."""
     M = grid.num_voxels
-    empty = torch.zeros(M, dtype=torch.int32, device=device)
+    G = len(cfgs)
+    empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32, device=device) for _ in cfgs] for _ in range(3))
     seen = torch.zeros(M, dtype=torch.int32, device=device)
-    depth_empty = torch.zeros(M, dtype=torch.int32, device=device)
-    direct = torch.zeros(M, dtype=torch.int32, device=device)
     sdf = [t.to(device) for t in (sdf if sdf is not None else [signed_mask_distance(v.mask) for v in views])]
     cams = [(v.viewmat[:3, :3].to(device), v.viewmat[:3, 3].to(device), v.K.to(device)) for v in views]
-    use = [r if (renders is not None and cfg.use_depth) else None for r in (renders or [None] * len(views))]
-    depth = [(r.depth.to(device), r.alpha.to(device)) if r is not None else None for r in use]
+    any_depth = renders is not None and any(c.use_depth for c in cfgs)
+    depth = [(r.depth.to(device), r.alpha.to(device)) for r in renders] if any_depth else [None] * len(views)
     shape = torch.as_tensor(grid.shape, device=device)
     for s0 in range(0, M, chunk):  # voxel centres once per chunk, then every view
         flat = torch.arange(s0, min(M, s0 + chunk), device=device)
         ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
         x = grid.centres(ijk)
-        n_empty = torch.zeros(len(flat), dtype=torch.int32, device=device)
-        n_seen = torch.zeros_like(n_empty)
-        n_depth = torch.zeros_like(n_empty)
-        n_direct = torch.zeros_like(n_empty)
+        n_seen = torch.zeros(len(flat), dtype=torch.int32, device=device)
+        n_empty, n_depth, n_direct = ([torch.zeros_like(n_seen) for _ in range(G)] for _ in range(3))
         for view, (R, t, K), sd, dz in zip(views, cams, sdf, depth):
             pc = x @ R.T + t
             z = pc[:, 2]
@@ -170,22 +185,26 @@ def carve_votes(
             w = K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]
             ok = (z > 1e-6) & (u >= 0) & (u < view.width) & (w >= 0) & (w < view.height)
             dist = _sample(sd, u.clamp(0, view.width), w.clamp(0, view.height))
-            vote = ok & (dist > cfg.mask_margin_px)
             if dz is not None:
                 ui = u.floor().long().clamp(0, view.width - 1)
                 vi = w.floor().long().clamp(0, view.height - 1)
                 d, a = dz[0][vi, ui], dz[1][vi, ui]
-                margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
-                inside = ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha)
-                dvote = inside & (z < d - margin)
-                vote |= dvote
-                n_depth += dvote.int()
-                n_direct += (inside & (z <= d + margin)).int()
-            n_empty += vote.int()
+            for g, cfg in enumerate(cfgs):
+                vote = ok & (dist > cfg.mask_margin_px)
+                if dz is not None and cfg.use_depth:
+                    margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
+                    inside = ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha)
+                    dvote = inside & (z < d - margin)
+                    vote |= dvote
+                    n_depth[g] += dvote.int()
+                    n_direct[g] += (inside & (z <= d + margin)).int()
+                n_empty[g] += vote.int()
             n_seen += ok.int()
         sl = slice(s0, s0 + len(flat))
-        empty[sl], seen[sl], depth_empty[sl], direct[sl] = n_empty, n_seen, n_depth, n_direct
-    return CarveVotes(empty, seen, depth_empty, direct)
+        seen[sl] = n_seen
+        for g in range(G):
+            empty[g][sl], depth_empty[g][sl], direct[g][sl] = n_empty[g], n_depth[g], n_direct[g]
+    return [CarveVotes(empty[g], seen, depth_empty[g], direct[g]) for g in range(G)]
 
 
 def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:

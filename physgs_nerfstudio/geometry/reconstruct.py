@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from .capture import CaptureView, MaskObservation
-from .carve import CarveConfig, carve_votes, signed_mask_distance, solid_from_votes
+from .carve import CarveConfig, carve_votes_many, signed_mask_distance, solid_from_votes
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
 from .parts import PartGeometry, material_quantiles, part_areas, part_labels, voxel_mixture
@@ -210,12 +210,14 @@ def reconstruct_object(
     step("carving")
     solids: list[np.ndarray] = []
     names: list[str] = []
-    vote_cache: dict[tuple[float, float], Any] = {}
-    for name, cc in _variants(cfg):
-        key = (cc.mask_margin_px, cc.depth_margin_voxels)
-        if key not in vote_cache:
-            vote_cache[key] = carve_votes(grid, obj_views, renders, cc, sdf=sdf, device=device)
-        solids.append(solid_from_votes(vote_cache[key], grid, cc))
+    variants = _variants(cfg)
+    by_key: dict[tuple[float, float], CarveConfig] = {}  # the votes depend on these two settings only
+    for _, cc in variants:
+        by_key.setdefault((cc.mask_margin_px, cc.depth_margin_voxels), cc)
+    votes = carve_votes_many(grid, obj_views, renders, list(by_key.values()), sdf=sdf, device=device)
+    vote_cache = dict(zip(by_key, votes))
+    for name, cc in variants:
+        solids.append(solid_from_votes(vote_cache[(cc.mask_margin_px, cc.depth_margin_voxels)], grid, cc))
         names.append(name)
     union = np.logical_or.reduce(solids)
     if not solids[0].any():

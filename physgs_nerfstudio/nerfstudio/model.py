@@ -223,10 +223,14 @@ class PhysGSModel(SplatfactoModel):
             means = seed[0].detach().float().clone()
         else:
             means = (torch.rand((self.config.num_random, 3)) - 0.5) * self.config.random_scale
-        distances, _ = self.k_nearest_sklearn(means, 3)
-        scales = torch.log(
-            torch.from_numpy(distances).mean(dim=-1, keepdim=True).clamp_min(1e-7).repeat(1, 3)
-        )
+        if self.kwargs.get("placeholder_gaussians"):  # a checkpoint replaces them (export/loader.py): no kNN
+            means = means[:1]
+            scales = torch.zeros_like(means)
+        else:
+            distances, _ = self.k_nearest_sklearn(means, 3)
+            scales = torch.log(
+                torch.from_numpy(distances).mean(dim=-1, keepdim=True).clamp_min(1e-7).repeat(1, 3)
+            )
         n = means.shape[0]
         dim_sh = num_sh_bases(self.config.sh_degree)
         features_rest = torch.zeros((n, dim_sh - 1, 3))
@@ -255,10 +259,13 @@ class PhysGSModel(SplatfactoModel):
         self.camera_optimizer = self.config.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
-        from torchmetrics.image import PeakSignalNoiseRatio
+        if self.kwargs.get("placeholder_gaussians"):  # built to load a checkpoint for export: no eval metrics
+            self.psnr = self.ssim = None  # (torchmetrics' import alone is about a second; nothing is saved of them)
+        else:
+            from torchmetrics.image import PeakSignalNoiseRatio
 
-        self.psnr = PeakSignalNoiseRatio(data_range=1.0)
-        self.ssim = SSIM(data_range=1.0, size_average=True, channel=3)
+            self.psnr = PeakSignalNoiseRatio(data_range=1.0)
+            self.ssim = SSIM(data_range=1.0, size_average=True, channel=3)
         self.lpips = _LazyLPIPS(self.config.compute_lpips)
         self.step = 0
         self.crop_box = None

@@ -50,9 +50,12 @@ def rasterize(
     if which == "gsplat":
         from gsplat import rasterization  # lazy: importing is cheap but keeps CPU paths gsplat-free
 
+        from .gsplat_build import prepare_gsplat, record_gsplat_build
+
+        prepare_gsplat()  # an earlier build of the same sources loads without ninja (gsplat_build.py)
         kwargs.pop("max_pairs", None)
-        return rasterization(
-            means, quats, scales, opacities, colors, viewmats, Ks, width, height, *args, **kwargs
-        )
+        out = rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height, *args, **kwargs)
+        record_gsplat_build()
+        return out
     return reference_rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height,
                                    *args, **kwargs)  # fmt: skip
