@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import statistics
 import subprocess
 import sys
@@ -26,7 +27,7 @@ OBJECTS = ("mug", "chair", "hammer", "bottle", "shoe", "table", "pan", "lamp", "
 
 
 def run_one(obj: str, seed: int, out: Path, extra: list[str], jobs: int = 1,
-            export_args: list[str] | None = None) -> dict:  # fmt: skip
+            export_args: list[str] | None = None, alt_name: str = "alt") -> dict:  # fmt: skip
     d = out / f"{obj}_s{seed}"
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "demo", "--object", obj, "--seed", str(seed),
            "--output-dir", str(d), *extra]  # fmt: skip
@@ -41,7 +42,7 @@ def run_one(obj: str, seed: int, out: Path, extra: list[str], jobs: int = 1,
     export = d / "export"
     if export_args is not None:
         cfg = next((d / "runs").glob("**/config.yml"))
-        export = d / "export_alt"
+        export = d / f"export_{alt_name}"
         cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "export", "--load-config", str(cfg), "--output-dir",
                str(export), "--outputs", "mass", "--overwrite", *export_args]  # fmt: skip
         proc = subprocess.run(cmd, check=False, capture_output=True, text=True, env=env)
@@ -78,16 +79,18 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="*", type=int, default=[101])
     ap.add_argument("--out", type=Path, default=Path("/tmp/physgs_mass_suite"))
     ap.add_argument("--demo-args", nargs="*", default=[])
-    ap.add_argument("--export-args", nargs="*", default=None,
-                    help="re-export every finished demo with these extra `physgs export` flags (into export_alt/) "
+    ap.add_argument("--export-args", type=shlex.split, default=None,
+                    help="re-export every finished demo with these extra `physgs export` flags, one quoted string "
+                         "(into export_NAME/, see --alt-name) "
                          "and score that export instead: a side-by-side comparison of geometry options")
+    ap.add_argument("--alt-name", default="alt", help="name of the re-export (export_NAME/, mass_suite_NAME.json)")
     ap.add_argument("--jobs", type=int, default=1, help="demos run at once (each limited to one thread)")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     todo = [(o, s) for s in a.seeds for o in a.objects]
 
     def one(item: tuple[str, int]) -> dict:
-        row = run_one(item[0], item[1], a.out, a.demo_args, a.jobs, a.export_args)
+        row = run_one(item[0], item[1], a.out, a.demo_args, a.jobs, a.export_args, a.alt_name)
         short = {k: v for k, v in row.items() if k not in ("parts", "true_parts")}
         print(json.dumps(short), flush=True)
         return row
@@ -98,7 +101,7 @@ def main() -> None:
     if ok:
         print(f"median APE {statistics.median(r['ape'] for r in ok):.3f}; covered {sum(r['covered'] for r in ok)}/"
               f"{len(ok)}; off by more than 2x: {sum(r['pred_kg'] > 2 * r['truth_kg'] or r['pred_kg'] < r['truth_kg'] / 2 for r in ok)}")  # fmt: skip
-    name = "mass_suite.json" if a.export_args is None else "mass_suite_alt.json"
+    name = "mass_suite.json" if a.export_args is None else f"mass_suite_{a.alt_name}.json"
     (a.out / name).write_text(json.dumps({"export_args": a.export_args, "rows": rows}, indent=2))
 
 

@@ -114,8 +114,8 @@ def test_box_volume_from_carving(box):
     pf, views = box
     geo = _geo(pf, views)
     v = geo.volumes[0].sum()
-    # carving keeps a superset of the object (centre test + a one-voxel depth margin): within +25% at 56 voxels
-    assert 0.95 * 0.024 <= v <= 1.25 * 0.024
+    # the centre test is unbiased to first order and the depth margin is 0 on a plane (carve.depth_slack)
+    assert 0.95 * 0.024 <= v <= 1.1 * 0.024
     # every variant stays close: the geometric uncertainty is honest, not wide
     assert np.all(np.abs(geo.volumes.sum(1) / v - 1) < 0.25)
 
@@ -222,7 +222,10 @@ def test_mass_interval_from_the_same_samples(box):
     assert rep.interval_kg == pytest.approx((float(np.quantile(s, 0.05)), float(np.quantile(s, 0.95))))
     assert rep.interval_kg[0] <= rep.median_kg <= rep.interval_kg[1]
     assert rep.interval_kg[0] <= rep.mean_kg <= rep.interval_kg[1]
-    assert 0.75 * 700 * 0.024 <= rep.mean_kg <= 1.3 * 700 * 0.024
+    # no view answered hollow or solid here: the prior's P(hollow) = 0.27 makes a quarter of the samples shells, so
+    # the magnitude is checked with the structure fixed: solid oak, the carved volume within its variants' spread
+    solid = integrate_mass(pf, geo, MassConfig(n_samples=3000, seed=1, structure="solid"))
+    assert 0.9 * 700 * 0.024 <= solid.mean_kg <= 1.15 * 700 * 0.024
 
 
 def test_material_quantiles_keep_spatial_shares_and_switch_ambiguous_parts_together():
@@ -246,3 +249,55 @@ def test_material_quantiles_keep_spatial_shares_and_switch_ambiguous_parts_toget
     u = (np.arange(20) + 0.5) / 20
     brute = np.stack([(u < 0.7), (u >= 0.7), np.zeros(20, bool)], -1).astype(float)
     np.testing.assert_allclose(q[1], brute)
+
+
+def test_pooled_part_alpha_is_the_weighted_mean_of_member_posteriors():
+    """Pooled Dirichlet per part against a brute-force loop over Gaussians (weights opacity x observed share;
+    Gaussians outside the grid, outside every part or with zero weight count for nothing)."""
+    from physgs_nerfstudio.geometry.grid import VoxelGrid
+    from physgs_nerfstudio.geometry.parts import pooled_part_alpha
+
+    rng = np.random.default_rng(5)
+    grid = VoxelGrid.from_bounds(np.zeros(3), np.ones(3), 6)
+    parts = rng.integers(-1, 3, size=grid.shape)
+    n, K = 400, 5
+    means = torch.from_numpy(rng.uniform(-0.1, 1.1, (n, 3)))
+    opac = torch.from_numpy(rng.uniform(0, 1, n))
+    observed = torch.from_numpy(rng.choice([0.0, 0.5, 1.0], n))
+    alpha = torch.from_numpy(1.0 + rng.gamma(1.0, 2.0, (n, K)))
+    pooled, support = pooled_part_alpha(grid, parts, 3, means, opac, alpha, observed)
+    acc, tot = np.zeros((3, K)), np.zeros(3)
+    h = grid.voxel_size
+    for i in range(n):  # the oracle: one Gaussian at a time
+        ijk = np.floor((means[i].numpy() - np.asarray(grid.origin)) / h).astype(int)
+        if (ijk < 0).any() or (ijk >= np.asarray(grid.shape)).any():
+            continue
+        p = parts[tuple(ijk)]
+        w = float(opac[i]) * float(observed[i])
+        if p < 0 or w <= 0:
+            continue
+        acc[p] += w * alpha[i].numpy()
+        tot[p] += w
+    np.testing.assert_allclose(support, tot, rtol=1e-12)
+    np.testing.assert_allclose(pooled[tot > 0], acc[tot > 0] / tot[tot > 0, None], rtol=1e-12)
+
+
+def test_pooled_part_material_is_sharper_than_the_mean_of_member_weights():
+    """A part seen as oak in most views, with a few weakly observed Gaussians and boundary bleed onto steel:
+    averaging the members' dominance weights keeps a metal tail; pooling their posteriors first does not,
+    and the pooled weights are the dominance of the mean posterior (independent Monte Carlo check)."""
+    from physgs_nerfstudio.bayes.mixture import material_mixture_weights
+
+    K = 12
+    rng = np.random.default_rng(0)
+    ev = np.zeros((300, K))
+    ev[:, 0] = rng.uniform(0.5, 6.0, 300)  # oak: 0.5 to 6 views' worth of evidence
+    ev[:30, 3] = rng.uniform(0.5, 2.0, 30)  # steel bleed on a tenth of the Gaussians
+    alpha = torch.from_numpy(1.0 + ev)
+    mean_of_weights = material_mixture_weights(alpha).mean(0)
+    pooled = material_mixture_weights(alpha.mean(0, keepdim=True))[0]
+    assert float(pooled[0]) > float(mean_of_weights[0]) + 0.03
+    assert float(pooled[3]) < 0.85 * float(mean_of_weights[3])
+    theta = rng.dirichlet(alpha.mean(0).numpy(), size=200_000)
+    mc = np.bincount(theta.argmax(1), minlength=K) / len(theta)
+    np.testing.assert_allclose(pooled.numpy(), mc, atol=5e-3)

@@ -4,6 +4,7 @@
 #   bash benchmarks/gpu/run_gpu.sh training  # physgs vs splatfacto-big, then a full ns-train physgs run
 #   BASE=../other_checkout bash benchmarks/gpu/run_gpu.sh perf  # issue 13: exports before/after
 #   bash benchmarks/gpu/run_gpu.sh perf-training                  # issue 13: training cost on the same scene
+#   SEEDS="404 505" bash benchmarks/gpu/run_gpu.sh suite          # issue 12: CPU mass suite + gsplat build
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
 set -uo pipefail
@@ -20,7 +21,7 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
-[ "${1:-}" = perf ] && export GSPLAT_BUILD_LATER=1  # compiled beside the scene generation
+case "${1:-}" in perf|suite) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -73,6 +74,17 @@ case "${1:-kernels}" in
     python3 benchmarks/gpu/bench_training.py --data "$PERF_SCENE" --steps ${TRAIN_STEPS:-1000} --warmup 300 \
       --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -4
     echo "[$(elapsed) s] done"
+    ;;
+  suite)
+    # issue 12: the CPU mass suite (`physgs demo` settings) on this machine's cores with CUDA hidden, while gsplat
+    # builds beside it; the stamped build is returned in $OUT for later calls (carry .gsplat_build/)
+    SEEDS=${SEEDS:-404 505} JOBS=${JOBS:-12}
+    CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $SEEDS --jobs "$JOBS" --out /tmp/mass_suite \
+      > "$OUT/mass_suite.log" 2>&1; tail -2 "$OUT/mass_suite.log"
+    cp /tmp/mass_suite/mass_suite.json "$OUT/" 2>/dev/null
+    echo "[$(elapsed) s] suite done; waiting for gsplat"; wait
+    mkdir -p "$OUT/gsplat_cuda"; cp .gsplat_build/gsplat_cuda/gsplat_cuda.so .gsplat_build/gsplat_cuda/physgs_build_stamp.json \
+      "$OUT/gsplat_cuda/" 2>/dev/null; cat "$OUT/gsplat_build.txt" 2>/dev/null; echo "[$(elapsed) s] done"
     ;;
   full)
     make_scene 2>&1 | tail -5

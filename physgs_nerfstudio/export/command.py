@@ -149,7 +149,8 @@ def object_geometry(run: LoadedRun, cfg: GeometryConfig, progress: Any = None) -
                          "found): mass and voxels need them; export --outputs ply maps instead.")  # fmt: skip
     pf = run.field
     return reconstruct_object(pf, pf.pi(), run.views, run.observations, library_thickness(pf), cfg,
-                              material_names=pf.material_names, progress=progress)  # fmt: skip
+                              material_names=pf.material_names, alpha=pf.alpha,
+                              material_weights=pf.material_weights, progress=progress)  # fmt: skip
 
 
 def run_export(run: LoadedRun, output_dir: Path, *, overwrite: bool = False, source: Path | None = None,

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import torch
@@ -67,9 +68,15 @@ class CarveConfig:
     """... and at least this fraction of the views that see it"""
     mask_margin_px: float = 0.0
     """+: dilate the object masks by this many pixels before carving; -: erode"""
-    depth_margin_voxels: float = 1.0
-    depth_margin_rel: float = 0.003
+    depth_margin_voxels: float = 0.0
+    depth_margin_rel: float = 0.0
     """a voxel is in front of the surface when nearer than depth - (margin_voxels * voxel + margin_rel * depth)"""
+    depth_lookup: Literal["bilinear", "nearest"] = "bilinear"
+    """how the rendered depth is read at a voxel's projection: interpolated between the opaque pixels around it,
+    or the depth of the pixel that holds it"""
+    depth_slope_margin: float = 1.0
+    """... plus this times the lookup's error bound at that pixel (:func:`depth_slack`: 0 on a plane with the
+    bilinear lookup; half a pixel's depth change with the nearest); 0 = off"""
     min_alpha: float = 0.5
     """pixels less opaque than this do not carve by depth"""
     min_direct_fraction: float = 2.0
@@ -89,8 +96,9 @@ class CarveConfig:
             raise ValueError(f"CarveConfig.min_votes must be >= 1, got {self.min_votes}.")
         if not 0 <= self.min_vote_fraction <= 1:
             raise ValueError(f"CarveConfig.min_vote_fraction must be in [0, 1], got {self.min_vote_fraction}.")
-        if self.depth_margin_voxels < 0 or self.depth_margin_rel < 0:
-            raise ValueError("CarveConfig: depth margins must be >= 0.")
+        if self.depth_margin_voxels < -1 or self.depth_margin_rel < 0:
+            raise ValueError(f"CarveConfig: depth_margin_voxels must be >= -1 and depth_margin_rel >= 0, got "
+                             f"{self.depth_margin_voxels} and {self.depth_margin_rel}.")
 
 
 def signed_mask_distance(mask: np.ndarray | Tensor) -> Float[Tensor, "H W"]:
@@ -104,6 +112,57 @@ def signed_mask_distance(mask: np.ndarray | Tensor) -> Float[Tensor, "H W"]:
     out = ndimage.distance_transform_edt(~m)
     inside = ndimage.distance_transform_edt(m)
     return torch.from_numpy(np.where(m, 0.5 - inside, out - 0.5).astype(np.float32))
+
+
+def _shift(t: Tensor, dim: int, step: int, fill: float | bool) -> Tensor:
+    """``t`` moved by ``step`` pixels along ``dim`` (out[i] = t[i - step]), ``fill`` where nothing moved in."""
+    n = t.shape[dim]
+    body = t.narrow(dim, 0, n - step) if step > 0 else t.narrow(dim, -step, n + step)
+    pad = torch.full_like(t.narrow(dim, 0, abs(step)), fill)
+    return torch.cat([pad, body] if step > 0 else [body, pad], dim)
+
+
+def depth_slack(depth: Tensor, alpha: Tensor, min_alpha: float = 0.5, lookup: str = "bilinear") -> Tensor:
+    """float [H, W]: a bound on the error of the depth looked up at a point inside each pixel, from the depth's
+    differences to opaque neighbours (alpha >= ``min_alpha``), summed over the two image axes:
+
+    * ``lookup="nearest"`` (the pixel's own depth): half a pixel's first difference, the larger one-sided one;
+    * ``lookup="bilinear"``: where both neighbours along an axis are opaque, linear interpolation's error bound
+      |second difference| / 8, zero on a plane however obliquely it is seen; next to a transparent neighbour
+      (the interpolation falls back to the opaque side) half the one-sided first difference.
+    """
+    op = alpha >= min_alpha
+    d = torch.where(op, depth, torch.zeros_like(depth))
+    out = torch.zeros_like(d)
+    for dim in (0, 1):
+        prev, nxt = _shift(d, dim, 1, 0.0), _shift(d, dim, -1, 0.0)
+        p_ok, n_ok = _shift(op, dim, 1, False) & op, _shift(op, dim, -1, False) & op
+        first = 0.5 * torch.maximum(torch.where(p_ok, (d - prev).abs(), 0.0), torch.where(n_ok, (nxt - d).abs(), 0.0))
+        if lookup == "bilinear":
+            first = torch.where(p_ok & n_ok, (prev - 2 * d + nxt).abs() / 8, first)
+        out += first
+    return out
+
+
+def _sample_opaque(depth: Tensor, alpha: Tensor, u: Tensor, v: Tensor, min_alpha: float) -> tuple[Tensor, Tensor]:
+    """Bilinear depth at continuous pixel coordinates from the opaque pixels among the four around each point
+    (their bilinear weights renormalised), and whether any of them is opaque."""
+    H, W = depth.shape
+    x = (u - 0.5).clamp(0, W - 1)
+    y = (v - 0.5).clamp(0, H - 1)
+    x0 = x.floor().long().clamp(0, W - 1)
+    y0 = y.floor().long().clamp(0, H - 1)
+    x1, y1 = (x0 + 1).clamp(max=W - 1), (y0 + 1).clamp(max=H - 1)
+    fx, fy = x - x0, y - y0
+    num = torch.zeros_like(u)
+    den = torch.zeros_like(u)
+    for yy, xx, w in ((y0, x0, (1 - fx) * (1 - fy)), (y0, x1, fx * (1 - fy)), (y1, x0, (1 - fx) * fy), (y1, x1, fx * fy)):
+        ok = alpha[yy, xx] >= min_alpha
+        w = torch.where(ok, w, 0.0)
+        num += w * torch.where(ok, depth[yy, xx], 0.0)
+        den += w
+    has = den > 0
+    return torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf"))), has
 
 
 def _sample(img: Tensor, u: Tensor, v: Tensor) -> Tensor:
@@ -170,7 +229,13 @@ def carve_votes_many(
     sdf = [t.to(device) for t in (sdf if sdf is not None else [signed_mask_distance(v.mask) for v in views])]
     cams = [(v.viewmat[:3, :3].to(device), v.viewmat[:3, 3].to(device), v.K.to(device)) for v in views]
     any_depth = renders is not None and any(c.use_depth for c in cfgs)
-    depth = [(r.depth.to(device), r.alpha.to(device)) for r in renders] if any_depth else [None] * len(views)
+    slope = any(c.depth_slope_margin > 0 for c in cfgs)
+    lookup = cfgs[0].depth_lookup
+    if any(c.depth_lookup != lookup for c in cfgs):
+        raise ValueError("carve_votes_many: every setting must use the same depth_lookup.")
+    depth = ([(r.depth.to(device), r.alpha.to(device),
+               depth_slack(r.depth.to(device), r.alpha.to(device), lookup=lookup) if slope else None)
+              for r in renders] if any_depth else [None] * len(views))  # fmt: skip
     shape = torch.as_tensor(grid.shape, device=device)
     for s0 in range(0, M, chunk):  # voxel centres once per chunk, then every view
         flat = torch.arange(s0, min(M, s0 + chunk), device=device)
@@ -189,10 +254,15 @@ def carve_votes_many(
                 ui = u.floor().long().clamp(0, view.width - 1)
                 vi = w.floor().long().clamp(0, view.height - 1)
                 d, a = dz[0][vi, ui], dz[1][vi, ui]
+                sl = dz[2][vi, ui] if dz[2] is not None else None
+                if lookup == "bilinear":
+                    d = _sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5)[0]
             for g, cfg in enumerate(cfgs):
                 vote = ok & (dist > cfg.mask_margin_px)
                 if dz is not None and cfg.use_depth:
                     margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
+                    if sl is not None and cfg.depth_slope_margin > 0:
+                        margin = margin + cfg.depth_slope_margin * sl
                     inside = ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha)
                     dvote = inside & (z < d - margin)
                     vote |= dvote

@@ -10,7 +10,17 @@
   it (Euclidean distance transform), i.e. it takes the nearest observed surface evidence.
 * **Parts.** Connected components (26-connectivity) of solid voxels sharing a dominant (argmax) material;
   parts below ``min_part_fraction`` of the object's volume are pooled into one residual part.
-* **Material draws within a part** (:func:`material_quantiles`). The mass's Monte Carlo draws one level
+* **A part's material** (:func:`pooled_part_alpha`, the default ``part_materials="pooled"``). A part is one
+  connected region whose voxels share their dominant material, i.e. one piece of one material. Its Dirichlet
+  is the weighted mean of its Gaussians' posteriors, ``alpha0 + mean(lambda * e_g)`` (weights: opacity x
+  observed share), and its mixture weights are taken from that pooled posterior (dominance or predictive, as
+  the field's). Averaging the Gaussians' *weights* instead (``"voxels"``) keeps every weakly observed
+  Gaussian's spread: at 16 views, with alpha0 = 1 over 10-28 candidates, a wooden table top came out 63% oak
+  with the rest spread over other materials, metals among them, and the metal tail alone doubled the part's
+  mean density. The pooled evidence is a typical member's (the mean, not the sum: the Gaussians of a part see
+  the same pixels, so summing would count each view many times). The whole part then switches material
+  together in the mass's Monte Carlo.
+* **Material draws within a part** (:func:`material_quantiles`, ``part_materials="voxels"``). The mass's Monte Carlo draws one level
   ``u ~ U(0, 1)`` per part and sample; each voxel of the part then takes the material where its own mixture's
   cumulative sum (materials in the order of the part's mean mixture) first reaches ``u``. Where the voxels are
   equally unsure (oak or walnut everywhere) the whole part switches together, which keeps the ambiguity in the
@@ -37,7 +47,7 @@ from torch import Tensor
 
 from .grid import VoxelGrid
 
-__all__ = ["PartGeometry", "material_quantiles", "part_areas", "part_labels", "voxel_mixture"]
+__all__ = ["PartGeometry", "material_quantiles", "part_areas", "part_labels", "pooled_part_alpha", "voxel_mixture"]
 
 
 def voxel_mixture(grid: VoxelGrid, solid: np.ndarray, means: Tensor, opacities: Tensor, pi: Tensor,
@@ -68,6 +78,29 @@ def voxel_mixture(grid: VoxelGrid, solid: np.ndarray, means: Tensor, opacities: 
     mix = acc[src]
     out[solid] = mix / mix.sum(-1, keepdims=True)
     return out
+
+
+def pooled_part_alpha(grid: VoxelGrid, parts: np.ndarray, num_parts: int, means: Tensor, opacities: Tensor,
+                      alpha: Tensor, observed: Tensor | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """float64 [P, K] pooled Dirichlet per part (module doc, "A part's material") and float64 [P] the summed
+    weight behind it (0: no Gaussian of the part carries evidence; its row is then undefined). A Gaussian
+    belongs to the part of the voxel that holds its centre."""
+    K = alpha.shape[1]
+    idx = grid.index_of(means.float()).cpu().numpy()
+    shape = np.asarray(grid.shape)
+    ok = ((idx >= 0) & (idx < shape)).all(1)
+    pid = np.full(len(idx), -1, np.int64)
+    pid[ok] = parts[tuple(idx[ok].T)]
+    w = opacities.double().reshape(-1)
+    if observed is not None:
+        w = w * observed.double().reshape(-1).clamp(0.0, 1.0)
+    w = w.cpu().numpy()
+    keep = (pid >= 0) & (w > 0)
+    acc = np.zeros((num_parts, K))
+    np.add.at(acc, pid[keep], w[keep, None] * alpha.double().cpu().numpy()[keep])
+    tot = np.bincount(pid[keep], weights=w[keep], minlength=num_parts).astype(np.float64)
+    pooled = np.divide(acc, tot[:, None], out=np.ones_like(acc), where=tot[:, None] > 0)
+    return pooled, tot
 
 
 def part_labels(solid: np.ndarray, mixture: np.ndarray, min_part_fraction: float = 2e-3) -> np.ndarray:

@@ -13,16 +13,17 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
 
+from ..bayes.mixture import material_mixture_weights
 from .capture import CaptureView, MaskObservation
 from .carve import CarveConfig, carve_votes_many, signed_mask_distance, solid_from_votes
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
-from .parts import PartGeometry, material_quantiles, part_areas, part_labels, voxel_mixture
+from .parts import PartGeometry, material_quantiles, part_areas, part_labels, pooled_part_alpha, voxel_mixture
 from .select import ObjectSelection, SelectConfig, select_object
 from .structure import PartStructure, StructureConfig, fuse_structure
 
@@ -45,14 +46,18 @@ class GeometryConfig:
     mask_margin_variants_px: tuple[float, ...] = (-0.5, 0.5)
     vote_variants: tuple[tuple[int, float], ...] = ((1, 0.1), (3, 0.25))
     """(min_votes, min_vote_fraction) pairs"""
-    depth_margin_variants: tuple[float, ...] = (0.5, 2.0)
-    """depth margins in voxels"""
+    depth_margin_variants: tuple[float, ...] = (-0.5, 1.0)
+    """depth margins in voxels (negative: also carve up to that much behind the rendered surface)"""
     pad_fraction: float = 0.1
     """domain padding around the object's Gaussians, as a fraction of their extent"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1"""
     min_part_fraction: float = 2e-3
+    part_materials: Literal["pooled", "voxels"] = "pooled"
+    """a part's material mixture: "pooled", from the mean of its Gaussians' Dirichlet posteriors (one piece of one
+    material); "voxels", the volume-weighted mean of its voxels' mixtures, each voxel drawing its own material
+    (:mod:`physgs_nerfstudio.geometry.parts`, "A part's material")"""
     min_voxel_evidence: float = 0.5
     """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
     (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
@@ -182,12 +187,15 @@ def reconstruct_object(
     cfg: GeometryConfig | None = None,
     *,
     material_names: Sequence[str] | None = None,
+    alpha: torch.Tensor | None = None,
+    material_weights: str = "dominant",
     progress: Any = None,
 ) -> ObjectGeometry:
     """Select, carve, split into parts and measure the object (module doc). ``g``: the Gaussians (activated
     ``means``, ``quats``, ``scales``, ``opacities``), ``pi``: their material mixture weights [N, K],
     ``library_thickness[k]``: material k's typical wall thickness in the library (None: solid),
-    ``material_names[k]``: the names observations use.
+    ``material_names[k]``: the names observations use; ``alpha``: their Dirichlet posteriors [N, K] and
+    ``material_weights`` the field's weighting, for ``part_materials="pooled"`` (None: "voxels").
     ``progress(stage: str)`` is called as stages start."""
     cfg = cfg or GeometryConfig()
     step = progress or (lambda _s: None)
@@ -238,6 +246,16 @@ def reconstruct_object(
     if empty.any():
         np.add.at(pm, parts[union], mixture[union] * empty[parts[union]][:, None])
     pm /= pm.sum(1, keepdims=True)
+    levels: np.ndarray | None = None  # one material per part and sample, from its pooled mixture
+    if cfg.part_materials == "voxels" or alpha is None:
+        levels = material_quantiles(parts, mixture, P, pm)
+    else:
+        pooled, support = pooled_part_alpha(grid, parts, P, g.means[sel], g.opacities[sel], alpha[sel],
+                                            labelled[sel] if labelled is not None else None)
+        has = support > 0
+        if has.any():
+            w = material_mixture_weights(torch.from_numpy(pooled[has]), material_weights)  # type: ignore[arg-type]
+            pm[has] = w.double().numpy()
     sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else cfg.carve.depth_margin_voxels + 1.0
     geos: list[PartGeometry] = [part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet) for s in solids]
     step("structure")
@@ -250,5 +268,5 @@ def reconstruct_object(
         grid=grid, solid=solids[0], parts=parts, part_mixture=pm, mixture=mixture, variant_names=names,
         volumes=np.stack([gm.volume for gm in geos]), areas=np.stack([gm.area for gm in geos]),
         sheet_share=geos[0].sheet_share, structure=structure, selection=selection, views_used=len(views),
-        mask_sources=sources, material_levels=material_quantiles(parts, mixture, P, pm),
+        mask_sources=sources, material_levels=levels,
     )  # fmt: skip
