@@ -35,6 +35,8 @@ def _train(pipe: PhysGSPipeline, start: int, iterations: int) -> None:
         ({"lift_at_end": False}, 0, 30, [15]),
         ({}, 20, 30, [49]),  # resumed after the lifting step: the last step counts from the resumed start
         ({}, 0, 16, [15]),  # the lifting step is the last iteration: lifted once
+        ({"lifting_every": 10}, 0, 30, [10, 15, 20, 29]),  # periodic lifting on top of the others
+        ({"lifting_every": 15}, 0, 31, [15, 30]),  # a step that is due twice lifts once
     ],
 )
 def test_lifting_schedule(config, start, iterations, expected) -> None:
