@@ -254,6 +254,9 @@ def test_densification_keeps_the_head_tensors_in_sync(blob_dm, head) -> None:
     assert n1 == n0 + 5 + 3 - 1
     for name, p in model.gauss_params.items():
         assert p.shape[0] == n1, name
+    again = model._strategy_optimizers()  # the no-op optimizers are kept: the ops swapped their tensors
+    assert again[EVIDENCE_KEY] is optim[EVIDENCE_KEY]
+    assert again[EVIDENCE_KEY].param_groups[0]["params"][0] is model.gauss_params[EVIDENCE_KEY]
     counts = torch.bincount(model.gauss_params[EVIDENCE_KEY][:, 0].round().long(), minlength=n0)
     assert torch.all(counts[:5] == 2) and counts[5:8].tolist() == [2, 2, 1] and torch.all(counts[8:] == 1)
     if head == "latent":

@@ -400,8 +400,13 @@ class PhysGSModel(SplatfactoModel):
     # ------------------------------------------------------------------ densification
     def _strategy_optimizers(self) -> dict[str, torch.optim.Optimizer]:
         """nerfstudio's optimizers plus no-op ones for the lifted tensors, since gsplat's strategy ops update
-        every `gauss_params` entry through an optimizer (these are never stepped)."""
-        noop = {k: torch.optim.SGD([self.gauss_params[k]], lr=0.0) for k in NON_TRAINABLE_KEYS}
+        every `gauss_params` entry through an optimizer (these are never stepped). The no-op optimizers are built
+        once and kept while they hold the current tensors (the strategy's ops swap the tensors inside them;
+        building three optimizers on every step cost host time in each training iteration)."""
+        noop = getattr(self, "_noop_optimizers", None)
+        if noop is None or any(noop[k].param_groups[0]["params"][0] is not self.gauss_params[k] for k in noop):
+            noop = {k: torch.optim.SGD([self.gauss_params[k]], lr=0.0) for k in NON_TRAINABLE_KEYS}
+            self._noop_optimizers = noop
         return {**self.optimizers, **noop}
 
     def step_post_backward(self, step):
