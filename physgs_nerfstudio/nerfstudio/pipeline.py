@@ -165,4 +165,7 @@ class PhysGSPipeline(VanillaPipeline):
         every = self.config.lifting_every
         periodic = every > 0 and step > 0 and step % every == 0
         if step == self.lifting_step or periodic or (self.config.lift_at_end and step == last):
+            # the iteration's parameter gradients are spent (the optimizers stepped; the next iteration zeroes
+            # them): free them so that the lifting's peak memory does not stack on them
+            self.model.zero_grad(set_to_none=True)
             self.lift()
