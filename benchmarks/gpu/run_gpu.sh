@@ -44,7 +44,7 @@ case "${1:-kernels}" in
     ;;
   profile)
     make_scene 2>&1 | tail -3
-    (cd benchmarks/gpu && python3 profile_training.py --data "$SCENE") 2>&1 | grep -v Warning \
+    (cd benchmarks/gpu && python3 profile_training.py --data "$SCENE" ${METHODS:+--methods $METHODS}) 2>&1 | grep -v Warning \
       > "$OUT/profile.txt"; tail -5 "$OUT/profile.txt"
     ;;
   perf)
