@@ -97,6 +97,8 @@ def test_each_head_trains_and_renders_the_same_outputs(blob_dm, head) -> None:
     assert not others & set(model.gauss_params), "only the configured head's tensor exists"
     groups = model.get_param_groups()
     assert (DECODER_GROUP in groups) == (head == "latent")
+    for name in dir(model):  # nerfstudio's viewer reads every attribute of the model: none may raise
+        getattr(model, name)
     cam, batch = blob_dm.next_train(0)
     model.train()
     out = model.get_outputs(cam)

@@ -339,9 +339,10 @@ class PhysGSModel(SplatfactoModel):
         return self.gauss_params[EVIDENCE_KEY].shape[1]
 
     @property
-    def material_logits(self) -> Tensor:
-        """The "logits" head's per-Gaussian logits [N, K] (KeyError under another head)."""
-        return self.gauss_params[LOGITS_KEY]
+    def material_logits(self) -> Tensor | None:
+        """The "logits" head's per-Gaussian logits [N, K]; None under another head (a property must not raise:
+        nerfstudio's viewer reads every attribute of the model)."""
+        return self.gauss_params[LOGITS_KEY] if LOGITS_KEY in self.gauss_params else None
 
     def _head_width(self) -> int:
         key = HEAD_TENSORS[self.material_head]
