@@ -19,9 +19,10 @@ Per Gaussian g, on top of splatfacto's parameters:
 How the two combine: the Dirichlet posterior is *the* Bayesian belief used for every physical property and
 its uncertainty (mixture predictive over the per-material NIG posteriors of `materials.json`,
 `bayes.property_fields`); the logits (or latent features) only drive the rendered material map (they are a
-point estimate fit by gradient descent, good at pixel-sharp boundaries, with no calibrated uncertainty). The pipeline lifts when
-densification stops (its `lifting_step`, default `stop_split_at`), at the last training iteration and on demand
-(`PhysGSPipeline.lift()`); before the first lifting every Gaussian shows the prior.
+point estimate fit by gradient descent, good at pixel-sharp boundaries, with no calibrated uncertainty). The
+pipeline lifts when densification stops (its `lifting_step`, default `stop_split_at`), every `lifting_every`
+steps if set, at the last training iteration and on demand (`PhysGSPipeline.lift()`); before the first lifting
+every Gaussian shows the prior.
 
 Lifting also records, per Gaussian, its total (per-view normalised) blending weight `lifting_weight` [N, 1]
 and the part of it that fell on labelled pixels (label != 0, whatever the confidence) `labelled_weight`
@@ -213,8 +214,7 @@ class PhysGSModel(SplatfactoModel):
         self.register_buffer("material_colors", legend.colors.clone().reshape(K, 3))
         self.register_buffer("lifted_views", torch.zeros((), dtype=torch.long))
         self.gauss_params = self._initial_gaussians(K)
-        self.material_head: str = "lifted"
-        self.material_decoder: torch.nn.Linear | None = None
+        self.material_decoder: torch.nn.Linear | None = None  # (the "latent" head's; `_set_material_head`)
         self._set_material_head(self.config.material_head, self.config.material_latent_dim)
         self._populate_training_modules()
         self._populate_viewer()
@@ -342,7 +342,7 @@ class PhysGSModel(SplatfactoModel):
     def material_logits(self) -> Tensor | None:
         """The "logits" head's per-Gaussian logits [N, K]; None under another head (a property must not raise:
         nerfstudio's viewer reads every attribute of the model)."""
-        return self.gauss_params[LOGITS_KEY] if LOGITS_KEY in self.gauss_params else None
+        return self.gauss_params.get(LOGITS_KEY)
 
     def _head_width(self) -> int:
         key = HEAD_TENSORS[self.material_head]
