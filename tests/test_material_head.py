@@ -217,6 +217,7 @@ def test_old_run_loads_for_export_under_another_default(tmp_path, monkeypatch) -
     config = physgs_lite_trainer_config()
     config.pipeline.datamanager.data = tmp_path / "data"
     config.pipeline.model.sh_degree = 1
+    config.pipeline.model.material_head = "logits"  # the head runs had before the field existed
     config.output_dir, config.timestamp = tmp_path / "outputs", "t"
     config.set_experiment_name()
     pipeline = config.pipeline.setup(device="cpu", test_mode="val")
