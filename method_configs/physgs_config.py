@@ -27,7 +27,8 @@ from physgs_nerfstudio.nerfstudio.schedulers import FloatExponentialDecaySchedul
 
 
 def _optimizers(max_steps: int, material_lr: float) -> dict[str, dict]:
-    """splatfacto-big's optimizers (nerfstudio 1.1.5) plus one for the per-Gaussian material logits."""
+    """splatfacto-big's optimizers (nerfstudio 1.1.5) plus those of the material heads (the groups of the head
+    a run does not use are never built)."""
     return {
         "means": {
             "optimizer": AdamOptimizerConfig(lr=1.6e-4, eps=1e-15),
@@ -39,6 +40,9 @@ def _optimizers(max_steps: int, material_lr: float) -> dict[str, dict]:
         "scales": {"optimizer": AdamOptimizerConfig(lr=0.005, eps=1e-15), "scheduler": None},
         "quats": {"optimizer": AdamOptimizerConfig(lr=0.001, eps=1e-15), "scheduler": None},
         "material_logits": {"optimizer": AdamOptimizerConfig(lr=material_lr, eps=1e-15), "scheduler": None},
+        # the "latent" material head (PhysGSModelConfig.material_head): per-Gaussian features and their decoder
+        "material_features": {"optimizer": AdamOptimizerConfig(lr=material_lr, eps=1e-15), "scheduler": None},
+        "material_decoder": {"optimizer": AdamOptimizerConfig(lr=material_lr, eps=1e-15), "scheduler": None},
         "camera_opt": {
             "optimizer": AdamOptimizerConfig(lr=1e-4, eps=1e-15),
             "scheduler": FloatExponentialDecaySchedulerConfig(
@@ -64,7 +68,7 @@ class Preset:
     steps_per_save: int = 2000
     steps_per_eval_all_images: int = 1000
     material_lr: float = 0.005
-    """learning rate of the per-Gaussian material logits"""
+    """learning rate of the per-Gaussian material logits (or latent features and their decoder)"""
     model: dict[str, Any] = field(default_factory=dict)
     """PhysGSModelConfig fields that differ from its defaults (splatfacto-big + the property head)"""
 

@@ -31,6 +31,9 @@ def blob_dm(tmp_path_factory):
 
 
 def make_model(dm, **config) -> PhysGSModel:
+    """A model with the "logits" material head (these tests are about its logits; test_material_head.py covers
+    every head), whatever the default head is."""
+    config.setdefault("material_head", "logits")
     cfg = PhysGSModelConfig(sh_degree=1, num_downscales=0, **config)
     meta = dm.train_dataparser_outputs.metadata
     model = cfg.setup(

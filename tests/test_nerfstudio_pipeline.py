@@ -15,9 +15,11 @@ def _pipeline(**config) -> tuple[PhysGSPipeline, list[int]]:
     """A pipeline without a datamanager or model (only the schedule runs): `lift` records the step."""
     pipe = PhysGSPipeline.__new__(PhysGSPipeline)  # skips VanillaPipeline.__init__ (data, model)
     pipe.config = PhysGSPipelineConfig(**config)
-    pipe._model = SimpleNamespace(config=SimpleNamespace(stop_split_at=15))
     lifted: list[int] = []
-    pipe.lift = lambda: lifted.append(pipe._step)  # type: ignore[method-assign]
+    freed: list[int] = []  # steps whose parameter gradients were freed (before the lifting)
+    pipe._model = SimpleNamespace(config=SimpleNamespace(stop_split_at=15),
+                                  zero_grad=lambda set_to_none: freed.append(pipe._step) if set_to_none else None)
+    pipe.lift = lambda: lifted.append(pipe._step) if freed[-1:] == [pipe._step] else None  # type: ignore[method-assign]
     return pipe, lifted
 
 
@@ -35,6 +37,8 @@ def _train(pipe: PhysGSPipeline, start: int, iterations: int) -> None:
         ({"lift_at_end": False}, 0, 30, [15]),
         ({}, 20, 30, [49]),  # resumed after the lifting step: the last step counts from the resumed start
         ({}, 0, 16, [15]),  # the lifting step is the last iteration: lifted once
+        ({"lifting_every": 10}, 0, 30, [10, 15, 20, 29]),  # periodic lifting on top of the others
+        ({"lifting_every": 15}, 0, 31, [15, 30]),  # a step that is due twice lifts once
     ],
 )
 def test_lifting_schedule(config, start, iterations, expected) -> None:

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 from PIL import Image
 from test_nerfstudio_fixtures import write_synth_scene
@@ -34,7 +35,9 @@ def _ns_train() -> list[str]:
     return [exe] if exe else [sys.executable, "-m", "nerfstudio.scripts.train"]
 
 
-def test_ns_train_physgs_lite_end_to_end(tmp_path: Path) -> None:
+@pytest.mark.parametrize("head", ["logits", pytest.param("latent", marks=pytest.mark.slow),
+                                  pytest.param("lifted", marks=pytest.mark.slow)])  # fmt: skip
+def test_ns_train_physgs_lite_end_to_end(tmp_path: Path, head: str) -> None:
     data = tmp_path / "mug"
     gt = write_synth_scene(data, resolution=64, views=24)
     out_dir = tmp_path / "outputs"
@@ -42,6 +45,7 @@ def test_ns_train_physgs_lite_end_to_end(tmp_path: Path) -> None:
         "physgs-lite", "--data", str(data), "--machine.device-type", "cpu",
         "--max-num-iterations", str(ITERATIONS), "--viewer.quit-on-train-completion", "True",
         "--viewer.websocket-port", str(_free_port()), "--output-dir", str(out_dir),
+        "--pipeline.model.material-head", head,
     ]  # fmt: skip
     env = dict(os.environ, OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "1"))
     t0 = time.perf_counter()
@@ -62,7 +66,8 @@ def test_ns_train_physgs_lite_end_to_end(tmp_path: Path) -> None:
     model = pipeline.model
     assert step == ITERATIONS - 1
     # the property head is restored: same tensors as the checkpoint, lifted from the training views
-    for key in ("dirichlet_evidence", "lifting_weight", "material_logits"):
+    assert model.material_head == head
+    for key in ("dirichlet_evidence", "lifting_weight", *model.trainable_head_keys):
         assert torch.equal(model.gauss_params[key].detach(), saved[f"_model.gauss_params.{key}"]), key
     assert int(model.lifted_views) == len(pipeline.datamanager.train_dataset) > 0
     assert float(model.dirichlet_evidence.sum()) > 0
@@ -82,7 +87,7 @@ def test_ns_train_physgs_lite_end_to_end(tmp_path: Path) -> None:
         for key in ("density", "stiffness", "epistemic", "total_uncertainty"):
             assert out[key].shape == (*truth.shape, 3) and torch.isfinite(out[key]).all()
     acc = float(np.mean(accs))
-    report = {"train_s": round(train_s, 1), "eval_views": len(accs), "fg_material_acc": round(acc, 4),
+    report = {"head": head, "train_s": round(train_s, 1), "eval_views": len(accs), "fg_material_acc": round(acc, 4),
               "bg_unknown_frac": round(float(np.mean(bg_ok)), 4), "num_gaussians": model.num_points}  # fmt: skip
     print("PHYSGS_NS_TRAIN_REPORT", json.dumps(report))
     assert acc > 0.75, report

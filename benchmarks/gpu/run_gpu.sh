@@ -5,6 +5,8 @@
 #   BASE=../other_checkout bash benchmarks/gpu/run_gpu.sh perf  # issue 13: exports before/after
 #   bash benchmarks/gpu/run_gpu.sh perf-training                  # issue 13: training cost on the same scene
 #   SEEDS="404 505" bash benchmarks/gpu/run_gpu.sh suite          # issue 12: CPU mass suite + gsplat build
+#   bash benchmarks/gpu/run_gpu.sh mem       # issue 13: memory and iteration cost of the material heads (chair)
+#   HEAD=lifted bash benchmarks/gpu/run_gpu.sh full   # the full run with another material head
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
 set -uo pipefail
@@ -43,7 +45,7 @@ case "${1:-kernels}" in
     ;;
   profile)
     make_scene 2>&1 | tail -3
-    (cd benchmarks/gpu && python3 profile_training.py --data "$SCENE") 2>&1 | grep -v Warning \
+    (cd benchmarks/gpu && python3 profile_training.py --data "$SCENE" ${METHODS:+--methods $METHODS}) 2>&1 | grep -v Warning \
       > "$OUT/profile.txt"; tail -5 "$OUT/profile.txt"
     ;;
   perf)
@@ -86,9 +88,22 @@ case "${1:-kernels}" in
     mkdir -p "$OUT/gsplat_cuda"; cp .gsplat_build/gsplat_cuda/gsplat_cuda.so .gsplat_build/gsplat_cuda/physgs_build_stamp.json \
       "$OUT/gsplat_cuda/" 2>/dev/null; cat "$OUT/gsplat_build.txt" 2>/dev/null; echo "[$(elapsed) s] done"
     ;;
-  full)
+  mem)
+    # issue 13 (about 5-8 minutes on an H100 with a carried gsplat build): each method in its own process on the
+    # chair scene; per method iteration time, peak memory per phase, static bytes, liftings, eval material accuracy
+    make_scene 2>&1 | tail -3 | tee "$OUT/scene.log"
+    echo "[$(elapsed) s] scene"
+    # the fifth: the lifted head with its liftings rendered 8 channels at a time, and lifted every 500 steps
+    METHODS=${METHODS:-"splatfacto-big physgs physgs:material_head=latent physgs:material_head=lifted
+      physgs:material_head=lifted,lift_channel_chunk=8,lifting_every=500"}
+    python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps ${TRAIN_STEPS:-1500} --warmup 300 \
+      --methods $METHODS --out "$OUT/mem.json" 2>&1 | grep -v Warning | tee "$OUT/mem.log" | tail -8
+    echo "[$(elapsed) s] done"
+    ;;
+  full)  # HEAD=latent|lifted: another material head; LIFT_EVERY=N: lift every N steps as well
     make_scene 2>&1 | tail -5
     python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations 7000 --vis tensorboard \
+      ${HEAD:+--pipeline.model.material-head $HEAD} ${LIFT_EVERY:+--pipeline.lifting-every $LIFT_EVERY} \
       --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -5 | tee "$OUT/full_train.log"
     CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml)
     python3 -m nerfstudio.scripts.eval --load-config "$CFG" --output-path "$OUT/full_eval.json" 2>&1 | tail -5

@@ -8,3 +8,6 @@ WEIGHT_KEY = "lifting_weight"
 LABELLED_KEY = "labelled_weight"
 NON_TRAINABLE_KEYS = (EVIDENCE_KEY, WEIGHT_KEY, LABELLED_KEY)
 LOGITS_KEY = "material_logits"
+FEATURES_KEY = "material_features"
+DECODER_GROUP = "material_decoder"
+"""optimizer param group (and submodule name) of the "latent" head's decoder"""

@@ -2,9 +2,12 @@
 
 Per Gaussian g, on top of splatfacto's parameters:
 
-- `material_logits` [N, K] (trainable, in `gauss_params`): rendered as K extra colour channels in the same
-  rasterization as RGB (+ depth) and trained with a confidence-weighted cross-entropy against the material
-  label maps. The rendered logits give the `material` output (argmax, legend colours).
+- the material head's tensor (`material_head`, module `material_head`): "logits", `material_logits` [N, K]
+  (trainable, in `gauss_params`), rendered as K colour channels in a pass of their own every `material_every`
+  steps and trained with a confidence-weighted cross-entropy against the material label maps; "latent",
+  `material_features` [N, d] rendered the same way and decoded per pixel by `material_decoder` (Linear d -> K);
+  "lifted", none (the map is rendered from the lifted evidence below). The rendered logits give the
+  `material` output (argmax, legend colours).
 - `dirichlet_evidence` [N, K] (not trainable, in `gauss_params` so densification splits / clones / prunes it
   with everything else; children of a split inherit their parent's evidence): the lifted evidence
   e_gk = sum over training pixels of (T * alpha)_g(pixel) * confidence(pixel) * [label(pixel) = k],
@@ -15,10 +18,11 @@ Per Gaussian g, on top of splatfacto's parameters:
 
 How the two combine: the Dirichlet posterior is *the* Bayesian belief used for every physical property and
 its uncertainty (mixture predictive over the per-material NIG posteriors of `materials.json`,
-`bayes.property_fields`); the logits only drive the rendered material map (they are a point estimate fit by
-gradient descent, good at pixel-sharp boundaries, with no calibrated uncertainty). The pipeline lifts when
-densification stops (its `lifting_step`, default `stop_split_at`), at the last training iteration and on demand
-(`PhysGSPipeline.lift()`); before the first lifting every Gaussian shows the prior.
+`bayes.property_fields`); the logits (or latent features) only drive the rendered material map (they are a
+point estimate fit by gradient descent, good at pixel-sharp boundaries, with no calibrated uncertainty). The
+pipeline lifts when densification stops (its `lifting_step`, default `stop_split_at`), every `lifting_every`
+steps if set, at the last training iteration and on demand (`PhysGSPipeline.lift()`); before the first lifting
+every Gaussian shows the prior.
 
 Lifting also records, per Gaussian, its total (per-view normalised) blending weight `lifting_weight` [N, 1]
 and the part of it that fell on labelled pixels (label != 0, whatever the confidence) `labelled_weight`
@@ -26,7 +30,8 @@ and the part of it that fell on labelled pixels (label != 0, whatever the confid
 Gaussians the material maps leave unknown (`physgs export` selects the object with it). Confidence is kept
 out of it on purpose: a labelled pixel of a low-confidence answer is still a pixel of the labelled object.
 
-The `material` output shows the argmax of the rendered logits where the accumulated opacity exceeds
+The `material` output shows the argmax of the rendered logits (the "lifted" head: of the composited Dirichlet
+predictive, nothing before the first lifting) where the accumulated opacity exceeds
 `material_alpha_thresh` and, once lifted, where the composited labelled fraction exceeds
 `material_min_labelled`; elsewhere the background colour (label 0). `material_id` (float label, [H, W, 1])
 carries the same map for metrics.
@@ -70,8 +75,9 @@ from physgs_nerfstudio.viewer.display import (
     viewer_outputs,
 )
 
-from .keys import EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY
+from .keys import DECODER_GROUP, EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY
 from .legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
+from .material_head import HEAD_TENSORS, MaterialHead, checkpoint_head, head_width, make_decoder, predictive
 
 PROPERTY_OUTPUTS = ("density", "friction", "hardness", "stiffness")
 UNCERTAINTY_OUTPUTS = ("aleatoric", "epistemic", "total_uncertainty")
@@ -89,6 +95,14 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     random_scale: float = 2.0
     """Size of the cube for random initialisation (paper: 2.0)."""
     background_color: Literal["random", "black", "white"] = "random"
+    material_head: MaterialHead = "logits"
+    """What carries each Gaussian's material for the rendered `material` map (`nerfstudio/material_head.py`,
+    docs/architecture.md "Material head"): "logits", K trainable logits per Gaussian; "latent",
+    `material_latent_dim` trainable features per Gaussian decoded per pixel by a Linear d -> K; "lifted", nothing
+    trainable and no material pass: the composited Dirichlet predictive of the lifted evidence (no material before
+    the first lifting; see the pipeline's `lifting_every`). A checkpoint loads under any head (it keeps its own)."""
+    material_latent_dim: int = 8
+    """Features per Gaussian of the "latent" head (8: a channel count gsplat renders without padding)."""
     material_loss_weight: float = 0.1
     """Weight of the confidence-weighted cross-entropy between rendered logits and the label maps."""
     material_every: int = 8
@@ -200,6 +214,8 @@ class PhysGSModel(SplatfactoModel):
         self.register_buffer("material_colors", legend.colors.clone().reshape(K, 3))
         self.register_buffer("lifted_views", torch.zeros((), dtype=torch.long))
         self.gauss_params = self._initial_gaussians(K)
+        self.material_decoder: torch.nn.Linear | None = None  # (the "latent" head's; `_set_material_head`)
+        self._set_material_head(self.config.material_head, self.config.material_latent_dim)
         self._populate_training_modules()
         self._populate_viewer()
 
@@ -247,7 +263,6 @@ class PhysGSModel(SplatfactoModel):
                 "features_dc": Parameter(features_dc),
                 "features_rest": Parameter(features_rest),
                 "opacities": Parameter(torch.logit(0.1 * torch.ones(n, 1))),
-                LOGITS_KEY: Parameter(torch.zeros(n, K)),
                 EVIDENCE_KEY: Parameter(torch.zeros(n, K), requires_grad=False),
                 WEIGHT_KEY: Parameter(torch.zeros(n, 1), requires_grad=False),
                 LABELLED_KEY: Parameter(torch.zeros(n, 1), requires_grad=False),
@@ -302,13 +317,42 @@ class PhysGSModel(SplatfactoModel):
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
 
-    @property
-    def num_materials(self) -> int:
-        return self.gauss_params[LOGITS_KEY].shape[1]
+    def _set_material_head(self, head: str, latent_dim: int) -> None:
+        """Make `head` the model's material head (module `material_head`): its per-Gaussian tensor (zeros, as
+        many rows as the Gaussians) replaces any other head's, and the decoder exists only for "latent"."""
+        K, n, device = self.num_materials, self.num_points, self.gauss_params["means"].device
+        width = head_width(head, K, latent_dim)
+        key = HEAD_TENSORS[head]
+        for other in filter(None, HEAD_TENSORS.values()):
+            if other in self.gauss_params and other != key:
+                del self.gauss_params[other]
+        if key is not None and (key not in self.gauss_params or self.gauss_params[key].shape[1] != width):
+            self.gauss_params[key] = Parameter(torch.zeros(n, width, device=device))
+        if head != "latent":
+            self.material_decoder = None
+        elif self.material_decoder is None or self.material_decoder.in_features != width:
+            self.material_decoder = make_decoder(width, K).to(device)
+        self.material_head = head
 
     @property
-    def material_logits(self) -> Tensor:
-        return self.gauss_params[LOGITS_KEY]
+    def num_materials(self) -> int:
+        return self.gauss_params[EVIDENCE_KEY].shape[1]
+
+    @property
+    def material_logits(self) -> Tensor | None:
+        """The "logits" head's per-Gaussian logits [N, K]; None under another head (a property must not raise:
+        nerfstudio's viewer reads every attribute of the model)."""
+        return self.gauss_params.get(LOGITS_KEY)
+
+    def _head_width(self) -> int:
+        key = HEAD_TENSORS[self.material_head]
+        return 0 if key is None else int(self.gauss_params[key].shape[1])
+
+    @property
+    def trainable_head_keys(self) -> tuple[str, ...]:
+        """The head's trainable per-Gaussian tensor in `gauss_params`, if any."""
+        key = HEAD_TENSORS[self.material_head]
+        return () if key is None else (key,)
 
     @property
     def dirichlet_evidence(self) -> Tensor:
@@ -327,9 +371,21 @@ class PhysGSModel(SplatfactoModel):
         return bool(getattr(self, "_labelled_legacy", False))
 
     def get_gaussian_param_groups(self) -> dict[str, list[Parameter]]:
-        return {name: [self.gauss_params[name]] for name in (*_SPLATFACTO_PARAMS, LOGITS_KEY)}
+        return {name: [self.gauss_params[name]] for name in (*_SPLATFACTO_PARAMS, *self.trainable_head_keys)}
+
+    def get_param_groups(self) -> dict[str, list[Parameter]]:
+        """splatfacto's groups (Gaussians, bilateral grid, camera) plus the "latent" head's decoder."""
+        groups = super().get_param_groups()
+        if self.material_decoder is not None:
+            groups[DECODER_GROUP] = list(self.material_decoder.parameters())
+        return groups
 
     def load_state_dict(self, dict, **kwargs):  # type: ignore
+        saved = checkpoint_head(dict)
+        if saved is not None and (saved[0] != self.material_head or saved[1] != self._head_width()):
+            CONSOLE.log(f"checkpoint written with material_head={saved[0]!r}: the model uses it "
+                        f"(configured: {self.material_head!r})")  # fmt: skip
+            self._set_material_head(saved[0], saved[1] or self.config.material_latent_dim)
         key = f"gauss_params.{LABELLED_KEY}"
         self._labelled_legacy = key not in dict and f"gauss_params.{EVIDENCE_KEY}" in dict
         if self._labelled_legacy:  # checkpoint older than labelled_weight: its confidence-weighted stand-in
@@ -345,8 +401,13 @@ class PhysGSModel(SplatfactoModel):
     # ------------------------------------------------------------------ densification
     def _strategy_optimizers(self) -> dict[str, torch.optim.Optimizer]:
         """nerfstudio's optimizers plus no-op ones for the lifted tensors, since gsplat's strategy ops update
-        every `gauss_params` entry through an optimizer (these are never stepped)."""
-        noop = {k: torch.optim.SGD([self.gauss_params[k]], lr=0.0) for k in NON_TRAINABLE_KEYS}
+        every `gauss_params` entry through an optimizer (these are never stepped). The no-op optimizers are built
+        once and kept while they hold the current tensors (the strategy's ops swap the tensors inside them;
+        building three optimizers on every step cost host time in each training iteration)."""
+        noop = getattr(self, "_noop_optimizers", None)
+        if noop is None or any(noop[k].param_groups[0]["params"][0] is not self.gauss_params[k] for k in noop):
+            noop = {k: torch.optim.SGD([self.gauss_params[k]], lr=0.0) for k in NON_TRAINABLE_KEYS}
+            self._noop_optimizers = noop
         return {**self.optimizers, **noop}
 
     def step_post_backward(self, step):
@@ -487,8 +548,9 @@ class PhysGSModel(SplatfactoModel):
         def crop(t: Tensor) -> Tensor:
             return t if crop_ids is None else t[crop_ids]
 
-        channels = [self._view_colors(c2w, crop), crop(self.material_logits)]
         lifted = bool(self.lifted_views > 0)
+        head = self._eval_head_channels(lifted)
+        channels = [self._view_colors(c2w, crop), *([crop(head)] if head is not None else [])]
         if lifted:  # share of labelled pixels among those each Gaussian was seen in
             channels.append(crop(self.labelled_fraction()).float())
         prop_names: list[str] = []
@@ -515,30 +577,44 @@ class PhysGSModel(SplatfactoModel):
             "accumulation": alpha,
             "background": background.expand(H, W, 3) if background.shape[0] == 3 else background,
         }
-        K = self.num_materials
-        extra = render[..., 3 + K : -1]
+        C = 0 if head is None else head.shape[1]
+        extra = render[..., 3 + C : -1]
         if lifted:
             labelled, extra = extra[..., :1] / alpha.clamp_min(1e-10), extra[..., 1:]
         else:
             labelled = None
-        out.update(self._material_outputs(render[..., 3 : 3 + K], labelled, alpha, background))
+        logits = None if head is None else self._decode(render[..., 3 : 3 + C])
+        out.update(self._material_outputs(logits, labelled, alpha, background))
         out.update(self._property_outputs(prop_names, extra, out["rgb"]))
         return out
 
+    def _eval_head_channels(self, lifted: bool) -> Float[Tensor, "n c"] | None:
+        """Per-Gaussian channels the evaluation pass renders for the `material` map: the "logits" head's logits,
+        the "latent" head's features (decoded per pixel), the "lifted" head's Dirichlet predictive once lifted
+        (None before: no material)."""
+        key = HEAD_TENSORS[self.material_head]
+        if key is not None:
+            return self.gauss_params[key]
+        return predictive(self.dirichlet_alpha()) if lifted else None
+
     def _material_outputs(
         self,
-        logits: Float[Tensor, "h w k"],
+        logits: Float[Tensor, "h w k"] | None,
         labelled: Float[Tensor, "h w 1"] | None,
         alpha: Float[Tensor, "h w 1"],
         background: Tensor,
     ) -> dict[str, Tensor]:
         """`material` (legend colours) and `material_id` (label, 0 = background): the argmax of the rendered
         logits where the opacity exceeds `material_alpha_thresh` and, once lifted (`labelled` given), where the
-        composited labelled fraction exceeds `material_min_labelled` (label 0 stays unknown)."""
+        composited labelled fraction exceeds `material_min_labelled` (label 0 stays unknown). No `logits` (the
+        "lifted" head before its first lifting): label 0 everywhere."""
         known = alpha > self.config.material_alpha_thresh  # [H, W, 1]
         if labelled is not None:
             known = known & (labelled > self.config.material_min_labelled)
-        label = torch.where(known[..., 0], logits.argmax(-1) + 1, 0)  # [H, W]
+        if logits is None:
+            label = torch.zeros_like(known[..., 0], dtype=torch.long)
+        else:
+            label = torch.where(known[..., 0], logits.argmax(-1) + 1, 0)  # [H, W]
         palette = torch.cat([background[None].to(self.material_colors), self.material_colors], dim=0)
         return {"material": palette[label], "material_id": label[..., None].float()}
 
@@ -588,16 +664,27 @@ class PhysGSModel(SplatfactoModel):
         if with_depth:
             depth = torch.where(alpha > 0, render[..., 3:4], render[..., 3:4].detach().max())
         out: dict[str, Any] = {"rgb": rgb, "depth": depth, "accumulation": alpha, "background": background}
-        every = max(1, self.config.material_every)
-        if self.config.material_loss_weight > 0 and self.step % every == 0:
+        if self.material_pass_due():
             md = max(1, self.config.material_downscale)
             Wm, Hm = max(1, W // md), max(1, H // md)
             Km = Ks.clone()
             Km[:, :2] *= torch.tensor([Wm / W, Hm / H], device=Ks.device, dtype=Ks.dtype)[:, None]
-            logits, _, _ = rasterize(colors=self.material_logits, Ks=Km, width=Wm, height=Hm, render_mode="RGB",
-                                     **geometry)  # fmt: skip
-            out[LOGITS_KEY] = logits[0]
+            (key,) = self.trainable_head_keys
+            rendered, _, _ = rasterize(colors=self.gauss_params[key], Ks=Km, width=Wm, height=Hm, render_mode="RGB",
+                                       **geometry)  # fmt: skip
+            out[LOGITS_KEY] = self._decode(rendered[0])
         return out
+
+    def material_pass_due(self) -> bool:
+        """Whether this training step renders the head's trainable tensor (every `material_every` steps, for the
+        "logits" and "latent" heads with a material loss; never for "lifted")."""
+        every = max(1, self.config.material_every)
+        return bool(self.trainable_head_keys) and self.config.material_loss_weight > 0 and self.step % every == 0
+
+    def _decode(self, rendered: Float[Tensor, "h w c"]) -> Float[Tensor, "h w k"]:
+        """Per-pixel material logits from the rendered head channels (the "latent" head's decoder; the "logits"
+        head's channels are the logits)."""
+        return rendered if self.material_decoder is None else self.material_decoder(rendered)
 
     # ------------------------------------------------------------------ losses and metrics
     def _batch_material(self, batch: dict[str, Any], height: int, width: int) -> tuple[Tensor, Tensor]:

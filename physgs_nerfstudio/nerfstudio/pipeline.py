@@ -1,8 +1,8 @@
 """`PhysGSPipeline`: nerfstudio's VanillaPipeline plus the lifting of the material maps onto the Gaussians.
 
 The pipeline owns the work done at set steps (docs/architecture.md, "The nerfstudio method"): when
-densification stops (`lifting_step`, default the model's `stop_split_at`) and at the last training iteration
-(`lift_at_end`) it computes the evidence with `physgs_nerfstudio.lifting.lift_evidence` over the
+densification stops (`lifting_step`, default the model's `stop_split_at`), every `lifting_every` steps if set,
+and at the last training iteration (`lift_at_end`) it computes the evidence with `physgs_nerfstudio.lifting.lift_evidence` over the
 datamanager's training views (`lift_material_maps`) and hands it to the model through its one public method,
 `PhysGSModel.set_material_evidence`. `PhysGSPipeline.lift()` does the same on demand.
 
@@ -45,6 +45,14 @@ class PhysGSPipelineConfig(VanillaPipelineConfig):
     (densification end)."""
     lift_at_end: bool = True
     """Lift again at the last training iteration (so the checkpoint's evidence matches the final Gaussians)."""
+    lifting_every: int = 0
+    """Also lift every this many steps during training (0 = off), so that the viewer shows the lifted materials
+    and properties while training runs (with `material_head="lifted"`, the only material map there is). Each
+    lifting costs one K+2 channel render and backward per training view (benchmarks/README.md, "Training")."""
+    lift_channel_chunk: int = 32
+    """Channels per lifting render (`lift_evidence`'s channel_chunk; K evidence + labelled + visibility channels in
+    all): fewer channels per render lower its peak memory and cost more renders. gsplat renders 1-5, 8, 9, 16,
+    17, 32, 33, ... channels as they are and pads any other count to the next power of two."""
     evidence_per_view: Literal["view", "pixels"] = "view"
     """How a view's lifted evidence counts in the Dirichlet. "view": divided by the Gaussian's blending weight in
     that view, so every view that sees the Gaussian (weight above `min_view_weight`) is one confidence-weighted
@@ -76,6 +84,7 @@ def lift_material_maps(
     evidence_per_view: Literal["view", "pixels"] = "view",
     min_view_weight: float = 0.05,
     min_evidence: float = 1e-3,
+    channel_chunk: int = 32,
 ) -> MaterialEvidence:
     """The material maps of `views` (cached data with `material` / `material_confidence`, [H, W, 1] uint8,
     one per camera of `cameras`) lifted onto the model's Gaussians as they stand (module doc). Views without
@@ -96,7 +105,7 @@ def lift_material_maps(
         lifted = lift_evidence(
             *geometry, viewmat_from_c2w(c2w), cam.get_intrinsics_matrices().to(device), int(cam.width.item()),
             int(cam.height.item()), maps, backend=model.config.rasterize_backend,
-            rasterize_mode=model.config.rasterize_mode,
+            rasterize_mode=model.config.rasterize_mode, channel_chunk=channel_chunk,
         )  # fmt: skip
         view_evidence, view_labelled = lifted.evidence[:, :K].to(evidence), lifted.evidence[:, K:].to(labelled)
         view_weight = lifted.visibility.to(weight)[:, None]
@@ -128,7 +137,8 @@ class PhysGSPipeline(VanillaPipeline):
         cameras, views = self.datamanager.material_views("train")  # type: ignore[attr-defined]
         c = self.config
         lifted = lift_material_maps(self.model, cameras, views, evidence_per_view=c.evidence_per_view,
-                                    min_view_weight=c.min_view_weight, min_evidence=c.min_evidence)  # fmt: skip
+                                    min_view_weight=c.min_view_weight, min_evidence=c.min_evidence,
+                                    channel_chunk=c.lift_channel_chunk)  # fmt: skip
         self.model.set_material_evidence(lifted)
         return lifted
 
@@ -146,10 +156,16 @@ class PhysGSPipeline(VanillaPipeline):
         return cbs
 
     def _lift_on_schedule(self, iterations: int | None, step: int) -> None:
-        """At `lifting_step` and, with `lift_at_end`, at the last of the run's `iterations` (counted from the
-        first step this run trained, so a resumed run ends where the trainer does)."""
+        """At `lifting_step`, every `lifting_every` steps (if > 0) and, with `lift_at_end`, at the last of the
+        run's `iterations` (counted from the first step this run trained, so a resumed run ends where the trainer
+        does); once per step at most."""
         if getattr(self, "_first_step", None) is None:
             self._first_step = step
         last = None if iterations is None else self._first_step + iterations - 1
-        if step == self.lifting_step or (self.config.lift_at_end and step == last):
+        every = self.config.lifting_every
+        periodic = every > 0 and step > 0 and step % every == 0
+        if step == self.lifting_step or periodic or (self.config.lift_at_end and step == last):
+            # the iteration's parameter gradients are spent (the optimizers stepped; the next iteration zeroes
+            # them): free them so that the lifting's peak memory does not stack on them
+            self.model.zero_grad(set_to_none=True)
             self.lift()

@@ -119,7 +119,10 @@ class PhysicalPropertiesPanel(torch.nn.Module):
         self._shown: tuple | None = None
         self._busy = threading.Lock()
         sim = " [SIMULATED VLM]" if model.legend.simulated else ""
-        self.a_legend = ViewerMarkdown(f"**Materials**{sim}\n\n![legend](legend.png)", self._images)
+        lifted = ("\n\n*Material map: lifted evidence (material_head=lifted); none until the first lifting "
+                  "(`--pipeline.lifting-every N` lifts while training).*"
+                  if getattr(model, "material_head", None) == "lifted" else "")  # fmt: skip
+        self.a_legend = ViewerMarkdown(f"**Materials**{sim}\n\n![legend](legend.png){lifted}", self._images)
         self.b_scale = ViewerMarkdown("**Colour scale**: choose a property in *Output type*.", self._images)
         self.c_material_view = ViewerDropdown("Material colours", "dominant material", list(MATERIAL_VIEWS),
                                               cb_hook=self._on_settings)  # fmt: skip

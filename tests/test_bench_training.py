@@ -1,0 +1,55 @@
+"""benchmarks/gpu/bench_training.py's pieces that run without a GPU: method overrides and static memory."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+import torch
+
+from method_configs.physgs_config import physgs_trainer_config
+
+_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "gpu" / "bench_training.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("physgs_bench_training", _PATH)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_overrides_name_model_then_pipeline_fields(bench) -> None:
+    config = physgs_trainer_config()
+    bench.apply_overrides(config, "material_head=lifted,material_every=4,lifting_every=500,lifting_step=7,"
+                                  "lift_at_end=false,dirichlet_alpha0=0.5")  # fmt: skip
+    model, pipe = config.pipeline.model, config.pipeline
+    assert (model.material_head, model.material_every, model.dirichlet_alpha0) == ("lifted", 4, 0.5)
+    assert (pipe.lifting_every, pipe.lifting_step, pipe.lift_at_end) == (500, 7, False)
+    with pytest.raises(SystemExit, match="neither a model nor a pipeline"):
+        bench.apply_overrides(config, "no_such_field=1")
+    with pytest.raises(SystemExit, match="key=value"):
+        bench.apply_overrides(config, "material_head")
+
+
+def test_static_memory_counts_parameters_and_adam_moments(bench) -> None:
+    class Model(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.gauss_params = torch.nn.ParameterDict({
+                "means": torch.nn.Parameter(torch.zeros(1000, 3)),
+                "evidence": torch.nn.Parameter(torch.zeros(1000, 4), requires_grad=False),
+            })  # fmt: skip
+
+    model = Model()
+    opt = torch.optim.Adam([model.gauss_params["means"]])
+    model.gauss_params["means"].grad = torch.ones(1000, 3)
+    opt.step()
+    mem = bench.static_memory(model, {"means": opt})
+    mb = 2**20
+    assert mem["params_mb"] == pytest.approx(1000 * 7 * 4 / mb)
+    moments = 2 * 1000 * 3 * 4  # exp_avg + exp_avg_sq (+ a scalar step)
+    assert mem["optimizer_mb"] == pytest.approx(moments / mb, rel=1e-3)
+    assert mem["per_gaussian_tensor"]["evidence"] == {"param_mb": 1000 * 4 * 4 / mb, "optimizer_mb": 0.0}
