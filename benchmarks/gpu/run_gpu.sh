@@ -23,7 +23,7 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
-case "${1:-}" in perf|suite) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
+case "${1:-}" in perf|suite|mem) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -92,7 +92,10 @@ case "${1:-kernels}" in
     # issue 13 (about 5-8 minutes on an H100 with a carried gsplat build): each method in its own process on the
     # chair scene; per method iteration time, peak memory per phase, static bytes, liftings, eval material accuracy
     make_scene 2>&1 | tail -3 | tee "$OUT/scene.log"
-    echo "[$(elapsed) s] scene"
+    wait  # the gsplat build (setup_env.sh with GSPLAT_BUILD_LATER=1), beside the scene
+    mkdir -p "$OUT/gsplat_cuda"; cp .gsplat_build/gsplat_cuda/gsplat_cuda.so .gsplat_build/gsplat_cuda/physgs_build_stamp.json \
+      "$OUT/gsplat_cuda/" 2>/dev/null
+    echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
     # the fifth: the lifted head with its liftings rendered 8 channels at a time, and lifted every 500 steps
     METHODS=${METHODS:-"splatfacto-big physgs physgs:material_head=latent physgs:material_head=lifted
       physgs:material_head=lifted,lift_channel_chunk=8,lifting_every=500"}
