@@ -95,7 +95,7 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     random_scale: float = 2.0
     """Size of the cube for random initialisation (paper: 2.0)."""
     background_color: Literal["random", "black", "white"] = "random"
-    material_head: MaterialHead = "logits"
+    material_head: MaterialHead = "lifted"
     """What carries each Gaussian's material for the rendered `material` map (`nerfstudio/material_head.py`,
     docs/architecture.md "Material head"): "logits", K trainable logits per Gaussian; "latent",
     `material_latent_dim` trainable features per Gaussian decoded per pixel by a Linear d -> K; "lifted", nothing

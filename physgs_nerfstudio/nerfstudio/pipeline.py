@@ -45,11 +45,11 @@ class PhysGSPipelineConfig(VanillaPipelineConfig):
     (densification end)."""
     lift_at_end: bool = True
     """Lift again at the last training iteration (so the checkpoint's evidence matches the final Gaussians)."""
-    lifting_every: int = 0
+    lifting_every: int = 500
     """Also lift every this many steps during training (0 = off), so that the viewer shows the lifted materials
     and properties while training runs (with `material_head="lifted"`, the only material map there is). Each
     lifting costs one K+2 channel render and backward per training view (benchmarks/README.md, "Training")."""
-    lift_channel_chunk: int = 32
+    lift_channel_chunk: int = 8
     """Channels per lifting render (`lift_evidence`'s channel_chunk; K evidence + labelled + visibility channels in
     all): fewer channels per render lower its peak memory and cost more renders. gsplat renders 1-5, 8, 9, 16,
     17, 32, 33, ... channels as they are and pads any other count to the next power of two."""
