@@ -20,7 +20,8 @@ front of it or within the depth margin of it). A voxel is carved (empty) when it
   space at all, every higher view has it hidden behind the object; the low views that see past it are then
   all the direct evidence there is).
 
-Otherwise it is solid, so space that no view sees past (the inside of a closed object) stays solid. The direct
+A voxel that fewer than ``min_seen_fraction`` of the views have in their image at all is empty (an object-centric
+capture frames its object in every view). Otherwise it is solid, so space that no view sees past (the inside of a closed object) stays solid. The direct
 rule never lets silhouette votes alone carve (a thick part's inside is seen directly by no view, so two bad
 masks stay 2 votes out of every view that sees it). Why a vote rather than the classic visual hull's "any
 one view":
@@ -86,6 +87,11 @@ class CarveConfig:
     with 0.5 against 0.273 without; benchmarks/README.md). 0.5 is the setting to try for a capture with views
     from below"""
     use_depth: bool = True
+    min_seen_fraction: float = 0.5
+    """a voxel that fewer than this fraction of the views have in their image is empty: an object-centric capture
+    frames its object in every view, so space out of frame in most views is not the object (left solid, as unseen
+    space inside the object is, it filled a domain that outliers of the selection had stretched); lower it for a
+    capture whose views each show only part of the object"""
     min_component: float = 0.02
     """drop solid components smaller than this fraction of the largest one"""
     fill_cavities: bool = True
@@ -191,6 +197,8 @@ class CarveVotes:
     """int [M]: the empty votes cast by depth (a subset of ``empty``)"""
     direct: Tensor | None = None
     """int [M]: views that see each voxel directly (opaque there, not hidden behind the rendered surface)"""
+    num_views: int = 0
+    """views voted"""
 
 
 @torch.no_grad()
@@ -274,13 +282,14 @@ def carve_votes_many(
         seen[sl] = n_seen
         for g in range(G):
             empty[g][sl], depth_empty[g][sl], direct[g][sl] = n_empty[g], n_depth[g], n_direct[g]
-    return [CarveVotes(empty[g], seen, depth_empty[g], direct[g]) for g in range(G)]
+    return [CarveVotes(empty[g], seen, depth_empty[g], direct[g], len(views)) for g in range(G)]
 
 
 def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
     """bool [X, Y, Z]: voxels not carved by the vote (module doc), without specks."""
     e = votes.empty.float()
     carved = (e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * votes.seen.float())
+    carved |= votes.seen.float() < cfg.min_seen_fraction * votes.num_views
     if votes.direct is not None and votes.depth_empty is not None and cfg.min_direct_fraction <= 1:
         d = votes.direct.float()
         carved |= (e >= cfg.min_votes) & (d > 0) & (votes.depth_empty.float() >= cfg.min_direct_fraction * d)

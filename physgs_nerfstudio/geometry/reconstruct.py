@@ -49,6 +49,9 @@ class GeometryConfig:
     depth_margin_variants: tuple[float, ...] = (-0.5, 1.0)
     """depth margins in voxels (negative: also carve up to that much behind the rendered surface)"""
     pad_fraction: float = 0.1
+    refit_fraction: float = 0.5
+    """when the carved solid's longest side is below this fraction of the domain's, carve again on a grid fitted to
+    the solid (outliers of the selection stretched the domain and coarsened the voxels)"""
     """domain padding around the object's Gaussians, as a fraction of their extent"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
@@ -140,17 +143,24 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     kernel = np.ones((k, k), np.uint8)
     out = []
     replaced = 0
+    cut: list[CaptureView] = []
     for v, r in zip(views, renders):
         core = r.alpha.cpu().numpy() > 0.5
         sil = cv2.dilate(core.astype(np.uint8), kernel).astype(bool) if cfg.object_mask_dilate_px > 0 else core
         fg = v.mask.cpu().numpy() & sil
         union = (fg | core).sum()
         iou = (fg & core).sum() / union if union else 1.0
+        cut.append(replace(v, mask=torch.from_numpy(fg)))
         if iou < cfg.min_mask_agreement:  # this view's segmentation lost the object: use the splat's consensus
             replaced += 1
             out.append(replace(v, mask=torch.from_numpy(sil), mask_source="silhouette"))
         else:
-            out.append(replace(v, mask=torch.from_numpy(fg)))
+            out.append(cut[-1])
+    if replaced > len(views) / 2:  # most views disagree with the selection: it is the selection that failed
+        logger.warning("object masks: %d of %d views disagree with the selected Gaussians' silhouette (IoU < %.2g): "
+                       "the selection holds more than the object (floaters, background); carving with the views' "
+                       "own masks (cut to the silhouette)", replaced, len(views), cfg.min_mask_agreement)  # fmt: skip
+        return [replace(c, mask_source=c.mask_source + "_kept") for c in cut], renders
     if replaced:
         logger.info("object masks: %d of %d views disagree with the object's rendered silhouette (IoU < %.2g) and "
                     "carve with the silhouette instead", replaced, len(views), cfg.min_mask_agreement)  # fmt: skip
@@ -164,6 +174,26 @@ class _Subset:
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.g, name)[self.idx]
+
+
+def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[ViewRender],
+                    variants: list[tuple[str, CarveConfig]], sdf: list[torch.Tensor], device: Any) -> list[np.ndarray]:
+    """The solid of every variant, from one voting pass per distinct (mask margin, depth margin)."""
+    by_key: dict[tuple[float, float], CarveConfig] = {}  # the votes depend on these two settings only
+    for _, cc in variants:
+        by_key.setdefault((cc.mask_margin_px, cc.depth_margin_voxels), cc)
+    votes = carve_votes_many(grid, views, renders, list(by_key.values()), sdf=sdf, device=device)
+    cache = dict(zip(by_key, votes))
+    return [solid_from_votes(cache[(cc.mask_margin_px, cc.depth_margin_voxels)], grid, cc) for _, cc in variants]
+
+
+def _solid_bounds(grid: VoxelGrid, solid: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Scene-unit bounds of the solid voxels (None when there are none)."""
+    if not solid.any():
+        return None, None
+    idx = np.argwhere(solid)
+    origin = np.asarray(grid.origin, dtype=np.float64)
+    return origin + idx.min(0) * grid.voxel_size, origin + (idx.max(0) + 1) * grid.voxel_size
 
 
 def _variants(cfg: GeometryConfig) -> list[tuple[str, CarveConfig]]:
@@ -216,17 +246,19 @@ def reconstruct_object(
     sdf = [signed_mask_distance(v.mask) for v in obj_views]
     device = g.means.device
     step("carving")
-    solids: list[np.ndarray] = []
-    names: list[str] = []
     variants = _variants(cfg)
-    by_key: dict[tuple[float, float], CarveConfig] = {}  # the votes depend on these two settings only
-    for _, cc in variants:
-        by_key.setdefault((cc.mask_margin_px, cc.depth_margin_voxels), cc)
-    votes = carve_votes_many(grid, obj_views, renders, list(by_key.values()), sdf=sdf, device=device)
-    vote_cache = dict(zip(by_key, votes))
-    for name, cc in variants:
-        solids.append(solid_from_votes(vote_cache[(cc.mask_margin_px, cc.depth_margin_voxels)], grid, cc))
-        names.append(name)
+    solids = _carve_variants(grid, obj_views, renders, variants, sdf, device)
+    lo, hi = _solid_bounds(grid, np.logical_or.reduce(solids))
+    if lo is not None and float((hi - lo).max()) < cfg.refit_fraction * float(np.max(grid.shape)) * grid.voxel_size:
+        # the solid fills a small part of a domain that outliers of the selection stretched: carve again on a grid
+        # fitted to the solid, at full resolution
+        share = float((hi - lo).max()) / (float(np.max(grid.shape)) * grid.voxel_size)
+        pad = float((hi - lo).max()) * (cfg.pad_fraction + 2.0 / cfg.resolution)  # + 2 new voxels
+        grid = VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad), cfg.resolution)
+        logger.info("the carved object spans %.0f%% of the selection's box: carved again on a grid fitted to it",
+                    100 * share)
+        solids = _carve_variants(grid, obj_views, renders, variants, sdf, device)
+    names = [n for n, _ in variants]
     union = np.logical_or.reduce(solids)
     if not solids[0].any():
         raise ValueError("carving left no solid voxel: the object masks and the views disagree (check poses and "
