@@ -4,18 +4,11 @@
    view that sees it (:func:`.gaussians.lift_masks`: per view, the share of its blending weight on mask pixels):
    ``P(object) = (a0 + inside) / (a0 + b0 + inside + outside)``. The floor, walls and background are outside
    the masks in the views that see them, so they come out near 0.
-2. **Inside the masks' visual hull.** A point on the object projects inside the object's mask in every view that
-   has it in its image. A Gaussian whose centre falls outside the (``hull_margin_px``-dilated) masks in more than
-   ``max_outside_fraction`` of those views (and at least 2 of them) is not the object, whatever its blending
-   weights say: a floater between a camera and the object, or a far-away Gaussian that lies behind the object in
-   the few views that see it, projects into the masks only in those views. The rule is the carving's
-   (:mod:`.carve`) applied to Gaussian centres. Without it, a 7,000-step GPU run (517k Gaussians, many floaters)
-   selected 114k Gaussians spread over 8 m around a 0.9 m chair.
-3. Foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``, inside the hull) are grouped into 3-D clusters
+2. Foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``) are grouped into 3-D clusters
    (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side but no finer than
    1.5 x the Gaussians' median nearest-neighbour spacing, cells dilated by ``bridge_cells`` so that an
    object's parts a few millimetres apart stay one cluster).
-4. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
+3. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
    camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
    the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
    restricts the candidates first.
@@ -49,11 +42,6 @@ class SelectConfig:
     """Beta prior (a0, b0) of a Gaussian belonging to the object"""
     min_prob: float = 0.5
     min_opacity: float = 0.05
-    max_outside_fraction: float = 0.15
-    """a Gaussian is outside the masks' visual hull when its centre projects outside the masks in more than this
-    fraction of the views that have it in their image (and in at least 2); 1 = no hull test (module doc, 2.)"""
-    hull_margin_px: float = 2.0
-    """the masks are dilated by this many pixels for the hull test"""
     cluster_cells: int = 48
     """cells along the longest side of the foreground's extent, for the 3-D clusters"""
     bridge_cells: int = 1
@@ -68,8 +56,6 @@ class SelectConfig:
             raise ValueError(f"SelectConfig.min_prob must be in (0, 1), got {self.min_prob}.")
         if min(self.prior) <= 0:
             raise ValueError(f"SelectConfig.prior must be two positive numbers, got {self.prior}.")
-        if not 0 <= self.max_outside_fraction <= 1:
-            raise ValueError(f"SelectConfig.max_outside_fraction must be in [0, 1], got {self.max_outside_fraction}.")
         if self.cluster_cells < 4:
             raise ValueError(f"SelectConfig.cluster_cells must be >= 4, got {self.cluster_cells}.")
         if self.bbox is not None:
@@ -110,30 +96,6 @@ def capture_centre(views: Sequence[CaptureView]) -> np.ndarray:
     return np.linalg.solve(A, b)
 
 
-@torch.no_grad()
-def outside_hull(means: Tensor, views: Sequence[CaptureView], margin_px: float = 2.0, chunk: int = 1 << 20
-                 ) -> tuple[Tensor, Tensor]:  # fmt: skip
-    """int [N] views whose (``margin_px``-dilated) mask a centre projects outside of, and int [N] views that have
-    it in their image (in front of the camera, inside the frame)."""
-    from .carve import _sample, signed_mask_distance
-
-    outside = torch.zeros(len(means), dtype=torch.int32, device=means.device)
-    seen = torch.zeros_like(outside)
-    for v in views:
-        sd = signed_mask_distance(v.mask).to(means.device)
-        R, t, K = (x.to(means.device, torch.float32) for x in (v.viewmat[:3, :3], v.viewmat[:3, 3], v.K))
-        for s0 in range(0, len(means), chunk):
-            pc = means[s0 : s0 + chunk].float() @ R.T + t
-            z = pc[:, 2]
-            u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
-            w = K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]
-            ok = (z > 1e-6) & (u >= 0) & (u < v.width) & (w >= 0) & (w < v.height)
-            dist = _sample(sd, u.clamp(0, v.width), w.clamp(0, v.height))
-            seen[s0 : s0 + chunk] += ok.int()
-            outside[s0 : s0 + chunk] += (ok & (dist > margin_px)).int()
-    return outside, seen
-
-
 def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     lo = np.quantile(means, 0.002, axis=0)
     hi = np.quantile(means, 0.998, axis=0)
@@ -165,14 +127,6 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     a0, b0 = cfg.prior
     prob = ((a0 + inside) / (a0 + b0 + inside + outside)).float()
     cand = (prob >= cfg.min_prob) & (g.opacities >= cfg.min_opacity)
-    if cfg.max_outside_fraction < 1 and bool(cand.any()):
-        idx0 = torch.nonzero(cand).squeeze(1)
-        out, seen = outside_hull(g.means[idx0], views, cfg.hull_margin_px)
-        bad = (out >= 2) & (out.float() > cfg.max_outside_fraction * seen.float())
-        if bool(bad.all()):
-            logger.warning("no foreground Gaussian lies inside the masks' visual hull: the hull test is skipped")
-        else:
-            cand[idx0[bad]] = False
     if cfg.bbox is not None:
         b = torch.as_tensor(cfg.bbox, dtype=g.means.dtype, device=g.means.device)
         cand &= ((g.means >= b[:3]) & (g.means <= b[3:])).all(-1)
