@@ -8,13 +8,12 @@ import pytest
 import torch
 import yaml
 from gsplat.strategy.ops import duplicate, remove, split
-from nerfstudio.data.scene_box import SceneBox
 from nerfstudio.engine.optimizers import Optimizers
-from test_nerfstudio_fixtures import write_blob_scene
+from test_nerfstudio_fixtures import blob_datamanager, blob_model, write_blob_scene
 
 from method_configs.physgs_config import physgs_lite_trainer_config
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
-from physgs_nerfstudio.nerfstudio import PhysGSDatamanagerConfig, PhysGSDataParserConfig, PhysGSModelConfig
+from physgs_nerfstudio.nerfstudio import PhysGSModelConfig
 from physgs_nerfstudio.nerfstudio.keys import (
     DECODER_GROUP,
     EVIDENCE_KEY,
@@ -35,22 +34,11 @@ EVAL_OUTPUTS = {"material_id": 1, "depth": 1, "accumulation": 1, "rgb": 3, "mate
 
 @pytest.fixture(scope="module")
 def blob_dm(tmp_path_factory):
-    root = tmp_path_factory.mktemp("blob")
-    write_blob_scene(root, num_views=6, size=32, skip_material_for=[5])
-    cfg = PhysGSDatamanagerConfig(
-        dataparser=PhysGSDataParserConfig(data=root, eval_mode="interval", eval_interval=3)
-    )
-    return cfg.setup(device="cpu")
+    return blob_datamanager(tmp_path_factory.mktemp("blob"))
 
 
 def make_model(dm, **config) -> PhysGSModel:
-    meta = dm.train_dataparser_outputs.metadata
-    return PhysGSModelConfig(sh_degree=1, num_downscales=0, **config).setup(
-        scene_box=SceneBox(torch.tensor([[-1.0, -1, -1], [1, 1, 1]])),
-        num_train_data=len(dm.train_dataset),
-        metadata=dm.train_dataset.metadata,
-        seed_points=(meta["points3D_xyz"], meta["points3D_rgb"]),
-    )
+    return blob_model(dm, **config)
 
 
 def attach_optimizers(model: PhysGSModel) -> Optimizers:

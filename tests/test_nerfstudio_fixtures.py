@@ -203,6 +203,31 @@ def write_blob_scene(
     return gt
 
 
+def blob_datamanager(root: Path):
+    """A CPU datamanager over a 6-view, 32 px blob scene written into ``root`` (view 5 without material maps,
+    every third view held out)."""
+    from physgs_nerfstudio.nerfstudio import PhysGSDatamanagerConfig, PhysGSDataParserConfig
+
+    write_blob_scene(root, num_views=6, size=32, skip_material_for=[5])
+    cfg = PhysGSDatamanagerConfig(dataparser=PhysGSDataParserConfig(data=root, eval_mode="interval", eval_interval=3))
+    return cfg.setup(device="cpu")
+
+
+def blob_model(dm, **config):
+    """A small PhysGS model (SH degree 1, no downscales) seeded from the datamanager's points."""
+    from nerfstudio.data.scene_box import SceneBox
+
+    from physgs_nerfstudio.nerfstudio import PhysGSModelConfig
+
+    meta = dm.train_dataparser_outputs.metadata
+    return PhysGSModelConfig(sh_degree=1, num_downscales=0, **config).setup(
+        scene_box=SceneBox(torch.tensor([[-1.0, -1, -1], [1, 1, 1]])),
+        num_train_data=len(dm.train_dataset),
+        metadata=dm.train_dataset.metadata,
+        seed_points=(meta["points3D_xyz"], meta["points3D_rgb"]),
+    )
+
+
 def write_ply(
     path: Path, means: torch.Tensor, colors: torch.Tensor, seed: int = 0, noise: float = 0.02
 ) -> None:

@@ -7,11 +7,11 @@ import torch
 from gsplat.strategy.ops import duplicate, remove, split
 from nerfstudio.data.scene_box import SceneBox
 from nerfstudio.engine.optimizers import Optimizers
-from test_nerfstudio_fixtures import write_blob_scene
+from test_nerfstudio_fixtures import blob_datamanager, blob_model
 
 from method_configs.physgs_config import physgs_lite_trainer_config
 from physgs_nerfstudio.bayes import vacuity
-from physgs_nerfstudio.nerfstudio import PhysGSDatamanagerConfig, PhysGSDataParserConfig, PhysGSModelConfig
+from physgs_nerfstudio.nerfstudio import PhysGSModelConfig
 from physgs_nerfstudio.nerfstudio.model import EVIDENCE_KEY, LOGITS_KEY, WEIGHT_KEY, PhysGSModel
 from physgs_nerfstudio.nerfstudio.pipeline import lift_material_maps
 
@@ -22,27 +22,14 @@ OUTPUTS_3CH = ("rgb", "material", "background", "density", "friction", "hardness
 
 @pytest.fixture(scope="module")
 def blob_dm(tmp_path_factory):
-    root = tmp_path_factory.mktemp("blob")
-    write_blob_scene(root, num_views=6, size=32, skip_material_for=[5])
-    cfg = PhysGSDatamanagerConfig(
-        dataparser=PhysGSDataParserConfig(data=root, eval_mode="interval", eval_interval=3)
-    )
-    return cfg.setup(device="cpu")
+    return blob_datamanager(tmp_path_factory.mktemp("blob"))
 
 
 def make_model(dm, **config) -> PhysGSModel:
     """A model with the "logits" material head (these tests are about its logits; test_material_head.py covers
     every head), whatever the default head is."""
     config.setdefault("material_head", "logits")
-    cfg = PhysGSModelConfig(sh_degree=1, num_downscales=0, **config)
-    meta = dm.train_dataparser_outputs.metadata
-    model = cfg.setup(
-        scene_box=SceneBox(torch.tensor([[-1.0, -1, -1], [1, 1, 1]])),
-        num_train_data=len(dm.train_dataset),
-        metadata=dm.train_dataset.metadata,
-        seed_points=(meta["points3D_xyz"], meta["points3D_rgb"]),
-    )
-    return model
+    return blob_model(dm, **config)
 
 
 def lift(model: PhysGSModel, dm, confidence_scale: float = 1.0) -> torch.Tensor:

@@ -153,16 +153,9 @@ def depth_slack(depth: Tensor, alpha: Tensor, min_alpha: float = 0.5, lookup: st
 def _sample_opaque(depth: Tensor, alpha: Tensor, u: Tensor, v: Tensor, min_alpha: float) -> tuple[Tensor, Tensor]:
     """Bilinear depth at continuous pixel coordinates from the opaque pixels among the four around each point
     (their bilinear weights renormalised), and whether any of them is opaque."""
-    H, W = depth.shape
-    x = (u - 0.5).clamp(0, W - 1)
-    y = (v - 0.5).clamp(0, H - 1)
-    x0 = x.floor().long().clamp(0, W - 1)
-    y0 = y.floor().long().clamp(0, H - 1)
-    x1, y1 = (x0 + 1).clamp(max=W - 1), (y0 + 1).clamp(max=H - 1)
-    fx, fy = x - x0, y - y0
     num = torch.zeros_like(u)
     den = torch.zeros_like(u)
-    for yy, xx, w in ((y0, x0, (1 - fx) * (1 - fy)), (y0, x1, fx * (1 - fy)), (y1, x0, (1 - fx) * fy), (y1, x1, fx * fy)):
+    for yy, xx, w in _corners(depth.shape, u, v):
         ok = alpha[yy, xx] >= min_alpha
         w = torch.where(ok, w, 0.0)
         num += w * torch.where(ok, depth[yy, xx], 0.0)
@@ -171,20 +164,22 @@ def _sample_opaque(depth: Tensor, alpha: Tensor, u: Tensor, v: Tensor, min_alpha
     return torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf"))), has
 
 
-def _sample(img: Tensor, u: Tensor, v: Tensor) -> Tensor:
-    """Bilinear sample of ``img`` [H, W] at continuous pixel coordinates (pixel i covers [i, i+1))."""
-    H, W = img.shape
+def _corners(shape: tuple[int, ...], u: Tensor, v: Tensor) -> list[tuple[Tensor, Tensor, Tensor]]:
+    """(row, column, bilinear weight) of the four pixels around continuous pixel coordinates (pixel i covers
+    [i, i+1)), clamped to the image."""
+    H, W = shape
     x = (u - 0.5).clamp(0, W - 1)
     y = (v - 0.5).clamp(0, H - 1)
     x0 = x.floor().long().clamp(0, W - 1)
     y0 = y.floor().long().clamp(0, H - 1)
-    x1 = (x0 + 1).clamp(max=W - 1)
-    y1 = (y0 + 1).clamp(max=H - 1)
-    fx = x - x0
-    fy = y - y0
-    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
-    bot = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
-    return top * (1 - fy) + bot * fy
+    x1, y1 = (x0 + 1).clamp(max=W - 1), (y0 + 1).clamp(max=H - 1)
+    fx, fy = x - x0, y - y0
+    return [(y0, x0, (1 - fx) * (1 - fy)), (y0, x1, fx * (1 - fy)), (y1, x0, (1 - fx) * fy), (y1, x1, fx * fy)]
+
+
+def _sample(img: Tensor, u: Tensor, v: Tensor) -> Tensor:
+    """Bilinear sample of ``img`` [H, W] at continuous pixel coordinates (pixel i covers [i, i+1))."""
+    return sum(img[yy, xx] * w for yy, xx, w in _corners(img.shape, u, v))
 
 
 @dataclass
