@@ -53,14 +53,17 @@ def entrypoint(argv: list[str] | None = None) -> None:
     from physgs_nerfstudio.errors import PhysGSError
 
     args = _upgrade(list(sys.argv[1:] if argv is None else argv))
-    options = tuple(Annotated[_load(name), tyro.conf.subcommand(name)] for name in COMMANDS)
     try:
-        config = tyro.cli(
-            Union[options],  # type: ignore[valid-type]
-            prog="physgs",
-            description="PhysGS for nerfstudio: physical properties with uncertainty on Gaussian splats.",
-            args=args,
-        )
+        if args and args[0] in COMMANDS:  # one subcommand: import only its module (an export pays for no other)
+            config = tyro.cli(_load(args[0]), prog=f"physgs {args[0]}", args=args[1:])
+        else:
+            options = tuple(Annotated[_load(name), tyro.conf.subcommand(name)] for name in COMMANDS)
+            config = tyro.cli(
+                Union[options],  # type: ignore[valid-type]
+                prog="physgs",
+                description="PhysGS for nerfstudio: physical properties with uncertainty on Gaussian splats.",
+                args=args,
+            )
         config.main()
     except PhysGSError as err:  # a user error: one line, no traceback
         print(f"physgs {args[0] if args else ''}: error: {one_line(err)}", file=sys.stderr)

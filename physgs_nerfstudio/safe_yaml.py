@@ -21,6 +21,13 @@ Anything else (``os.system``, ``subprocess.*``, ``builtins.eval``, ``!!python/mo
 re-exported from another package, an unknown tag) is refused with one line naming the file, the line and
 the tag. Nothing of the file is built before the whole tree passed.
 
+:func:`load_config_tree` reads the same files without importing anything they name: every ``!!python/object``
+becomes a :class:`ConfigObject` (the class's dotted name and its fields) and every ``!!python/name`` a
+:class:`ClassRef`; only paths and ``frozenset`` are built. A tag is then checked by its name (a class of one of
+:data:`CLASS_PACKAGES`), and :meth:`ConfigObject.build` builds a subtree for real, with the checks above, when
+it is needed. ``physgs export`` reads a run this way: importing nerfstudio's trainer (its viewer, every model)
+only to check the names of classes it never uses took seconds.
+
 The ``ns-*`` commands themselves (``ns-viewer``, ``ns-eval``, ``ns-export``, ``ns-train --load-config``) read
 configs with nerfstudio's unsafe loader: they do not protect you this way.
 """
@@ -29,6 +36,7 @@ from __future__ import annotations
 
 import enum
 import importlib
+import pathlib
 import re
 from pathlib import Path, PurePath
 from typing import Any
@@ -37,7 +45,7 @@ import yaml
 
 from .errors import PhysGSError
 
-__all__ = ["UnsafeConfigError", "check_node", "load_config_yaml"]
+__all__ = ["ClassRef", "ConfigObject", "UnsafeConfigError", "check_node", "load_config_tree", "load_config_yaml"]
 
 CLASS_PACKAGES = ("nerfstudio", "physgs_nerfstudio", "torch.optim", "gsplat")
 """packages whose classes a config may name (``!!python/object``, ``!!python/name``)"""
@@ -94,15 +102,31 @@ def _allowed_call(name: str) -> bool:
     return issubclass(obj, (PurePath, enum.Enum))
 
 
-def _why_not(tag: str) -> str | None:
-    """None when ``tag`` is allowed, else the reason it is refused."""
+_PATH_CLASSES = {"PurePath", "PurePosixPath", "PureWindowsPath", "Path", "PosixPath", "WindowsPath"}
+
+
+def _named_class(name: str) -> bool:
+    """By its name alone (nothing imported): a class path in :data:`CLASS_PACKAGES` or a pathlib path."""
+    if not _DOTTED.match(name):
+        return False
+    module, _, attr = name.rpartition(".")
+    return _in_packages(module) or (module == "pathlib" and attr in _PATH_CLASSES)
+
+
+def _why_not(tag: str, *, by_name: bool = False) -> str | None:
+    """None when ``tag`` is allowed, else the reason it is refused. ``by_name``: judge class names without
+    importing them (:func:`load_config_tree`, which builds none of them)."""
     if tag.startswith(_PY):
         kind, _, target = tag[len(_PY):].partition(":")
         if kind in _PY_PLAIN and not target:
             return None
-        if kind in ("object", "name") and _allowed_class(target):
-            return None
-        if kind in ("object/apply", "object/new") and _allowed_call(target):
+        if by_name:
+            allowed = _named_class(target) or (kind in ("object/apply", "object/new") and target in CALLABLE_BUILTINS)
+        elif kind in ("object", "name"):
+            allowed = _allowed_class(target)
+        else:
+            allowed = kind in ("object/apply", "object/new") and _allowed_call(target)
+        if allowed and kind in ("object", "name", "object/apply", "object/new"):
             return None
         if kind == "module":
             return "it imports a module"
@@ -116,8 +140,9 @@ def _why_not(tag: str) -> str | None:
     return "unknown tag"
 
 
-def check_node(node: yaml.Node, path: Path | str) -> None:
-    """Raise :class:`UnsafeConfigError` at the first node whose tag is not allowed (module doc)."""
+def check_node(node: yaml.Node, path: Path | str, *, by_name: bool = False) -> None:
+    """Raise :class:`UnsafeConfigError` at the first node whose tag is not allowed (module doc; ``by_name``: see
+    :func:`_why_not`)."""
     seen: set[int] = set()
     stack = [node]
     while stack:
@@ -125,14 +150,9 @@ def check_node(node: yaml.Node, path: Path | str) -> None:
         if id(n) in seen:  # aliases share nodes: visit each once
             continue
         seen.add(id(n))
-        why = _why_not(n.tag)
+        why = _why_not(n.tag, by_name=by_name)
         if why is not None:
-            shown = n.tag.replace(_STD, "!!")
-            raise UnsafeConfigError(
-                f"{path}, line {n.start_mark.line + 1}: refused `{shown}` ({why}); a nerfstudio/physgs config "
-                "only builds their config classes, paths and enums. Nothing in the file was run: do not pass "
-                "this file to ns-* commands either, and use the config.yml that ns-train wrote."
-            )
+            raise _refuse(path, n.start_mark.line + 1, n.tag, why)
         if isinstance(n, yaml.SequenceNode):
             stack.extend(n.value)
         elif isinstance(n, yaml.MappingNode):
@@ -140,19 +160,142 @@ def check_node(node: yaml.Node, path: Path | str) -> None:
                 stack.extend((k, v))
 
 
-def load_config_yaml(path: Path | str) -> Any:
-    """Parse ``path``, check every tag (module doc), then build and return the document."""
-    path = Path(path)
+def _refuse(path: Path, line: int, tag: str, why: str) -> UnsafeConfigError:
+    shown = tag.replace(_STD, "!!")
+    return UnsafeConfigError(
+        f"{path}, line {line}: refused `{shown}` ({why}); a nerfstudio/physgs config only builds their config "
+        "classes, paths and enums. Nothing in the file was run: do not pass this file to ns-* commands either, and "
+        "use the config.yml that ns-train wrote."
+    )
+
+
+class ClassRef:
+    """A ``!!python/name`` of a config read by :func:`load_config_tree`: the dotted name, not imported."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def __repr__(self) -> str:
+        return f"ClassRef({self.name!r})"
+
+    def build(self, memo: dict[int, Any] | None = None) -> Any:
+        if not _allowed_class(self.name):
+            raise UnsafeConfigError(f"refused `!!python/name:{self.name}` (not a class of {', '.join(CLASS_PACKAGES)})")
+        return _resolve(self.name)
+
+
+class ConfigObject:
+    """A ``!!python/object`` (``call`` False) or ``!!python/object/apply`` / ``new`` (``call`` True: enums) of a
+    config read by :func:`load_config_tree`: the class's dotted name and its fields (``args`` for a call), with
+    attribute access to the fields. Nothing of it is imported until :meth:`build`."""
+
+    def __init__(self, class_name: str, fields: dict[str, Any] | None = None, *, args: tuple = (),
+                 call: bool = False, line: int = 0):  # fmt: skip
+        object.__setattr__(self, "_meta", (class_name, call, line))
+        object.__setattr__(self, "_fields", dict(fields or {}))
+        object.__setattr__(self, "_args", tuple(args))
+
+    @property
+    def class_name(self) -> str:
+        return self._meta[0]
+
+    @property
+    def fields(self) -> dict[str, Any]:
+        return self._fields
+
+    def __getattr__(self, name: str) -> Any:
+        fields = object.__getattribute__(self, "_fields")
+        if name in fields:
+            return fields[name]
+        raise AttributeError(f"{self._meta[0]} in the config has no field {name!r}")
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        self._fields[name] = value
+
+    def __repr__(self) -> str:
+        return f"ConfigObject({self.class_name!r}, {sorted(self._fields)})"
+
+    def build(self, memo: dict[int, Any] | None = None) -> Any:
+        """The real object, as nerfstudio's loader builds it (a class's ``__new__`` and its fields set, or the
+        call of an enum or path), after :func:`_why_not`'s full check of every class it names."""
+        memo = {} if memo is None else memo
+        if id(self) in memo:
+            return memo[id(self)]
+        name, call, line = self._meta
+        tag = _PY + ("object/apply:" if call else "object:") + name
+        why = _why_not(tag)
+        if why is not None:
+            raise _refuse(Path("config"), line, tag, why)
+        cls = CALLABLE_BUILTINS.get(name) or _resolve(name)
+        if call:
+            obj = cls(*_build(self._args, memo))
+            memo[id(self)] = obj
+            return obj
+        obj = cls.__new__(cls)
+        memo[id(self)] = obj
+        state = _build(self._fields, memo)
+        if hasattr(obj, "__setstate__"):
+            obj.__setstate__(state)
+        else:
+            obj.__dict__.update(state)
+        return obj
+
+
+def _build(value: Any, memo: dict[int, Any]) -> Any:
+    if isinstance(value, (ConfigObject, ClassRef)):
+        return value.build(memo)
+    if isinstance(value, dict):
+        return {_build(k, memo): _build(v, memo) for k, v in value.items()}
+    if isinstance(value, (list, tuple, set, frozenset)):
+        return type(value)(_build(v, memo) for v in value)
+    return value
+
+
+class _TreeLoader(yaml.Loader):
+    """nerfstudio's loader with the python object tags building :class:`ConfigObject` / :class:`ClassRef`."""
+
+
+def _tree_object(loader: yaml.Loader, suffix: str, node: yaml.Node):
+    obj = ConfigObject(suffix, line=node.start_mark.line + 1)
+    yield obj
+    if isinstance(node, yaml.MappingNode):
+        obj.fields.update(loader.construct_mapping(node, deep=True))
+
+
+def _tree_call(loader: yaml.Loader, suffix: str, node: yaml.Node) -> Any:
+    if isinstance(node, yaml.SequenceNode):
+        args: tuple = tuple(loader.construct_sequence(node, deep=True))
+        state: dict = {}
+    elif isinstance(node, yaml.MappingNode):
+        value = loader.construct_mapping(node, deep=True)
+        args, state = tuple(value.get("args", ())), dict(value.get("state", {}) or {})
+    else:
+        args, state = (), {}
+    module, _, attr = suffix.rpartition(".")
+    if module == "pathlib" and attr in _PATH_CLASSES:  # a path: built (pathlib runs nothing else)
+        return getattr(pathlib, attr)(*args)
+    if suffix in CALLABLE_BUILTINS:
+        return CALLABLE_BUILTINS[suffix](*args)
+    return ConfigObject(suffix, state, args=args, call=True, line=node.start_mark.line + 1)
+
+
+_TreeLoader.add_multi_constructor(_PY + "object:", _tree_object)
+_TreeLoader.add_multi_constructor(_PY + "object/apply:", _tree_call)
+_TreeLoader.add_multi_constructor(_PY + "object/new:", _tree_call)
+_TreeLoader.add_multi_constructor(_PY + "name:", lambda loader, suffix, node: ClassRef(suffix))
+
+
+def _read(path: Path, loader_cls: type, by_name: bool) -> Any:
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise UnsafeConfigError(f"{path}: not a text file; pass the config.yml that ns-train wrote.") from None
-    loader = yaml.Loader(text)  # nerfstudio's loader; it only builds the tree check_node passed
+    loader = loader_cls(text)  # it only builds the tree check_node passed
     try:
         node = loader.get_single_node()
         if node is None:
             raise UnsafeConfigError(f"{path}: the file is empty; pass the config.yml that ns-train wrote.")
-        check_node(node, path)
+        check_node(node, path, by_name=by_name)
         return loader.construct_document(node)
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
@@ -162,3 +305,14 @@ def load_config_yaml(path: Path | str) -> Any:
                                 "that ns-train wrote.") from None  # fmt: skip
     finally:
         loader.dispose()
+
+
+def load_config_yaml(path: Path | str) -> Any:
+    """Parse ``path``, check every tag (module doc), then build and return the document."""
+    return _read(Path(path), yaml.Loader, by_name=False)  # nerfstudio's loader
+
+
+def load_config_tree(path: Path | str) -> Any:
+    """Parse ``path`` and check every tag by name; python objects come back as :class:`ConfigObject` /
+    :class:`ClassRef`, nothing they name is imported (module doc). ``.build()`` a part to get the real object."""
+    return _read(Path(path), _TreeLoader, by_name=True)

@@ -35,6 +35,7 @@ def saved_run(tmp_path_factory) -> Path:
     with torch.no_grad():
         for p in pipeline.model.gauss_params.values():
             p.copy_(torch.rand(p.shape, generator=g))
+        pipeline.model.lifted_views.fill_(3)  # as after a lifting: the labelled fraction and evidence are read
     base = config.get_base_dir()
     base.mkdir(parents=True)
     (base / "config.yml").write_text(yaml.dump(config), "utf8")
@@ -77,3 +78,45 @@ def test_load_run_reads_masks_only_when_asked(saved_run) -> None:
     assert light.views == [] and light.observations == []
     assert len(full.views) == int(light.cameras.camera_to_worlds.shape[0]) > 0
     assert torch.equal(light.field.means, full.field.means)
+
+
+def test_export_field_without_the_model_matches_the_model_s_field(saved_run) -> None:
+    """load_run builds the field from the checkpoint's tensors (PropertyField.from_state) without building the
+    model; the oracle is PropertyField.from_model on nerfstudio's own eval_setup pipeline."""
+    import sys
+
+    from nerfstudio.utils.eval_utils import eval_setup
+
+    field = load_run(saved_run, capture=False).field
+    _, pipeline, _, _ = eval_setup(saved_run, test_mode="inference")
+    want = PropertyField.from_model(pipeline.model)
+    for name in ("means", "quats", "scales", "opacities", "alpha", "labelled", "evidence", "sh_dc", "sh_rest"):
+        x, y = getattr(field, name), getattr(want, name)
+        assert x is not None and y is not None and torch.equal(x.cpu(), y.cpu()), name
+    for f in ("tau", "kappa", "a", "b"):
+        assert torch.equal(getattr(field.nig, f), getattr(want.nig, f)), f
+    assert (field.material_names, field.material_colors, field.thickness_m, field.material_weights) == (
+        want.material_names, want.material_colors, want.thickness_m, want.material_weights)
+    assert torch.equal(field.pi(), want.pi())
+    assert "physgs_nerfstudio.nerfstudio.model" in sys.modules  # (eval_setup imported it; the next test: load_run alone)
+
+
+def test_export_loading_imports_no_model(saved_run) -> None:
+    import subprocess
+    import sys
+
+    code = ("import sys; from pathlib import Path; from physgs_nerfstudio.export.command import load_run; "
+            "r = load_run(Path(sys.argv[1])); print(r.field.num_gaussians, len(r.views), sorted(m for m in "
+            "('physgs_nerfstudio.nerfstudio.model', 'nerfstudio.models.splatfacto', 'nerfstudio.engine.trainer', "
+            "'nerfstudio.viewer.viewer') if m in sys.modules))")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code, str(saved_run)], capture_output=True, text=True, check=True)
+    n, views, imported = out.stdout.split(maxsplit=2)
+    assert int(n) > 1 and int(views) > 0 and imported.strip() == "[]", out.stdout + out.stderr[-2000:]
+
+
+def test_export_defaults_for_old_configs_are_the_model_config_s() -> None:
+    from physgs_nerfstudio.export.loader import MODEL_DEFAULTS
+    from physgs_nerfstudio.nerfstudio.model import PhysGSModelConfig
+
+    cfg = PhysGSModelConfig()
+    assert MODEL_DEFAULTS == {name: getattr(cfg, name) for name in MODEL_DEFAULTS}

@@ -31,7 +31,7 @@ from physgs_nerfstudio.export.shapes import field_from, solid_box
 from physgs_nerfstudio.export.staging import MARKER, ExportDirError, ExportStage, ExportWriteError
 from physgs_nerfstudio.geometry import GeometryConfig, reconstruct_object
 from physgs_nerfstudio.mass import MassConfig
-from physgs_nerfstudio.safe_yaml import UnsafeConfigError, load_config_yaml
+from physgs_nerfstudio.safe_yaml import ConfigObject, UnsafeConfigError, load_config_tree, load_config_yaml
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -287,6 +287,7 @@ PAYLOADS = {
     "state_setter": ('x: !!python/object/new:pathlib.PosixPath\n  state: !!python/object/apply:os.system '
                      '["touch {m}"]\n'),
     "custom_tag": "x: !evil 1\n",
+    "function_of_an_allowed_package": 'x: !!python/object/apply:nerfstudio.utils.io.write_to_json ["{m}", {{}}]\n',
 }
 
 
@@ -302,6 +303,27 @@ def test_5_malicious_configs_never_run(tmp_path, name):
     assert not marker.exists()
     with pytest.raises(PhysGSError):  # the same through the export's loader
         load_run(evil)
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize("name", sorted(PAYLOADS))
+def test_5_the_name_tree_imports_and_runs_nothing_and_its_build_refuses(tmp_path, name):
+    """load_config_tree judges tags by name only; whatever it lets through as a name, build() refuses, and
+    nothing runs either way."""
+    marker = tmp_path / "pwned.txt"
+    evil = tmp_path / "config.yml"
+    evil.write_text(PAYLOADS[name].format(m=marker))
+    try:
+        tree = load_config_tree(evil)
+    except UnsafeConfigError:
+        tree = None
+    if tree is not None:
+        values = list(tree.fields.values()) if isinstance(tree, ConfigObject) else [*tree.keys(), *tree.values()]
+        built = [v for v in values if hasattr(v, "build")]
+        assert built, f"{name}: the tree holds no python object to refuse: {tree!r}"
+        for value in built:
+            with pytest.raises(UnsafeConfigError):
+                value.build()
     assert not marker.exists()
 
 
@@ -326,6 +348,19 @@ def test_5_real_nerfstudio_configs_load_as_nerfstudio_loads_them(tmp_path, metho
     theirs = yaml.load(path.read_text(), Loader=yaml.Loader)  # nerfstudio's eval_setup (trusted file here)
     assert type(ours) is type(theirs) and repr(ours) == repr(theirs)
     assert ours.method_name == method and ours.pipeline.datamanager.data == tmp_path / "scene"
+    tree = load_config_tree(path)  # the export's reading: names only, then the real object when built
+    assert tree.class_name == "nerfstudio.engine.trainer.TrainerConfig" and tree.method_name == method
+    built = tree.build()
+    assert type(built) is type(theirs) and repr(built) == repr(theirs)
+
+
+def test_5_the_name_tree_imports_no_class(tmp_path):
+    path = _nerfstudio_config(tmp_path, "physgs", tmp_path / "scene")
+    code = ("import sys; from physgs_nerfstudio.safe_yaml import load_config_tree; t = load_config_tree(sys.argv[1]); "
+            "print(t.pipeline.model.class_name, sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('nerfstudio', 'torch', 'gsplat') or m.startswith('physgs_nerfstudio.nerfstudio')))")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["physgs_nerfstudio.nerfstudio.model.PhysGSModelConfig", "[]"]
 
 
 def _physgs(argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
@@ -397,8 +432,9 @@ def test_10b_a_copy_beside_an_existing_original_uses_its_own_checkpoint(trained_
     files = check_run(copy_cfg, log=lines.append)
     assert files.relocated and files.checkpoint == ckpts / "step-000000009.ckpt" and files.step == 9
     assert len(lines) == 1 and "another folder" in lines[0]
-    cfg = files.apply(copy.deepcopy(files.config))
+    cfg = files.trainer_config()
     assert Path(cfg.get_checkpoint_dir()) == ckpts and cfg.load_step == 9
+    assert files.config.load_step is None  # the checked tree itself is left as read
     same = check_run(trained_run, log=lines.append)  # the original: its own stored folder, nothing printed
     assert not same.relocated and len(lines) == 1
 

@@ -198,6 +198,7 @@ def test_a_checkpoint_keeps_its_head_under_another_config(blob_dm, written, load
 def test_old_run_loads_for_export_under_another_default(tmp_path, monkeypatch) -> None:
     """A run saved by the "logits" head with a config.yml from before `material_head` existed loads through the
     export's loader while the default names another head."""
+    from physgs_nerfstudio.export.command import load_run
     from physgs_nerfstudio.export.loader import load_run_model
     from physgs_nerfstudio.export.runcheck import check_run
 
@@ -222,7 +223,10 @@ def test_old_run_loads_for_export_under_another_default(tmp_path, monkeypatch) -
                config.get_checkpoint_dir() / "step-000000005.ckpt")  # fmt: skip
     monkeypatch.setattr(PhysGSModelConfig, "material_head", "lifted")  # the flipped default
     files = check_run(base / "config.yml")
-    assert files.config.pipeline.model.material_head == "lifted"  # the old config names no head
+    assert files.trainer_config().pipeline.model.material_head == "lifted"  # the old config names no head
+    field = load_run(base / "config.yml", capture=False).field  # the export's path: no model built
+    assert field.num_gaussians == pipeline.model.num_points
+    assert torch.equal(field.alpha, pipeline.model.dirichlet_alpha())
     rm = load_run_model(files.config, files.checkpoint)
     assert rm.model.material_head == "logits"
     assert torch.equal(rm.model.gauss_params[LOGITS_KEY], pipeline.model.gauss_params[LOGITS_KEY])

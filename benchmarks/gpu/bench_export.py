@@ -11,7 +11,8 @@ watched: a changed ``gsplat_cuda.so`` means that the process rebuilt it. ``--tou
 gsplat source the current time, as a reinstall of the wheel does, and times the last tree's ``maps1`` again
 (the gsplat stamp must keep it from rebuilding; ninja's dry run says whether it would have). ``--breakdown``
 (last, in this process, this tree) times each stage: loading, field on the device, material weights, PLY, geometry
-steps, mass Monte Carlo, voxels, maps per view.
+steps, mass Monte Carlo, voxels, maps per view. ``--profile-load`` runs each tree's ``load`` once more under cProfile
+and keeps the 30 entries of most cumulative time (where the fixed cost goes).
 """
 
 from __future__ import annotations
@@ -69,6 +70,20 @@ def run_case(tree: Path, case: str, config: Path, views: int) -> dict:
     if proc.returncode != 0:
         row["tail"] = (proc.stdout + proc.stderr)[-1500:]
     return row
+
+
+def profile_load(tree: Path, config: Path, top: int = 30) -> str:
+    """The ``load`` case of ``tree`` under cProfile: its ``top`` entries by cumulative time, as text."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]))
+    with tempfile.TemporaryDirectory() as tmp:
+        script, stats = Path(tmp) / "load.py", Path(tmp) / "load.prof"
+        script.write_text(LOAD.replace("; ", "\n"))
+        subprocess.run([sys.executable, "-m", "cProfile", "-o", str(stats), str(script), str(config)], cwd=tree,
+                       env=env, capture_output=True, text=True, check=False)  # fmt: skip
+        code = (f"import pstats, io; s = io.StringIO(); pstats.Stats({str(stats)!r}, stream=s)"
+                f".sort_stats('cumulative').print_stats({top}); print(s.getvalue())")  # fmt: skip
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    return proc.stdout[-12000:]
 
 
 def ninja_would_rebuild() -> int | None:
@@ -178,6 +193,7 @@ def main() -> None:
     ap.add_argument("--budget-s", type=float, default=1e9, help="start no new case after this many seconds")
     ap.add_argument("--touch-gsplat", action="store_true")
     ap.add_argument("--breakdown", action="store_true")
+    ap.add_argument("--profile-load", action="store_true")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
     trees = [(n, Path(p).resolve()) for n, p in (t.split("=", 1) for t in args.tree)]
@@ -205,6 +221,9 @@ def main() -> None:
         row = {"tree": name, **run_case(path, "maps1", args.config, args.views), "after_touch": True}
         result["rows"].append(row)
         print(json.dumps(row), flush=True)
+    if args.profile_load and time.perf_counter() - start < args.budget_s:
+        result["profile_load"] = {name: profile_load(path, args.config) for name, path in trees}
+        save()
     if args.breakdown and time.perf_counter() - start < args.budget_s:
         result["breakdown"] = breakdown(args.config, args.views)
         print("breakdown", json.dumps(result["breakdown"]), flush=True)

@@ -7,6 +7,7 @@
 #   SEEDS="404 505" bash benchmarks/gpu/run_gpu.sh suite          # issue 12: CPU mass suite + gsplat build
 #   bash benchmarks/gpu/run_gpu.sh mem       # issue 13: memory and iteration cost of the material heads (chair)
 #   HEAD=lifted bash benchmarks/gpu/run_gpu.sh full   # the full run with another material head
+#   BASE=.export_base bash benchmarks/gpu/run_gpu.sh export  # issues 12+13: full chair run, its mass, exports before/after
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
 set -uo pipefail
@@ -23,7 +24,7 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
-case "${1:-}" in perf|suite|mem) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
+case "${1:-}" in perf|suite|mem|export) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -101,6 +102,33 @@ case "${1:-kernels}" in
       physgs:material_head=lifted,lift_channel_chunk=8,lifting_every=500"}
     python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps ${TRAIN_STEPS:-1500} --warmup 300 \
       --methods $METHODS --out "$OUT/mem.json" 2>&1 | grep -v Warning | tee "$OUT/mem.log" | tail -8
+    echo "[$(elapsed) s] done"
+    ;;
+  export)
+    # issues 12 and 13 in one command (about 9 minutes on an H100 with a carried gsplat build): the chair scene
+    # (60 views at 512 px), `ns-train physgs` (STEPS, default 7000), the user's `physgs export` (its mass and report
+    # copied at once), then `physgs export` of this tree vs BASE side by side with a per-stage breakdown
+    # (bench_export.py) until LIMIT seconds; the run's ns-eval last if time is left
+    BASE=${BASE:?BASE=path of the checkout to compare against}
+    STEPS=${STEPS:-7000} LIMIT=${LIMIT:-560}
+    make_scene 2>&1 | tail -3 | tee "$OUT/scene.log"
+    wait  # the gsplat build
+    echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
+    python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
+      --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
+      --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -4 | tee "$OUT/full_train.log"
+    CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml)
+    echo "[$(elapsed) s] trained; physgs export (all outputs)"
+    /usr/bin/time -f "wall %e s, max RSS %M KB" python3 -m physgs_nerfstudio.cli export --load-config "$CFG" \
+      --output-dir /tmp/physgs_export > "$OUT/full_export.log" 2>&1; tail -25 "$OUT/full_export.log"
+    cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
+    echo "[$(elapsed) s] exports before/after"
+    python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" --tree "after=$PWD" --views 10 \
+      --cases load mass all maps1 mapsN ply --profile-load --breakdown --budget-s $((LIMIT - 60 - $(elapsed))) \
+      --out "$OUT/export.json" 2>&1 | grep -v Warning > "$OUT/export.log"; tail -30 "$OUT/export.log"
+    if [ $(elapsed) -lt $((LIMIT - 40)) ]; then
+      python3 -m nerfstudio.scripts.eval --load-config "$CFG" --output-path "$OUT/full_eval.json" 2>&1 | tail -2
+    fi
     echo "[$(elapsed) s] done"
     ;;
   full)  # HEAD=latent|lifted: another material head; LIFT_EVERY=N: lift every N steps as well

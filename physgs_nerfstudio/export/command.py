@@ -90,17 +90,16 @@ def load_run(
     capture: bool = True,
 ) -> LoadedRun:
     """Load a trained run after the run checks (:func:`.runcheck.check_run`: safe YAML, method, checkpoint beside
-    a moved config): its property field and cameras (:func:`.loader.load_run_model`: no datamanager, no image
-    opened) and, with ``capture``, the object masks and perception's per-mask answers (mass and voxels need
-    them; the PLY and the maps do not)."""
-    from .loader import load_run_model
+    a moved config): its property field and cameras (:func:`.loader.load_run_state`: the checkpoint's tensors, no
+    model built, no datamanager, no image opened) and, with ``capture``, the object masks and perception's
+    per-mask answers (mass and voxels need them; the PLY and the maps do not)."""
+    from .loader import load_run_state
 
     run_files = check_run(Path(config_path))  # safe YAML, method, checkpoint (beside the config if moved)
-    rm = load_run_model(run_files.config, run_files.checkpoint)
-    dm = rm.config.pipeline.datamanager
-    return _assemble_run(run_files.run_dir, rm.model, rm.dataparser_outputs, getattr(dm, "data", None),
-                         scale=scale, known_length=known_length, env=env, max_view_width=max_view_width,
-                         capture=capture)  # fmt: skip
+    rs = load_run_state(run_files.config, run_files.checkpoint)
+    pf = PropertyField.from_run_state(rs, run_files.run_dir, scale=scale, known_length=known_length, env=env)
+    data = getattr(run_files.config.pipeline.datamanager, "data", None)
+    return _assemble_run(pf, rs.dataparser_outputs, data, max_view_width=max_view_width, capture=capture)
 
 
 def run_from_pipeline(
@@ -114,20 +113,18 @@ def run_from_pipeline(
 ) -> LoadedRun:
     """:func:`load_run` on a pipeline already loaded (e.g. the viewer's); ``run_dir``: the folder of its
     config.yml and dataparser_transforms.json."""
+    from .scale import read_dataparser_scale
+
     dm = pipeline.datamanager
     dpo = getattr(dm, "train_dataparser_outputs", None)
-    return _assemble_run(run_dir, pipeline.model, dpo, getattr(getattr(dm, "config", None), "data", None),
-                         scale=scale, known_length=known_length, env=env, max_view_width=max_view_width,
+    pf = PropertyField.from_model(pipeline.model, read_dataparser_scale(Path(run_dir)), scale=scale,
+                                  known_length=known_length, env=env)  # fmt: skip
+    return _assemble_run(pf, dpo, getattr(getattr(dm, "config", None), "data", None), max_view_width=max_view_width,
                          cameras=getattr(getattr(dm, "train_dataset", None), "cameras", None))  # fmt: skip
 
 
-def _assemble_run(run_dir: Path, model: Any, dpo: Any, data: Path | None, *, scale: float | None,
-                  known_length: Sequence[float] | None, env: str | None, max_view_width: int | None,
+def _assemble_run(pf: PropertyField, dpo: Any, data: Path | None, *, max_view_width: int | None,
                   capture: bool = True, cameras: Any = None) -> LoadedRun:  # fmt: skip
-    from .scale import read_dataparser_scale
-
-    dp_scale = read_dataparser_scale(Path(run_dir))
-    pf = PropertyField.from_model(model, dp_scale, scale=scale, known_length=known_length, env=env)
     cameras = dpo.cameras if dpo is not None else cameras
     views: list[CaptureView] = []
     observations: list[MaskObservation] = []

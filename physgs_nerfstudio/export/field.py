@@ -217,38 +217,66 @@ class PropertyField:
                     f"PropertyField.from_model needs a PhysGSModel (missing `{attr}`); got {type(model).__name__}. "
                     "Train with `ns-train physgs` or `physgs-lite`."
                 )
-        legend = model.legend
         with torch.no_grad():
-            means = model.means.detach().float()
-            quats = model.quats.detach().float()
-            scales = torch.exp(model.scales.detach().float())
-            opacities = torch.sigmoid(model.opacities.detach().float()).reshape(-1)
-            alpha = model.dirichlet_alpha().detach().float()
-            nig = model.material_nig()
-            sh_dc = model.features_dc.detach().float() if hasattr(model, "features_dc") else None
-            sh_rest = model.features_rest.detach().float() if hasattr(model, "features_rest") else None
-            labelled = evidence = None
-            lifted = int(getattr(model, "lifted_views", 0)) > 0
-            if lifted and hasattr(model, "labelled_fraction"):
-                if getattr(model, "labelled_fraction_legacy", False):
-                    logger.warning("the checkpoint predates labelled_weight: no labelled fraction for object "
-                                   "selection (retrain or re-lift the run)")  # fmt: skip
-                else:
-                    labelled = model.labelled_fraction().detach().float().reshape(-1)
-                    evidence = model.dirichlet_evidence.detach().float().sum(-1)
+            state = {k: v.detach() for k, v in model.state_dict().items()}
+        return cls.from_state(state, model.legend, dataparser_scale, alpha0=model.alpha0, lam=model.lam,
+                              material_weights=getattr(getattr(model, "config", None), "material_weights", "dominant"),
+                              labelled_legacy=bool(getattr(model, "labelled_fraction_legacy", False)), scale=scale,
+                              known_length=known_length, materials_json=materials_json, env=env)  # fmt: skip
+
+    @classmethod
+    def from_state(
+        cls,
+        state: dict[str, Tensor],
+        legend: Any,
+        dataparser_scale: float = 1.0,
+        *,
+        alpha0: float,
+        lam: float,
+        material_weights: MaterialWeights = "dominant",
+        labelled_legacy: bool | None = None,
+        scale: float | None = None,
+        known_length: Sequence[float] | None = None,
+        materials_json: Path | None = None,
+        env: str | None = None,
+    ) -> PropertyField:
+        """The field of a PhysGSModel's state dict (``gauss_params.*``, ``nig_*``, ``lifted_views``: a checkpoint's
+        model entries or ``model.state_dict()``) and its material ``legend``, without the model. ``alpha0``,
+        ``lam``: the model's Dirichlet prior and evidence strength. ``labelled_legacy`` (None: the state has no
+        ``labelled_weight``): a checkpoint from before it, whose labelled fraction is unknown. Other arguments as
+        :meth:`from_model`."""
+        from ..bayes import dirichlet_posterior
+        from ..nerfstudio.keys import EVIDENCE_KEY, LABELLED_KEY, WEIGHT_KEY
+
+        g = lambda name: state[f"gauss_params.{name}"].detach().float()
+        evidence = g(EVIDENCE_KEY)
+        sh_rest = g("features_rest") if "gauss_params.features_rest" in state else None
         if sh_rest is not None and sh_rest.dim() == 3 and sh_rest.shape[1] == 0:
             sh_rest = None
+        labelled = total = None
+        if int(state.get("lifted_views", torch.zeros((), dtype=torch.long))) > 0:
+            if labelled_legacy or (labelled_legacy is None and f"gauss_params.{LABELLED_KEY}" not in state):
+                logger.warning("the checkpoint predates labelled_weight: no labelled fraction for object "
+                               "selection (retrain or re-lift the run)")  # fmt: skip
+            else:
+                w = g(WEIGHT_KEY)
+                frac = torch.where(w > 0, g(LABELLED_KEY) / w.clamp_min(1e-12), torch.zeros_like(w))
+                labelled = frac.clamp(0.0, 1.0).reshape(-1)
+                total = evidence.sum(-1)
+        nig = NIG(*(state[f"nig_{f}"].detach() for f in ("tau", "kappa", "a", "b")))
         colors = [tuple(int(round(float(c) * 255)) for c in row) for row in legend.colors.reshape(-1, 3).tolist()]
         path = materials_json if materials_json is not None else getattr(legend, "path", None)
         thickness = load_thickness(path, list(legend.names), env=env)
         sc = resolve_scale(dataparser_scale, scale=scale, known_length=known_length)
         return cls(
-            means=means, quats=quats, scales=scales, opacities=opacities, alpha=alpha, nig=nig,
+            means=g("means"), quats=g("quats"), scales=torch.exp(g("scales")),
+            opacities=torch.sigmoid(g("opacities")).reshape(-1),
+            alpha=dirichlet_posterior(evidence, alpha0, lam).float(), nig=nig,
             material_names=list(legend.names), material_colors=colors, log_space=tuple(legend.log_space),
-            thickness_m=thickness, metres_per_unit=sc.metres_per_unit, scale_source=sc.source, sh_dc=sh_dc,
-            sh_rest=sh_rest, property_keys=tuple(legend.property_keys), simulated=bool(legend.simulated),
-            labelled=labelled, evidence=evidence,
-            material_weights=getattr(getattr(model, "config", None), "material_weights", "dominant"),
+            thickness_m=thickness, metres_per_unit=sc.metres_per_unit, scale_source=sc.source,
+            sh_dc=g("features_dc") if "gauss_params.features_dc" in state else None, sh_rest=sh_rest,
+            property_keys=tuple(legend.property_keys), simulated=bool(legend.simulated), labelled=labelled,
+            evidence=total, material_weights=material_weights,
         )  # fmt: skip
 
     @classmethod
@@ -260,14 +288,32 @@ class PropertyField:
         known_length: Sequence[float] | None = None,
         env: str | None = None,
     ) -> PropertyField:
-        """Load a trained run (its ``config.yml``) through :func:`.loader.load_run_model` and snapshot it."""
-        from .loader import load_run_model
+        """Load a trained run (its ``config.yml``) the way ``physgs export`` does: :func:`.runcheck.check_run`, then
+        :func:`.loader.load_run_state` (no model built) and :meth:`from_run_state`."""
+        from .loader import load_run_state
         from .runcheck import check_run
 
         run_files = check_run(Path(config_path))  # safe YAML, PhysGS method, checkpoint (beside the config if moved)
-        rm = load_run_model(run_files.config, run_files.checkpoint)
-        dp_scale = read_dataparser_scale(run_files.run_dir)
-        return cls.from_model(rm.model, dp_scale, scale=scale, known_length=known_length, env=env)
+        rs = load_run_state(run_files.config, run_files.checkpoint)
+        return cls.from_run_state(rs, run_files.run_dir, scale=scale, known_length=known_length, env=env)
+
+    @classmethod
+    def from_run_state(
+        cls,
+        rs: Any,
+        run_dir: Path,
+        *,
+        scale: float | None = None,
+        known_length: Sequence[float] | None = None,
+        env: str | None = None,
+    ) -> PropertyField:
+        """:meth:`from_state` of a :class:`.loader.RunState` (checkpoint tensors, legend, the model config's prior
+        and weights; ``run_dir``: the folder of its dataparser_transforms.json)."""
+        alpha0, lam = rs.prior()
+        return cls.from_state(rs.state, rs.dataparser_outputs.metadata["material_legend"],
+                              read_dataparser_scale(Path(run_dir)), alpha0=alpha0, lam=lam,
+                              material_weights=rs.material_weights(), scale=scale, known_length=known_length,
+                              env=env)  # fmt: skip
 
 
 def load_thickness(

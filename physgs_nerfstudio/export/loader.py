@@ -1,4 +1,5 @@
-"""Load a trained run for export: the model from its config and checkpoint, without nerfstudio's datamanager.
+"""Load a trained run for export: its property field's tensors from the checkpoint and its cameras from the
+dataset, without nerfstudio's datamanager and without building the model.
 
 nerfstudio's ``eval_setup`` builds the whole training pipeline to evaluate a run: it imports every registered
 method, sets up the datamanager (datasets, samplers), reads the seed point cloud and seeds the Gaussians from
@@ -8,6 +9,12 @@ materials.json: no image is opened), builds the model with a one-Gaussian placeh
 nearest-neighbour seeding, ``placeholder_gaussians``), and loads the model's part
 of the checkpoint through a memory map (the optimizers' moments, twice the model's size, are never read).
 The model is the one ``eval_setup`` would build (same class, config, legend, camera count and state dict).
+
+An export does not even build the model (:func:`load_run_state`): the field is a function of the checkpoint's
+model tensors, the legend and two numbers of the model's config (:meth:`.field.PropertyField.from_state`), so
+the config is read as a tree of names (:func:`physgs_nerfstudio.safe_yaml.load_config_tree`) and only the
+dataparser's config is built. splatfacto, the viewer and nerfstudio's trainer are never imported; that import
+was most of an export's fixed cost. :func:`load_run_model` (the model itself) stays for callers that need it.
 """
 
 from __future__ import annotations
@@ -21,7 +28,7 @@ import torch
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["RunModel", "load_run_model"]
+__all__ = ["RunModel", "RunState", "load_run_model", "load_run_state"]
 
 
 @dataclass
@@ -34,6 +41,64 @@ class RunModel:
     """the training split's DataparserOutputs (cameras in the scene frame, image and map paths, legend)"""
     checkpoint: Path
     step: int
+
+
+MODEL_DEFAULTS = {"dirichlet_alpha0": None, "dirichlet_lambda": None, "material_weights": "dominant"}
+"""PhysGSModelConfig's defaults of the fields an export reads, for configs written before a field existed (a test
+holds them equal to the class's; importing it would import splatfacto)"""
+
+
+@dataclass
+class RunState:
+    model_config: Any
+    """the run's model config, a :class:`~physgs_nerfstudio.safe_yaml.ConfigObject` (fields by name)"""
+    state: dict[str, torch.Tensor]
+    """the model's tensors of the checkpoint (memory-mapped)"""
+    dataparser_outputs: Any
+    """the training split's DataparserOutputs (cameras in the scene frame, image and map paths, legend)"""
+    checkpoint: Path
+    step: int
+
+    def material_weights(self) -> str:
+        """The model config's ``material_weights`` (PhysGSModelConfig's default when an older config lacks it)."""
+        return getattr(self.model_config, "material_weights", MODEL_DEFAULTS["material_weights"])
+
+    def prior(self) -> tuple[float, float]:
+        """The model's Dirichlet prior alpha0 and evidence strength lambda: its config's, else the legend's, else
+        1 (PhysGSModel.populate_modules)."""
+        legend = self.dataparser_outputs.metadata["material_legend"]
+        out = []
+        for name, fallback in (("dirichlet_alpha0", legend.alpha0), ("dirichlet_lambda", legend.lam)):
+            value = getattr(self.model_config, name, MODEL_DEFAULTS[name])
+            value = fallback if value is None else value
+            out.append(1.0 if value is None else float(value))
+        return out[0], out[1]
+
+
+def _dataparser_outputs(config: Any) -> Any:
+    """The training split's DataparserOutputs of a run config (a built one or a ConfigObject tree), as
+    ``eval_setup(test_mode="inference")`` makes them: no image opened, no seed points read."""
+    dm = config.pipeline.datamanager
+    dp_config = dm.dataparser
+    if hasattr(dp_config, "build"):
+        dp_config = dp_config.build()
+    if getattr(dm, "data", None) is not None:  # as the datamanager does
+        dp_config.data = Path(dm.data)
+    else:
+        dm.data = dp_config.data
+    if hasattr(dp_config, "load_3D_points"):
+        dp_config.load_3D_points = False  # seed points are replaced by the checkpoint's Gaussians
+    dataparser = dp_config.setup()
+    dataparser.downscale_factor = 1  # as eval_setup(test_mode="inference"): never open an image
+    return dataparser.get_dataparser_outputs(split="train")
+
+
+def load_run_state(config: Any, checkpoint: Path) -> RunState:
+    """The model's checkpoint tensors and the training split's dataparser outputs of a run (module doc): its
+    ``config`` as :func:`.runcheck.check_run` read it and the ``checkpoint`` it chose."""
+    dpo = _dataparser_outputs(config)
+    state, step = _model_state(Path(checkpoint))
+    return RunState(config.pipeline.model, state, dpo, Path(checkpoint), step)
 
 
 def _model_state(checkpoint: Path) -> tuple[dict[str, torch.Tensor], int]:
@@ -55,17 +120,9 @@ def _model_state(checkpoint: Path) -> tuple[dict[str, torch.Tensor], int]:
 def load_run_model(config: Any, checkpoint: Path) -> RunModel:
     """The trained model and the training split's dataparser outputs of a run: its ``config`` (the TrainerConfig
     that :func:`.runcheck.check_run` read safely) and the ``checkpoint`` it chose (module doc)."""
-    dm = config.pipeline.datamanager
-    dp_config = dm.dataparser
-    if getattr(dm, "data", None) is not None:  # as the datamanager does
-        dp_config.data = Path(dm.data)
-    else:
-        dm.data = dp_config.data
-    if hasattr(dp_config, "load_3D_points"):
-        dp_config.load_3D_points = False  # seed points are replaced by the checkpoint's Gaussians
-    dataparser = dp_config.setup()
-    dataparser.downscale_factor = 1  # as eval_setup(test_mode="inference"): never open an image
-    dpo = dataparser.get_dataparser_outputs(split="train")
+    if hasattr(config, "build"):  # a ConfigObject tree (check_run's): the real TrainerConfig
+        config = config.build()
+    dpo = _dataparser_outputs(config)
     state, step = _model_state(Path(checkpoint))
     model = config.pipeline.model.setup(scene_box=dpo.scene_box, num_train_data=len(dpo.image_filenames),
                                         metadata=dpo.metadata, device="cpu", grad_scaler=None, seed_points=None,

@@ -3,7 +3,9 @@
 :func:`check_run` is what ``physgs export`` (and :meth:`PropertyField.from_checkpoint`) call before loading a
 run (:mod:`.loader`; ``eval_setup`` for others). In order:
 
-1. ``config.yml`` is read through :mod:`physgs_nerfstudio.safe_yaml` (a crafted file cannot run code);
+1. ``config.yml`` is read through :mod:`physgs_nerfstudio.safe_yaml` (a crafted file cannot run code) as a tree
+   of :class:`~physgs_nerfstudio.safe_yaml.ConfigObject` (nothing it names is imported; :meth:`RunFiles.trainer_config`
+   builds nerfstudio's TrainerConfig when a caller needs it);
 2. it is a nerfstudio run of a PhysGS method (a splatfacto/nerfacto run is named as such, instead of failing
    later inside nerfstudio, e.g. with "no NVIDIA driver");
 3. the checkpoint folder: a run folder copied or moved elsewhere keeps the stored (old) paths in its config,
@@ -46,13 +48,17 @@ class RunFiles:
 
     config_path: Path
     config: Any
-    """the TrainerConfig, as read by the safe loader"""
+    """the run's config as read by :func:`~physgs_nerfstudio.safe_yaml.load_config_tree` (a ConfigObject tree)"""
     run_dir: Path
     """the folder whose checkpoints and dataparser_transforms.json are used"""
     checkpoint: Path
     step: int
     relocated: bool
     """True when run_dir is the config's folder and differs from the path stored in the config"""
+
+    def trainer_config(self) -> Any:
+        """nerfstudio's TrainerConfig of the run, built from the checked tree and pointed at the checked files."""
+        return self.apply(self.config.build())
 
     def apply(self, config: Any) -> Any:
         """``eval_setup(..., update_config_callback=files.apply)``: load exactly the checked checkpoint."""
@@ -65,29 +71,51 @@ class RunFiles:
         return config
 
 
+_TRAINER_CONFIG = "nerfstudio.engine.trainer.TrainerConfig"
+_METHODS_GROUP = "nerfstudio.method_configs"
+
+
 def _is_physgs(config: Any) -> bool:
     model = getattr(getattr(config, "pipeline", None), "model", None)
-    return any(c.__module__.startswith("physgs_nerfstudio.") for c in type(model).__mro__)
+    return getattr(model, "class_name", "").startswith("physgs_nerfstudio.")
+
+
+def _registered_methods() -> set[str]:
+    """Method names nerfstudio's plugin registry would find (entry points and NERFSTUDIO_METHOD_CONFIGS), read
+    without loading them (nerfstudio's discover_methods imports every method, seconds)."""
+    from importlib.metadata import entry_points
+
+    names = {ep.name for ep in entry_points(group=_METHODS_GROUP)}
+    for item in os.environ.get("NERFSTUDIO_METHOD_CONFIGS", "").split(","):
+        if "=" in item:
+            names.add(item.split("=", 1)[0].strip())
+    return names
 
 
 def _method_of(config_path: Path, config: Any) -> None:
-    from nerfstudio.engine.trainer import TrainerConfig
-
-    if not isinstance(config, TrainerConfig):
-        raise RunFilesError(f"{config_path}: not the config of a nerfstudio run ({type(config).__name__}); pass the "
+    if getattr(config, "class_name", None) != _TRAINER_CONFIG:
+        kind = getattr(config, "class_name", type(config).__name__).rpartition(".")[2]
+        raise RunFilesError(f"{config_path}: not the config of a nerfstudio run ({kind}); pass the "
                             "config.yml that `ns-train physgs` wrote into outputs/<scene>/physgs/<time>/.")  # fmt: skip
+    method = getattr(config, "method_name", None)
     if not _is_physgs(config):
         raise RunFilesError(
-            f"{config_path}: a run of method {config.method_name!r}, not PhysGS: physgs export needs a run of "
+            f"{config_path}: a run of method {method!r}, not PhysGS: physgs export needs a run of "
             "`ns-train physgs` or `physgs-lite` (for that run's plain splat use `ns-export gaussian-splat`)."
         )
-    # the plugin registry alone (entry points, NERFSTUDIO_METHOD_CONFIGS): nerfstudio.configs.method_configs would
-    # also import every built-in method and build its external-method stubs (inspect.stack() each), seconds
-    from nerfstudio.plugins.registry import discover_methods
-
-    if config.method_name not in discover_methods()[0]:
-        raise RunFilesError(f"{config_path}: method {config.method_name!r} is not registered with nerfstudio in this "
+    if method not in _registered_methods():
+        raise RunFilesError(f"{config_path}: method {method!r} is not registered with nerfstudio in this "
                             "environment; install physgs-nerfstudio here (pip install -e .) and retry.")  # fmt: skip
+
+
+def _base_dir(config: Any) -> Path:
+    """nerfstudio's ExperimentConfig.get_base_dir of the stored fields (experiment name from the data folder
+    when unset, as set_experiment_name)."""
+    name = getattr(config, "experiment_name", None)
+    if name is None:
+        data = getattr(config.pipeline.datamanager, "data", None)
+        name = str((data.parent if data.is_file() else data).stem) if data is not None else "unnamed"
+    return Path(f"{config.output_dir}/{name}/{config.method_name}/{config.timestamp}")
 
 
 def _steps(folder: Path) -> dict[int, Path]:
@@ -112,7 +140,7 @@ def _checkpoint_dir(config_path: Path, config: Any, log: Callable[[str], None]) 
     """(run_dir, checkpoint dir, relocated): the stored folder if it is this config's, else the one beside it."""
     beside_run = config_path.parent
     beside = beside_run / Path(config.relative_model_dir)
-    stored_run = Path(config.get_base_dir())
+    stored_run = _base_dir(config)
     stored = stored_run / Path(config.relative_model_dir)
     if _same(stored_run, beside_run) or _same(stored, beside):
         return stored_run, stored, False
@@ -131,17 +159,23 @@ def _checkpoint_dir(config_path: Path, config: Any, log: Callable[[str], None]) 
 
 
 def _check_checkpoint(path: Path) -> None:
+    """A complete PyTorch zip archive: the central directory reads, ``data.pkl`` is there with a good CRC and
+    every entry lies inside the file. (The tensors' CRCs are not computed: that read the whole checkpoint, with
+    the optimizers' moments, on every export; a truncated copy loses the central directory at its end.)"""
     size = path.stat().st_size
     try:
         with zipfile.ZipFile(path) as z:
-            names = z.namelist()
-            bad = z.testzip()
+            infos = z.infolist()
+            pkl = next((i for i in infos if i.filename.endswith("data.pkl")), None)
+            if pkl is not None:
+                z.read(pkl)  # checks its CRC
+            outside = next((i.filename for i in infos if i.header_offset + i.compress_size > size), None)
     except (zipfile.BadZipFile, OSError, EOFError) as err:
         raise RunFilesError(f"{path}: the checkpoint is truncated or damaged ({size} bytes, {err}); "
                             f"{_RETRAIN}.") from None  # fmt: skip
-    if bad is not None or not any(n.endswith("data.pkl") for n in names):
-        raise RunFilesError(f"{path}: the checkpoint is damaged ({'bad CRC in ' + bad if bad else 'no data.pkl'}); "
-                            f"{_RETRAIN}.")  # fmt: skip
+    if pkl is None or outside is not None:
+        why = f"{outside} lies beyond its end" if outside else "no data.pkl"
+        raise RunFilesError(f"{path}: the checkpoint is damaged ({why}); {_RETRAIN}.")
 
 
 def _dataset_path(config: Any) -> Path | None:
@@ -186,7 +220,7 @@ def _check_dataset(config_path: Path, config: Any) -> None:
 
 def check_run(config_path: Path, *, log: Callable[[str], None] | None = None) -> RunFiles:
     """Run the checks of the module doc; return the files to load."""
-    from ..safe_yaml import load_config_yaml
+    from ..safe_yaml import load_config_tree
 
     log = log or (lambda line: print(line, file=sys.stderr))
     config_path = Path(config_path)
@@ -194,14 +228,15 @@ def check_run(config_path: Path, *, log: Callable[[str], None] | None = None) ->
         config_path = config_path / "config.yml"
     if not config_path.is_file():
         raise RunFilesError(f"{config_path} not found: pass the config.yml of an `ns-train physgs` run.")
-    config = load_config_yaml(config_path)
+    config = load_config_tree(config_path)
     _method_of(config_path, config)
     run_dir, ckpt_dir, relocated = _checkpoint_dir(config_path, config, log)
     steps = _steps(ckpt_dir)
     if not steps:
         raise RunFilesError(f"{ckpt_dir}: no checkpoint (step-*.ckpt); training writes one every --steps-per-save "
                             "steps and at the end: let the run finish, or " + _RETRAIN + ".")  # fmt: skip
-    step = config.load_step if config.load_step is not None else max(steps)
+    load_step = getattr(config, "load_step", None)
+    step = load_step if load_step is not None else max(steps)
     if step not in steps:
         raise RunFilesError(f"{ckpt_dir}: no step-{step:09d}.ckpt (the config's load_step); steps there: "
                             f"{sorted(steps)}.")  # fmt: skip

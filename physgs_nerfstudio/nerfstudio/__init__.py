@@ -1,12 +1,24 @@
 """nerfstudio integration: material-map data handling, `PhysGSModel` (splatfacto-big + property head) and
 `PhysGSPipeline` (lifts the material maps onto the model at set steps)."""
 
-from .datamanager import PhysGSDatamanager, PhysGSDatamanagerConfig
-from .dataparser import PhysGSDataParser, PhysGSDataParserConfig
-from .dataset import PhysGSDataset
-from .legend import MaterialLegend, MaterialsFileError, load_legend
-from .model import MaterialEvidence, PhysGSModel, PhysGSModelConfig
-from .pipeline import PhysGSPipeline, PhysGSPipelineConfig, lift_material_maps
+import importlib
+from typing import Any
+
+_WHERE = {  # name -> submodule; imported on first use, so that `.dataparser` or `.legend` alone stays light (an
+    # export reads the dataset through the dataparser and never imports the model, i.e. splatfacto and the viewer)
+    "PhysGSDatamanager": "datamanager", "PhysGSDatamanagerConfig": "datamanager",
+    "PhysGSDataParser": "dataparser", "PhysGSDataParserConfig": "dataparser", "PhysGSDataset": "dataset",
+    "MaterialLegend": "legend", "MaterialsFileError": "legend", "load_legend": "legend",
+    "MaterialEvidence": "model", "PhysGSModel": "model", "PhysGSModelConfig": "model",
+    "PhysGSPipeline": "pipeline", "PhysGSPipelineConfig": "pipeline", "lift_material_maps": "pipeline",
+}  # fmt: skip
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+
 
 __all__ = [
     "MaterialEvidence",
