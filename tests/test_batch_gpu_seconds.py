@@ -52,18 +52,20 @@ def _export(seconds: float, device: str = "cuda", mass: float = 1.5) -> dict:
 def test_per_scene_gpu_seconds_split_into_steps_and_the_rest(bench, tmp_path) -> None:
     _scene(tmp_path, "mug", _train(30.0), _export(5.0))
     _scene(tmp_path, "chair", _train(40.0), _export(7.0, mass=6.0))
-    _scene(tmp_path, "vase", _train(35.0), {"status": "failed", "error": "export: x", "error_kind": "export failed"})
+    _scene(tmp_path, "vase", _train(35.0), {"status": "failed", "seconds": 4.0, "device": "cuda", "error": "export: x",
+                                            "error_kind": "export failed"})  # fmt: skip
     _scene(tmp_path, "pan", {"status": "running"}, None)  # stopped mid-training
     res = bench.summarise(tmp_path, "physgs")
     mug = res["scenes"]["mug"]
     assert mug["gpu_s"] == pytest.approx(35.0) and mug["steps"] == 1000 and mug["step_ms"] == pytest.approx(12.5)
     assert mug["train_other_s"] == pytest.approx(30.0 - 1000 * 0.0125)
-    assert res["scenes"]["vase"]["gpu_s"] == pytest.approx(35.0) and not res["scenes"]["vase"]["complete"]
+    vase = res["scenes"]["vase"]  # the failed export held the GPU 4 s
+    assert vase["gpu_s"] == pytest.approx(39.0) and vase["export_failed_s"] == 4.0 and not vase["complete"]
     assert res["scenes"]["pan"]["gpu_s"] == 0.0 and "train_s" not in res["scenes"]["pan"]
     assert (res["scenes_found"], res["scenes_complete"], res["steps"]) == (4, 2, [1000])
     gpu = res["per_complete_scene"]["gpu_s"]  # complete scenes only: 35 and 47
     assert (gpu["n"], gpu["median"], gpu["min"], gpu["max"]) == (2, pytest.approx(41.0), 35.0, 47.0)
-    assert res["totals"]["gpu_seconds"] == pytest.approx(35 + 47 + 35)  # summary.py's own count, failed included
+    assert res["totals"]["gpu_seconds"] == pytest.approx(35 + 47 + 39)  # summary.py's own count, failed included
     assert res["dry_run_estimate_s_per_scene_at_these_steps"] == pytest.approx(1000 * 0.0123 + 6.0)
 
 

@@ -8,7 +8,8 @@ CUDA; training is timed around the whole `ns-train` process). From each scene's 
 profiler line ``Trainer.train_iteration: S`` (mean seconds of one training step) and from the checkpoint's
 name the steps trained, and splits training into steps x step time and the rest (process start-up, dataset
 loading, callbacks such as densification and lifting, evaluation, checkpoint). A batch stopped part-way is read
-as it stands: a scene counts for a stage only when that stage finished. Also prints `physgs batch --dry-run`'s
+as it stands: a stage still running when it was stopped counts nothing; a failed one counts its seconds in the
+scene's GPU-seconds (`<stage>_failed_s`), and the per-scene statistics are over complete scenes. Also prints `physgs batch --dry-run`'s
 per-scene estimate at the same steps (`batch/plan.py`'s rates), for comparison.
 """
 
@@ -49,6 +50,9 @@ def scene_record(state: dict) -> dict:
     rec: dict = {"status": {s: (st.get(s) or {}).get("status") for s in ("perceive", "train", "export")}}
     gpu = 0.0
     for name, stage, key in (("train", train, "train_seconds"), ("export", export, "export_seconds")):
+        if stage.get("status") == "failed":  # held the device all the same (summary.py counts it too)
+            rec[f"{name}_failed_s"] = stage.get("seconds", 0.0)
+            gpu += stage.get("seconds", 0.0) if stage.get("device") == "cuda" else 0.0
         if stage.get("status") != "done":
             continue
         m = stage.get("metrics", {})
@@ -83,7 +87,7 @@ def summarise(output_dir: Path, method: str = "physgs") -> dict:
     done = [r for r in scenes.values() if r["complete"]]
     per_scene = {k: _stats([r[k] for r in done if r.get(k) is not None])
                  for k in ("gpu_s", "train_s", "export_s", "step_ms", "train_other_s")}  # fmt: skip
-    steps = sorted({r["steps"] for r in done if r.get("steps") is not None})
+    steps = sorted({r["steps"] for r in scenes.values() if r.get("steps") is not None})
     res = {"output_dir": str(output_dir), "method": method, "scenes_found": len(names),
            "scenes_complete": len(done), "steps": steps, "default_steps": DEFAULT_ITERATIONS.get(method),
            "per_complete_scene": per_scene, "scenes": scenes, "totals": totals(states)}  # fmt: skip
@@ -97,13 +101,15 @@ def _fmt(x: float | None, spec: str = ".1f") -> str:
 
 
 def print_report(res: dict) -> None:
-    print(f"{res['scenes_complete']}/{res['scenes_found']} scenes trained and exported; steps per scene "
+    print(f"{res['scenes_complete']}/{res['scenes_found']} scenes trained and exported; steps trained "
           f"{res['steps'] or '-'} (the method's default: {res['default_steps']})")  # fmt: skip
     print(f"{'scene':10s} {'train s':>8s} {'export s':>9s} {'GPU s':>7s} {'steps':>6s} {'step ms':>8s} "
           f"{'other s':>8s} {'mass kg':>8s}  status")  # fmt: skip
     for name, r in res["scenes"].items():
         status = " ".join(f"{k}={v}" for k, v in r["status"].items())
-        print(f"{name:10s} {_fmt(r.get('train_s')):>8s} {_fmt(r.get('export_s')):>9s} {_fmt(r['gpu_s']):>7s} "
+        train_s = r.get("train_s", r.get("train_failed_s"))
+        export_s = r.get("export_s", r.get("export_failed_s"))
+        print(f"{name:10s} {_fmt(train_s):>8s} {_fmt(export_s):>9s} {_fmt(r['gpu_s']):>7s} "
               f"{_fmt(r.get('steps'), 'd') if r.get('steps') else '-':>6s} {_fmt(r.get('step_ms'), '.2f'):>8s} "
               f"{_fmt(r.get('train_other_s')):>8s} {_fmt(r.get('mass_kg'), '.3g'):>8s}  {status}")  # fmt: skip
     for key, label in (("gpu_s", "GPU-seconds"), ("train_s", "train seconds"), ("export_s", "export seconds"),
@@ -116,8 +122,9 @@ def print_report(res: dict) -> None:
         print(f"physgs batch --dry-run's estimate per scene at {res['steps'][0]} steps: "
               f"{res['dry_run_estimate_s_per_scene_at_these_steps']:.1f} device s")  # fmt: skip
     t = res["totals"]
-    print(f"batch totals: GPU-seconds {t['gpu_seconds']:.1f} (train {t['train_seconds']:.1f}, export "
-          f"{t['export_seconds']:.1f}), complete {t['complete']}/{t['scenes']}, failures {t['failures_by_reason']}")  # fmt: skip
+    print(f"batch totals: GPU-seconds {t['gpu_seconds']:.1f} (train {t['train_seconds']:.1f} and export "
+          f"{t['export_seconds']:.1f} of finished stages, {t.get('gpu_seconds_failed', 0.0):.1f} of failed ones), "
+          f"complete {t['complete']}/{t['scenes']}, failures {t['failures_by_reason']}")  # fmt: skip
 
 
 def main() -> None:
