@@ -22,8 +22,8 @@ import statistics
 from pathlib import Path
 
 from physgs_nerfstudio.batch.plan import DEFAULT_ITERATIONS, EXPORT_SECONDS, SECONDS_PER_ITERATION
-from physgs_nerfstudio.batch.summary import totals
 from physgs_nerfstudio.batch.state import load_state
+from physgs_nerfstudio.batch.summary import totals
 
 _ITER = re.compile(r"Trainer\.train_iteration:\s*([0-9.eE+-]+)")
 _CKPT = re.compile(r"step-(\d+)\.ckpt$")
