@@ -206,6 +206,29 @@ def test_local_backend_overlaps_next_perception_with_training_and_uses_each_gpu(
     assert [e[1:3] for e in events if e[0] == "start"] == [(n, s) for n in "abc" for s in ("perceive", "train", "export")]
 
 
+def test_a_failed_gpu_stage_records_its_device_and_counts_as_gpu_seconds(tmp_path, monkeypatch):
+    from physgs_nerfstudio.batch import runner
+    from physgs_nerfstudio.batch import stages as st
+    from physgs_nerfstudio.batch.scenes import Scene
+    from physgs_nerfstudio.batch.summary import collect, totals
+
+    def failing_export(scene, settings, out, config):
+        time.sleep(0.2)  # the GPU is held while the export runs, whether it ends well or not
+        raise st.StageError("export: carving left no solid voxel", "export failed")
+
+    monkeypatch.setattr(st, "run_export", failing_export)
+    scene, out = Scene("a", _dataset(tmp_path / "a")), tmp_path / "out"
+    save_state(out, "a", {"stages": {"perceive": {"status": "done"}, "train": {
+        "status": "done", "outputs": {"config": "c.yml"}, "metrics": {"device": "cuda", "train_seconds": 5.0}}}})
+    for device in ("cuda", "cpu"):
+        rec = runner.run_stage(scene, "export", st.StageSettings(device=device), out, Policy(retry_failed=True), "r")
+        assert rec["status"] == "failed" and rec["device"] == device and rec["seconds"] >= 0.2
+        tot = totals(collect(out, ["a"]))
+        failed = rec["seconds"] if device == "cuda" else 0.0  # CPU seconds are no GPU-seconds
+        assert tot["gpu_seconds_failed"] == pytest.approx(failed)
+        assert tot["gpu_seconds"] == pytest.approx(5.0 + failed) and tot["export_seconds"] == 0.0
+
+
 # ----------------------------------------------------------------------------------------------- end to end
 @pytest.fixture(scope="module")
 def tiny_scenes(tmp_path_factory):

@@ -102,6 +102,8 @@ def run_stage(scene: Scene, stage: str, settings: st.StageSettings, output_dir: 
     else:
         rec.update(status="done", outputs=outputs, metrics=metrics, error=None, error_kind=None)
     rec.update(finished=time.time(), seconds=time.perf_counter() - t0)
+    if stage in ("train", "export"):  # a failed attempt held the device too (summary.py counts its seconds)
+        rec["device"] = settings.device
     state["stages"][stage] = rec
     save_state(output_dir, scene.name, state)
     return rec

@@ -21,7 +21,7 @@ def collect(output_dir: Path, names: list[str]) -> dict[str, dict]:
 def totals(states: dict[str, dict]) -> dict:
     t = {"scenes": len(states), "complete": 0, "vlm_calls": 0, "cache_hits": 0, "prompt_tokens": 0,
          "completion_tokens": 0, "cost_usd": 0.0, "train_seconds": 0.0, "export_seconds": 0.0,
-         "gpu_seconds": 0.0, "failures": 0, "failures_by_reason": {}}  # fmt: skip
+         "gpu_seconds": 0.0, "gpu_seconds_failed": 0.0, "failures": 0, "failures_by_reason": {}}  # fmt: skip
     reasons: Counter = Counter()
     for state in states.values():
         stages = state.get("stages", {})
@@ -35,6 +35,10 @@ def totals(states: dict[str, dict]) -> dict:
             t[key] += m.get(key, 0.0)
             if m.get("device") == "cuda":
                 t["gpu_seconds"] += m.get(key, 0.0)
+            rec = stages.get(s) or {}
+            if rec.get("status") == "failed" and rec.get("device") == "cuda":  # the GPU was held all the same
+                t["gpu_seconds"] += rec.get("seconds", 0.0)
+                t["gpu_seconds_failed"] += rec.get("seconds", 0.0)
         for s, rec in stages.items():
             if rec.get("status") == "failed":
                 reasons[f"{s}: {rec.get('error_kind') or 'error'}"] += 1
@@ -74,7 +78,8 @@ def print_summary(states: dict[str, dict], tot: dict, console, max_rows: int = 5
     console.print(f"VLM calls {tot['vlm_calls']} (cache hits {tot['cache_hits']}), tokens "
                   f"{tot['prompt_tokens']} prompt / {tot['completion_tokens']} completion, cost ${tot['cost_usd']:.4f}; "
                   f"training {tot['train_seconds']:.0f} s, export {tot['export_seconds']:.0f} s "
-                  f"(GPU-seconds {tot['gpu_seconds']:.0f}); failures {tot['failures']}"
+                  f"(GPU-seconds {tot['gpu_seconds']:.0f}, {tot['gpu_seconds_failed']:.0f} of them in failed stages); "
+                  f"failures {tot['failures']}"
                   + (": " + ", ".join(f"{k} x{v}" for k, v in tot["failures_by_reason"].items()) if tot["failures"] else ""))  # fmt: skip
 
 
