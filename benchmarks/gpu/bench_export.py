@@ -83,7 +83,15 @@ def profile_load(tree: Path, config: Path, top: int = 30) -> str:
         code = (f"import pstats, io; s = io.StringIO(); pstats.Stats({str(stats)!r}, stream=s)"
                 f".sort_stats('cumulative').print_stats({top}); print(s.getvalue())")  # fmt: skip
         proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
-    return proc.stdout[-12000:]
+        imports = subprocess.run([sys.executable, "-X", "importtime", str(script), str(config)], cwd=tree, env=env,
+                                 capture_output=True, text=True, check=False).stderr  # fmt: skip
+    rows = []  # (cumulative us, module) of -X importtime's lines
+    for line in imports.splitlines():
+        parts = line.removeprefix("import time:").split("|")
+        if len(parts) == 3 and parts[1].strip().isdigit():
+            rows.append((int(parts[1]), parts[2].rstrip()))
+    top = "\n".join(f"{us / 1e6:8.3f} s {name}" for us, name in sorted(rows, reverse=True)[:40])
+    return proc.stdout[-8000:] + "\nimports by cumulative time (-X importtime):\n" + top
 
 
 def ninja_would_rebuild() -> int | None:
