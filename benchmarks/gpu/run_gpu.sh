@@ -119,14 +119,17 @@ case "${1:-kernels}" in
       --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
       --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -4 | tee "$OUT/full_train.log"
     CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml)
-    echo "[$(elapsed) s] trained; physgs export (all outputs)"
-    /usr/bin/time -f "wall %e s, max RSS %M KB" python3 -m physgs_nerfstudio.cli export --load-config "$CFG" \
-      --output-dir /tmp/physgs_export > "$OUT/full_export.log" 2>&1; tail -25 "$OUT/full_export.log"
-    cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
-    echo "[$(elapsed) s] exports before/after"
+    if [ -z "${SKIP_USER_EXPORT:-}" ]; then  # SKIP_USER_EXPORT=1: only the benchmark below
+      echo "[$(elapsed) s] trained; physgs export (all outputs)"
+      /usr/bin/time -f "wall %e s, max RSS %M KB" python3 -m physgs_nerfstudio.cli export --load-config "$CFG" \
+        --output-dir /tmp/physgs_export > "$OUT/full_export.log" 2>&1; tail -25 "$OUT/full_export.log"
+      cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
+    fi
+    echo "[$(elapsed) s] exports before/after"  # CASES: the cases, in order; PROFILE=0: no --profile-load/--breakdown
     python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" --tree "after=$PWD" --views 10 \
-      --cases load mass all maps1 mapsN ply --profile-load --breakdown --budget-s $((LIMIT - 60 - $(elapsed))) \
-      --out "$OUT/export.json" 2>&1 | grep -v Warning > "$OUT/export.log"; tail -30 "$OUT/export.log"
+      --cases ${CASES:-load mass all maps1 mapsN ply} $([ "${PROFILE:-1}" = 1 ] && echo --profile-load --breakdown) \
+      --budget-s $((LIMIT - 60 - $(elapsed))) --out "$OUT/export.json" 2>&1 | grep -v Warning > "$OUT/export.log"
+    tail -30 "$OUT/export.log"
     if [ $(elapsed) -lt $((LIMIT - 40)) ]; then
       python3 -m nerfstudio.scripts.eval --load-config "$CFG" --output-path "$OUT/full_eval.json" 2>&1 | tail -2
     fi
