@@ -203,6 +203,7 @@ def main() -> None:
     ap.add_argument("--touch-gsplat", action="store_true")
     ap.add_argument("--breakdown", action="store_true")
     ap.add_argument("--profile-load", action="store_true")
+    ap.add_argument("--warmup", action="store_true", help="one untimed load per tree first (bytecode caches written)")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
     trees = [(n, Path(p).resolve()) for n, p in (t.split("=", 1) for t in args.tree)]
@@ -214,6 +215,8 @@ def main() -> None:
         result["summary"] = summarise(result["rows"], [n for n, _ in trees], args.views)
         args.out.write_text(json.dumps(result, indent=1))
 
+    if args.warmup:
+        result["warmup"] = [{"tree": name, **run_case(path, "load", args.config, args.views)} for name, path in trees]
     if args.profile_load:  # first: where the fixed cost goes, whatever the budget leaves for the cases
         result["profile_load"] = {name: profile_load(path, args.config) for name, path in trees}
         save()

@@ -126,7 +126,7 @@ case "${1:-kernels}" in
       cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
     fi
     echo "[$(elapsed) s] exports before/after"  # CASES: the cases, in order; PROFILE=0: no --profile-load/--breakdown
-    python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" --tree "after=$PWD" --views 10 \
+    python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" --tree "after=$PWD" --views 10 --warmup \
       --cases ${CASES:-load mass all maps1 mapsN ply} $([ "${PROFILE:-1}" = 1 ] && echo --profile-load --breakdown) \
       --budget-s $((LIMIT - 60 - $(elapsed))) --out "$OUT/export.json" 2>&1 | grep -v Warning > "$OUT/export.log"
     tail -30 "$OUT/export.log"
@@ -201,7 +201,16 @@ case "${1:-kernels}" in
     for f in "$BOUT"/scenes/*/train.log; do [ -f "$f" ] && tail -c 4000 "$f" > "$OUT/batch/train_logs/$(basename "$(dirname "$f")").log"; done
     python3 benchmarks/gpu/batch_gpu_seconds.py --output-dir "$BOUT" --method "$METHOD" --out "$OUT/batch_gpu.json" \
       2>&1 | tee "$OUT/batch_gpu.txt"
+    # the device returns a handful of files: the records and logs go back as one archive
+    (cd "$OUT" && tar czf batch.tgz batch batch_synth_*.log 2>/dev/null && rm -rf batch batch_synth_*.log)
     echo "[$(elapsed) s] done (batch exit code $RC): $RUN"
+    if [ -n "${BASE:-}" ] && [ -n "${EXPORT_UNTIL:-}" ]; then  # issue 13 on the first trained scene: exports before/after
+      CFG=$(ls "$BOUT"/scenes/*/runs/*/"$METHOD"/*/config.yml 2>/dev/null | head -1)
+      [ -n "$CFG" ] && python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" --tree "after=$PWD" \
+        --views 10 --cases ${CASES:-load ply mass all maps1 mapsN} --warmup --profile-load \
+        --budget-s $((EXPORT_UNTIL - $(elapsed))) --out "$OUT/export.json" 2>&1 | grep -v Warning > "$OUT/export.log"
+      tail -22 "$OUT/export.log"; echo "[$(elapsed) s] exports done"
+    fi
     ;;
   full)  # HEAD=latent|lifted: another material head; LIFT_EVERY=N: lift every N steps as well
     make_scene 2>&1 | tail -5
