@@ -174,8 +174,40 @@ def breakdown(config: Path, views: int) -> dict:
         lap(f"maps ({views} views)")
         per = [b - a for a, b in itertools.pairwise(stamps)]
         t["maps per view after the first (median)"] = statistics.median(per) if per else float("nan")
+        t.update(_one_view_parts(run.field, vs[-1], out))
     return {"stages_s": {k: round(v, 3) for k, v in t.items()}, "num_gaussians": run.field.num_gaussians,
             "views": len(run.views), "device": device}  # fmt: skip
+
+
+def _one_view_parts(field, view, out: Path) -> dict[str, float]:
+    """One view's maps, part by part: channels, render, sheet, PNG, npz (what a view beyond the first costs)."""
+    import numpy as np
+    from PIL import Image
+
+    from physgs_nerfstudio.export import maps as M
+
+    t: dict[str, float] = {}
+    mark = time.perf_counter()
+
+    def lap(name: str) -> None:
+        nonlocal mark
+        _sync()
+        now = time.perf_counter()
+        t[f"one view: {name}"] = now - mark
+        mark = now
+
+    feats = M.map_features(field)
+    lap("channels (once for all views)")
+    maps = M.render_property_maps(field, view, features=feats)
+    lap("render and read back")
+    if hasattr(M, "_sheet"):
+        sheet = M._sheet(field, maps, view.name)
+        lap("sheet")
+        Image.fromarray(sheet).save(out / "v.png", compress_level=1)
+        lap("png")
+    np.savez_compressed(out / "v.npz", **maps)
+    lap("npz")
+    return t
 
 
 def summarise(rows: list[dict], trees: list[str], views: int) -> dict:
