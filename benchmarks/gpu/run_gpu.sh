@@ -207,7 +207,7 @@ case "${1:-kernels}" in
     if [ -n "${BASE:-}" ] && [ -n "${EXPORT_UNTIL:-}" ]; then  # issue 13 on the first trained scene: exports before/after
       CFG=$(ls "$BOUT"/scenes/*/runs/*/"$METHOD"/*/config.yml 2>/dev/null | head -1)
       [ -n "$CFG" ] && python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" --tree "after=$PWD" \
-        --views 10 --cases ${CASES:-load ply mass all maps1 mapsN} --warmup --profile-load --breakdown \
+        --views 10 --cases ${CASES:-load ply mass all maps1 mapsN} --warmup --breakdown $([ "${PROFILE:-0}" = 1 ] && echo --profile-load) \
         --budget-s $((EXPORT_UNTIL - $(elapsed))) --out "$OUT/export.json" 2>&1 | grep -v Warning > "$OUT/export.log"
       tail -22 "$OUT/export.log"; echo "[$(elapsed) s] exports done"
     fi
