@@ -205,7 +205,7 @@ def _one_view_parts(field, view, out: Path) -> dict[str, float]:
         lap("sheet")
         Image.fromarray(sheet).save(out / "v.png", compress_level=1)
         lap("png")
-    np.savez_compressed(out / "v.npz", **maps)
+    np.savez(out / "v.npz", **maps)
     lap("npz")
     return t
 

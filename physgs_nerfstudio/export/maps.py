@@ -139,7 +139,7 @@ def save_property_maps(
         maps = render_property_maps(pf, view, min_alpha=min_alpha, backend=backend, features=features)
         path = out_dir / f"maps_{view.name}.png"
         Image.fromarray(_sheet(pf, maps, view.name)).save(path, compress_level=1)
-        np.savez_compressed(out_dir / f"maps_{view.name}.npz", **{k: v for k, v in maps.items()})
+        np.savez(out_dir / f"maps_{view.name}.npz", **maps)  # uncompressed: deflating float maps cost 0.65 s a view
         paths.append(path)
         if on_view is not None:
             on_view(view.name)
