@@ -564,3 +564,32 @@ def test_10e_solid_elastomers_agree_with_gents_relation():
         assert e.low <= _gent_mpa(shore) * 1e6 <= e.high
     silicone = lib[lib.resolve("silicone")].properties["youngs_modulus"]
     assert silicone.low <= _gent_mpa(20) * 1e6 * 1.01 and silicone.high >= _gent_mpa(80) * 1e6
+
+
+# ------------------------------------------------------------------------ a failed geometry loses nothing else
+def _no_object(*_a, **_k):
+    from physgs_nerfstudio.geometry import GeometryError
+
+    raise GeometryError("carving left no solid voxel: the object masks and the views disagree")
+
+
+def test_a_failed_geometry_still_writes_the_ply_and_says_why(small_run, tmp_path, monkeypatch):
+    run, _ = small_run
+    monkeypatch.setattr(export_command, "object_geometry", _no_object)
+    out = tmp_path / "export"
+    result = run_export(run, out, mass=MASS, outputs=OUTS, quiet=True)
+    assert result.mass is None and "no solid voxel" in result.error
+    assert sorted(_tree(out)) == sorted(["property_field.ply", "report.json", MARKER])  # no voxels.npz
+    report = json.loads((out / "report.json").read_text())
+    assert report["mass"] is None and "no solid voxel" in report["mass_error"]
+    assert report["files"]["ply"] == [str(out.resolve() / "property_field.ply")]
+
+
+def test_the_export_command_exits_with_one_line_after_writing_the_rest(trained_run, tmp_path, monkeypatch):
+    monkeypatch.setattr(export_command, "object_geometry", _no_object)
+    out = tmp_path / "export"
+    with pytest.raises(PhysGSError) as ei:
+        ExportCommand(load_config=trained_run, output_dir=out, outputs=("ply", "mass")).main()
+    msg = _one_line(ei.value)
+    assert "mass and voxels not written" in msg and "written: ply, report" in msg and str(out) in msg
+    assert (out / "property_field.ply").is_file() and json.loads((out / "report.json").read_text())["mass"] is None

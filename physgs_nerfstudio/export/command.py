@@ -16,9 +16,11 @@ from typing import Any, Literal
 
 import torch
 
+from ..errors import PhysGSError
 from ..geometry import (
     CaptureView,
     GeometryConfig,
+    GeometryError,
     MaskObservation,
     ObjectGeometry,
     load_capture,
@@ -48,6 +50,8 @@ Output = Literal["ply", "voxels", "maps", "mass"]
 class ExportResult:
     files: dict[str, list[Path]]
     mass: MassReport | None
+    error: str | None = None
+    """why mass and voxels were not written (the object's geometry failed: :class:`GeometryError`); None = all were"""
 
 
 def views_from_cameras(cameras: Any, indices: Sequence[int], max_width: int = 480) -> list[View]:
@@ -199,31 +203,40 @@ def write_export(
     if "ply" in outputs:
         files["ply"] = [write_property_ply(pf, out / "property_field.ply", top_k=top_k)]
         console.log(f"PLY: {files['ply'][0]} ({pf.num_gaussians} Gaussians)")
-    report = None
+    report, error = None, None
     if "mass" in outputs or "voxels" in outputs:
-        with stage(console, "object geometry", unit="steps") as st:
-            geo = object_geometry(run, mass.geometry, progress=lambda s: st.advance(1, s))
-            st.result = (f"{geo.selection.num_selected} Gaussians selected, {int(geo.solid.sum())} solid voxels, "
-                         f"{geo.num_parts} parts, {len(geo.variant_names)} carving variants")  # fmt: skip
-        if "mass" in outputs:
-            report = integrate_mass(pf, geo, mass)
-        if "voxels" in outputs:
-            files["voxels"] = [write_voxel_grid(pf, out / "voxels.npz", geo)]
-            console.log(f"voxel grid: {files['voxels'][0]}")
+        try:
+            with stage(console, "object geometry", unit="steps") as st:
+                geo = object_geometry(run, mass.geometry, progress=lambda s: st.advance(1, s))
+                st.result = (f"{geo.selection.num_selected} Gaussians selected, {int(geo.solid.sum())} solid voxels, "
+                             f"{geo.num_parts} parts, {len(geo.variant_names)} carving variants")  # fmt: skip
+        except GeometryError as err:  # the data's, not a bug: the outputs that need no geometry are still written
+            error = " ".join(str(err).split())
+            console.print(f"[bold red]mass and voxels not written:[/] {error}")
+        else:
+            if "mass" in outputs:
+                report = integrate_mass(pf, geo, mass)
+            if "voxels" in outputs:
+                files["voxels"] = [write_voxel_grid(pf, out / "voxels.npz", geo)]
+                console.log(f"voxel grid: {files['voxels'][0]}")
     if "maps" in outputs and views:
         with stage(console, "property maps", total=len(views), unit="views") as st:
             files["maps"] = save_property_maps(pf, views, out / "maps", on_view=lambda name: st.advance(1, name))
             st.result = str(out / "maps")
-    if report is not None:
+    if report is not None or (error is not None and "mass" in outputs):
         shown = Path(final_dir or out)
         extra: dict[str, Any] = {"files": {k: [str(shown / p.relative_to(out)) for p in v] for k, v in files.items()},
                                  "legend": pf.legend(), "simulated": pf.simulated}  # fmt: skip
+        if error is not None:
+            extra["mass_error"] = error
         if truth_kg is not None:
             extra["ground_truth_kg"] = truth_kg
-            extra["interval_covers_truth"] = report.covers(truth_kg)
+            if report is not None:
+                extra["interval_covers_truth"] = report.covers(truth_kg)
         files["report"] = [write_report(report, out / "report.json", extra)]
-        print_mass_table(report, title=title, truth_kg=truth_kg, console=console)
-    return ExportResult(files, report)
+        if report is not None:
+            print_mass_table(report, title=title, truth_kg=truth_kg, console=console)
+    return ExportResult(files, report, error)
 
 
 _DEPRECATED = "(deprecated spelling of --mass.{}; kept for existing scripts)"
@@ -294,6 +307,11 @@ class ExportCommand:
         views = views_from_cameras(cameras, self.views, self.max_map_width) if cameras is not None else []
         if "maps" in self.outputs and cameras is None:
             logger.warning("no training cameras found in the run: property maps skipped")
-        return run_export(run, self.output_dir, mass=self.mass_config(), outputs=self.outputs, views=views,
-                          top_k=self.top_k, truth_kg=self.truth_kg, overwrite=self.overwrite, source=self.load_config,
-                          title=f"Mass of {self.load_config.parent.name}")  # fmt: skip
+        result = run_export(run, self.output_dir, mass=self.mass_config(), outputs=self.outputs, views=views,
+                            top_k=self.top_k, truth_kg=self.truth_kg, overwrite=self.overwrite,
+                            source=self.load_config, title=f"Mass of {self.load_config.parent.name}")  # fmt: skip
+        if result.error is not None:  # the rest is written (a complete export of what could be made): say so, exit 1
+            written = ", ".join(sorted(result.files)) or "nothing"
+            raise PhysGSError(f"{self.output_dir}: mass and voxels not written ({result.error}); written: {written} "
+                              "(report.json has mass null and mass_error).")  # fmt: skip
+        return result

@@ -17,11 +17,12 @@ def _fmt(x: float) -> str:
     return f"{x:.4g}" if 1e-3 <= abs(x) < 1e5 else f"{x:.3e}"
 
 
-def write_report(report: MassReport, path: Path, extra: dict[str, Any] | None = None) -> Path:
-    """``report.json``: the mass report (kg, m^3, m^2, kg/m^3) plus ``extra`` (e.g. ground truth, files)."""
+def write_report(report: MassReport | None, path: Path, extra: dict[str, Any] | None = None) -> Path:
+    """``report.json``: the mass report (kg, m^3, m^2, kg/m^3) plus ``extra`` (e.g. ground truth, files); a report
+    of None writes ``"mass": null`` (``extra`` then says why, ``mass_error``)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = {"mass": report.to_dict(), **(extra or {})}
+    data = {"mass": report.to_dict() if report is not None else None, **(extra or {})}
     path.write_text(json.dumps(data, indent=2, default=float))
     return path
 

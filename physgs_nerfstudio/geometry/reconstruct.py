@@ -21,6 +21,7 @@ import torch
 from ..bayes.mixture import material_mixture_weights
 from .capture import CaptureView, MaskObservation
 from .carve import CarveConfig, carve_votes_many, signed_mask_distance, solid_from_votes
+from .errors import GeometryError
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
 from .parts import PartGeometry, material_quantiles, part_areas, part_labels, pooled_part_alpha, voxel_mixture
@@ -234,7 +235,7 @@ def reconstruct_object(
         keep = np.linspace(0, len(views) - 1, cfg.max_views).round().astype(int)
         views = [views[i] for i in keep]
     if not views:
-        raise ValueError("no views to carve the object from: the run has no training cameras.")
+        raise GeometryError("no views to carve the object from: the run has no training cameras.")
     step("selecting the object")
     selection = select_object(g, views, cfg.select, backend=cfg.backend)
     step("rendering depth")
@@ -261,7 +262,7 @@ def reconstruct_object(
     names = [n for n, _ in variants]
     union = np.logical_or.reduce(solids)
     if not solids[0].any():
-        raise ValueError("carving left no solid voxel: the object masks and the views disagree (check poses and "
+        raise GeometryError("carving left no solid voxel: the object masks and the views disagree (check poses and "
                          "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
     step("materials and parts")
     sel = selection.selected

@@ -27,6 +27,7 @@ from scipy import ndimage
 from torch import Tensor
 
 from .capture import CaptureView
+from .errors import GeometryError
 from .gaussians import lift_masks
 
 logger = logging.getLogger(__name__)
@@ -132,7 +133,7 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
         cand &= ((g.means >= b[:3]) & (g.means <= b[3:])).all(-1)
     centre = np.asarray(cfg.point, dtype=np.float64) if cfg.point is not None else capture_centre(views)
     if not bool(cand.any()):
-        raise ValueError("no Gaussian lies on the object masks of the views (foreground probability >= "
+        raise GeometryError("no Gaussian lies on the object masks of the views (foreground probability >= "
                          f"{cfg.min_prob}): check that perception ran on this dataset, or give a bbox.")  # fmt: skip
     idx = torch.nonzero(cand).squeeze(1)
     means = g.means[idx].double().cpu().numpy()
