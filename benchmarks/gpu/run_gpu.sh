@@ -9,6 +9,7 @@
 #   HEAD=lifted bash benchmarks/gpu/run_gpu.sh full   # the full run with another material head
 #   BASE=.export_base bash benchmarks/gpu/run_gpu.sh export  # issues 12+13: full chair run, its mass, exports before/after
 #   OBJECTS=5 STEPS=3000 bash benchmarks/gpu/run_gpu.sh batch     # issue 14: physgs batch (local) over the suite
+#   bash benchmarks/gpu/run_gpu.sh geometry  # issue 12: full chair run, geometry vs ground truth (geometry_diag.py)
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
 set -uo pipefail
@@ -25,7 +26,7 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
-case "${1:-}" in perf|suite|mem|export|batch) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
+case "${1:-}" in perf|suite|mem|export|batch|geometry) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -211,6 +212,28 @@ case "${1:-kernels}" in
         --budget-s $((EXPORT_UNTIL - $(elapsed))) --out "$OUT/export.json" 2>&1 | grep -v Warning > "$OUT/export.log"
       tail -22 "$OUT/export.log"; echo "[$(elapsed) s] exports done"
     fi
+    ;;
+  geometry)
+    # issue 12 (about 7 minutes on an H100): the chair scene (60 views at 512 px), `ns-train physgs` (STEPS, 7000),
+    # the user's `physgs export --outputs mass`, then benchmarks/geometry_diag.py: selection, masks and carving vs
+    # the generator's ground truth, and a compact copy of the splat (splat.npz) for offline experiments
+    STEPS=${STEPS:-7000}
+    make_scene 2>&1 | tail -3 | tee "$OUT/scene.log"
+    wait  # the gsplat build
+    echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
+    python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
+      --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
+      --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -4 | tee "$OUT/full_train.log"
+    CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml)
+    cp "$CFG" "$OUT/config.yml"; cp "$(dirname "$CFG")/dataparser_transforms.json" "$OUT/"
+    echo "[$(elapsed) s] trained; physgs export --outputs mass"
+    python3 -m physgs_nerfstudio.cli export --load-config "$CFG" --output-dir /tmp/physgs_export --outputs mass \
+      > "$OUT/full_export.log" 2>&1; tail -25 "$OUT/full_export.log"
+    cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
+    echo "[$(elapsed) s] geometry_diag"
+    python3 benchmarks/geometry_diag.py --load-config "$CFG" --out "$OUT" ${DUMP-"--dump"} 2>&1 | grep -v Warning \
+      > "$OUT/geometry_diag.log"; tail -5 "$OUT/geometry_diag.log"
+    echo "[$(elapsed) s] done"
     ;;
   full)  # HEAD=latent|lifted: another material head; LIFT_EVERY=N: lift every N steps as well
     make_scene 2>&1 | tail -5
