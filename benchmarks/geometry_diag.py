@@ -31,10 +31,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from physgs_nerfstudio.export.command import load_run  # noqa: E402
+from physgs_nerfstudio.export.command import load_run, object_geometry  # noqa: E402
 from physgs_nerfstudio.geometry import reconstruct  # noqa: E402
 from physgs_nerfstudio.geometry.gaussians import render_depth  # noqa: E402
 from physgs_nerfstudio.geometry.select import _clusters, select_object  # noqa: E402
+from physgs_nerfstudio.mass.integrate import integrate_mass  # noqa: E402
 from physgs_nerfstudio.synth.objects import build_layout  # noqa: E402
 
 _OFFSETS = np.array([[a, b, c] for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)], float)
@@ -99,26 +100,50 @@ def main() -> None:
     ap.add_argument("--near-m", type=float, default=0.01, help="a Gaussian is on the object within this (metres)")
     ap.add_argument("--dump", action="store_true")
     ap.add_argument("--max-view-width", type=int, default=640)
+    ap.add_argument("--no-hull", action="store_true", help="select without the masks' hull test (before/after)")
+    ap.add_argument("--tag", default="", help="suffix of the output files (geometry_diag<tag>.json)")
     a = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
+    out: dict = {"config": str(a.load_config), "near_m": a.near_m, "timings_s": {}}
+    path = a.out / f"geometry_diag{a.tag}.json"
+
+    def done(stage: str) -> None:  # each stage's result is on disk as soon as it is known
+        out["timings_s"][stage] = round(time.time() - t0, 1)
+        path.write_text(json.dumps(out, indent=1))
+        print(f"[{time.time() - t0:.1f} s] {stage}", flush=True)
+
     run = load_run(a.load_config, max_view_width=a.max_view_width)
+    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")  # as `physgs export` does
     pf, views, data_dir = run.field, run.views, run.data_dir
     T, s = _transform(a.load_config.parent)
     truth = json.loads((data_dir / "ground_truth.json").read_text())
     layout = build_layout(truth["layout"], int(truth.get("seed", 0)))
     parts = [p for p in layout.parts if p.role == "object"]
     names = [p.name for p in parts]
+    out["parts"] = names
+    done("load")
     means = pf.means.double().cpu().numpy()
     pw = _to_world(means, T, s)
     on = _part_of(parts, pw, a.near_m)
     op = pf.opacities.double().cpu().numpy()
     real = op >= 0.05
+    done("ground truth per Gaussian")
     cfg = reconstruct.GeometryConfig()
+    if a.no_hull:
+        cfg.select.hull_vote_fraction = 2.0
+    out["select"] = {"hull_vote_fraction": cfg.select.hull_vote_fraction}
     sel = select_object(pf, views, cfg.select, backend=cfg.backend)
     prob = sel.prob.double().cpu().numpy()
     chosen = sel.selected.cpu().numpy()
+    if a.dump:
+        f16 = lambda t: t.detach().cpu().numpy().astype(np.float16)  # noqa: E731
+        np.savez_compressed(a.out / "splat.npz", means=means.astype(np.float32), scales=f16(pf.scales),
+                            quats=f16(pf.quats), opacities=f16(pf.opacities), prob=prob.astype(np.float16),
+                            selected=chosen, on_part=on.astype(np.int8), transform=T, scale=s)  # fmt: skip
+        print(f"wrote {a.out / 'splat.npz'} ({(a.out / 'splat.npz').stat().st_size / 2**20:.1f} MiB)", flush=True)
+    done("selection")
     cand = (prob >= cfg.select.min_prob) & real
     lab, _, cell, ids = _clusters(means[cand], cfg.select)
     lab_all = np.zeros(len(means), np.int64)
@@ -146,7 +171,8 @@ def main() -> None:
         "chosen_cluster": int(np.bincount(lab_all[chosen]).argmax()) if chosen.any() else -1,
         "capture_centre_world": _to_world(sel.centre[None], T, s)[0].round(4).tolist(),
     }
-    print(json.dumps({"selection": selection}, indent=1), flush=True)
+    out["selection"] = selection
+    done("selection vs truth")
     # masks vs truth
     true = _true_masks(data_dir, views)
     sub = reconstruct._Subset(pf, sel.selected)
@@ -158,12 +184,17 @@ def main() -> None:
         fg = v.mask.cpu().numpy()
         sil = r.alpha.cpu().numpy() > 0.5
         per_view.append({"view": v.name, "mask": _mask_stats(fg, t_m), "silhouette": _mask_stats(sil, t_m)})
-    masks = {k: {m: _pct([pv[k][m] for pv in per_view]) for m in ("iou", "recall", "precision")}
-             for k in ("mask", "silhouette")}
+    out["masks"] = {k: {m: _pct([pv[k][m] for pv in per_view]) for m in ("iou", "recall", "precision")}
+                    for k in ("mask", "silhouette")}
+    out["per_view"] = per_view
+    done("masks vs truth")
     # carving vs truth
-    geo = reconstruct.reconstruct_object(pf, pf.pi(), views, run.observations, None, cfg,
-                                         material_names=pf.material_names, alpha=pf.alpha,
-                                         material_weights=pf.material_weights)  # fmt: skip
+    geo = object_geometry(run, cfg)  # what `physgs export` carves
+    out["selection"]["outside_hull"] = geo.selection.outside_hull
+    done("reconstruct_object")
+    rep = integrate_mass(pf, geo)
+    out["mass"] = {"truth_kg": float(truth.get("total_mass_kg", float("nan"))), "mean_kg": rep.mean_kg,
+                   "median_kg": rep.median_kg, "interval_kg": list(rep.interval_kg)}
     grid = geo.grid
     ijk = np.argwhere(np.ones(grid.shape, bool))
     centres = grid.centres(torch.from_numpy(ijk)).double().numpy()
@@ -182,16 +213,9 @@ def main() -> None:
         "false_solid_m3": float((solid & ~true_occ).sum() * vox_m3),
         "mask_sources": geo.mask_sources,
     }
-    out = {"config": str(a.load_config), "near_m": a.near_m, "parts": names, "selection": selection,
-           "masks": masks, "carving": carving, "per_view": per_view, "seconds": time.time() - t0}
-    (a.out / "geometry_diag.json").write_text(json.dumps(out, indent=1))
-    print(json.dumps({"masks": masks, "carving": carving}, indent=1))
-    if a.dump:
-        f16 = lambda t: t.detach().cpu().numpy().astype(np.float16)  # noqa: E731
-        np.savez_compressed(a.out / "splat.npz", means=means.astype(np.float32), scales=f16(pf.scales),
-                            quats=f16(pf.quats), opacities=f16(pf.opacities), prob=prob.astype(np.float16),
-                            selected=chosen, on_part=on.astype(np.int8), transform=T, scale=s)  # fmt: skip
-        print(f"wrote {a.out / 'splat.npz'} ({(a.out / 'splat.npz').stat().st_size / 2**20:.1f} MiB)")
+    out["carving"] = carving
+    done("carving vs truth")
+    print(json.dumps({k: out[k] for k in ("selection", "masks", "carving", "mass")}, indent=1))
 
 
 if __name__ == "__main__":

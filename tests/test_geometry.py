@@ -329,3 +329,30 @@ def test_a_failed_selection_neither_replaces_the_masks_nor_coarsens_the_grid(box
     assert geo.selection.num_selected == both.num_gaussians
     assert 0.93 * 0.024 <= geo.volumes[0].sum() <= 1.12 * 0.024
     assert geo.grid.voxel_size < 0.02  # fitted to the box (0.4 m); the 5 m spread gave 0.09
+
+
+def test_the_masks_hull_drops_gaussians_outside_the_masks_whatever_their_probability(box, monkeypatch):
+    """Floaters that only a few views see, over masks that bled, get a high lifted probability and, one 3-D
+    cluster with the object, joined it (a 7,000-step GPU run). The hull test counts every view whose frame holds a
+    centre, seen or not: centres outside the masks in enough of them are dropped; the object stays whole."""
+    import physgs_nerfstudio.geometry.select as sel
+    from physgs_nerfstudio.export.shapes import field_from as make
+
+    pf, views = box
+    n_obj = pf.num_gaussians
+    t = torch.linspace(0.21, 0.8, 150)  # a trail of floaters from the box's +x face (x = 0.2) out to 0.8 m
+    trail = torch.stack([t, torch.zeros_like(t), torch.zeros_like(t)], -1)
+    both = make(torch.cat([pf.means, trail]), torch.cat([pf.scales, torch.full((150, 3), 0.004)]),
+                torch.cat([pf.quats, torch.tensor([[1.0, 0, 0, 0]]).repeat(150, 1)]), densities=[700.0],
+                names=["oak"], thickness_m=[None])  # fmt: skip
+    n = both.num_gaussians
+    # the lifted probability says "object" everywhere (the failure this test is about)
+    monkeypatch.setattr(sel, "lift_masks", lambda g, vs, **kw: (torch.full((n,), 5.0, dtype=torch.float64),
+                                                                 torch.zeros(n, dtype=torch.float64)))  # fmt: skip
+    without = sel.select_object(both, views, _select(hull_vote_fraction=2.0), backend="reference")
+    assert bool(without.selected[n_obj:].all())  # the trail is one cluster with the box
+    with_hull = sel.select_object(both, views, _select(), backend="reference")
+    assert float(with_hull.selected[:n_obj].float().mean()) == 1.0
+    # a point near the +x face projects into the box's silhouette from most azimuths; 15 cm out it does not
+    assert not bool(with_hull.selected[n_obj:][t > 0.35].any())
+    assert with_hull.outside_hull >= int((t > 0.35).sum())

@@ -218,21 +218,26 @@ case "${1:-kernels}" in
     # the user's `physgs export --outputs mass`, then benchmarks/geometry_diag.py: selection, masks and carving vs
     # the generator's ground truth, and a compact copy of the splat (splat.npz) for offline experiments
     STEPS=${STEPS:-7000}
-    make_scene 2>&1 | tail -3 | tee "$OUT/scene.log"
+    # (the device returns 8 files: the logs go to stdout; the dump holds the dataparser transform)
+    make_scene 2>&1 | tail -3
     wait  # the gsplat build
     echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
     python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
       --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
-      --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -4 | tee "$OUT/full_train.log"
+      --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -4
     CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml)
-    cp "$CFG" "$OUT/config.yml"; cp "$(dirname "$CFG")/dataparser_transforms.json" "$OUT/"
-    echo "[$(elapsed) s] trained; physgs export --outputs mass"
-    python3 -m physgs_nerfstudio.cli export --load-config "$CFG" --output-dir /tmp/physgs_export --outputs mass \
-      > "$OUT/full_export.log" 2>&1; tail -25 "$OUT/full_export.log"
-    cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
-    echo "[$(elapsed) s] geometry_diag"
-    python3 benchmarks/geometry_diag.py --load-config "$CFG" --out "$OUT" ${DUMP-"--dump"} 2>&1 | grep -v Warning \
-      > "$OUT/geometry_diag.log"; tail -5 "$OUT/geometry_diag.log"
+    if [ -n "${USER_EXPORT:-}" ]; then  # USER_EXPORT=1: the user's `physgs export --outputs mass` as well
+      echo "[$(elapsed) s] trained; physgs export --outputs mass"
+      python3 -m physgs_nerfstudio.cli export --load-config "$CFG" --output-dir /tmp/physgs_export --outputs mass \
+        > "$OUT/full_export.log" 2>&1; tail -25 "$OUT/full_export.log"
+      cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
+    fi
+    for variant in ${DIAG_VARIANTS:-default nohull}; do  # this tree's selection, and without the masks' hull test
+      echo "[$(elapsed) s] geometry_diag $variant"
+      FLAGS=$([ "$variant" = nohull ] && echo "--no-hull --tag _nohull" || echo "${DUMP-"--dump"}")
+      PYTHONUNBUFFERED=1 timeout $((${LIMIT:-575} - $(elapsed))) python3 benchmarks/geometry_diag.py --load-config \
+        "$CFG" --out "$OUT" $FLAGS 2>&1 | grep --line-buffered "^\[\|object:\|wrote\|Error\|error"
+    done
     echo "[$(elapsed) s] done"
     ;;
   full)  # HEAD=latent|lifted: another material head; LIFT_EVERY=N: lift every N steps as well

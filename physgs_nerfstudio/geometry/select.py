@@ -4,11 +4,19 @@
    view that sees it (:func:`.gaussians.lift_masks`: per view, the share of its blending weight on mask pixels):
    ``P(object) = (a0 + inside) / (a0 + b0 + inside + outside)``. The floor, walls and background are outside
    the masks in the views that see them, so they come out near 0.
-2. Foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``) are grouped into 3-D clusters
-   (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side but no finer than
+2. **Inside the masks' hull.** A Gaussian whose centre projects outside the foreground masks (by more than
+   ``hull_margin_px``) in at least ``hull_min_votes`` views and ``hull_vote_fraction`` of the views whose frame
+   holds it is not the object, whatever its probability. This is the carving's own silhouette vote
+   (:mod:`.carve`, same defaults) applied to the Gaussians, so it removes nothing that the carving would keep.
+   It counts every view that frames the centre, seen or hidden, so a floater or a background Gaussian that only
+   a few views see (and whose masks bled over it) cannot join the object: the probability of step 1 counts
+   only the views that see a Gaussian. Such Gaussians, kept, rendered the object's depth behind its surface
+   and stretched its box (a 60-view, 7,000-step GPU run; benchmarks/README.md).
+3. Foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``, inside the hull) are grouped
+   into 3-D clusters (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side but no finer than
    1.5 x the Gaussians' median nearest-neighbour spacing, cells dilated by ``bridge_cells`` so that an
    object's parts a few millimetres apart stay one cluster).
-3. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
+4. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
    camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
    the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
    restricts the candidates first.
@@ -27,6 +35,7 @@ from scipy import ndimage
 from torch import Tensor
 
 from .capture import CaptureView
+from .carve import _sample, signed_mask_distance
 from .errors import GeometryError
 from .gaussians import lift_masks
 
@@ -47,6 +56,13 @@ class SelectConfig:
     """cells along the longest side of the foreground's extent, for the 3-D clusters"""
     bridge_cells: int = 1
     """dilation of occupied cells before labelling clusters"""
+    hull_vote_fraction: float = 0.15
+    """a Gaussian is outside the masks' hull when its centre projects outside the masks in at least this fraction
+    of the views that frame it (module doc; the carving's ``min_vote_fraction``); > 1 switches the test off"""
+    hull_min_votes: int = 2
+    """... and in at least this many views (the carving's ``min_votes``)"""
+    hull_margin_px: float = 2.0
+    """a centre within this many pixels of a mask counts as inside it (the object's silhouette dilation)"""
     point: tuple[float, float, float] | None = None
     """pick the cluster nearest this point (scene units) instead of the capture centre"""
     bbox: tuple[float, float, float, float, float, float] | None = None
@@ -75,6 +91,8 @@ class ObjectSelection:
     centre: np.ndarray
     """the point the object was chosen by (capture centre or the user's point), scene units"""
     num_clusters: int
+    outside_hull: int = 0
+    """foreground Gaussians dropped by the hull test (module doc, step 2)"""
 
     @property
     def num_selected(self) -> int:
@@ -95,6 +113,33 @@ def capture_centre(views: Sequence[CaptureView]) -> np.ndarray:
         v = views[0]
         return v.centre.double().numpy() + v.axis.double().numpy()
     return np.linalg.solve(A, b)
+
+
+@torch.no_grad()
+def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectConfig, *,
+                      chunk: int = 1 << 20) -> Tensor:  # fmt: skip
+    """bool [N]: centres that project outside the views' masks in enough of the views that frame them (module doc,
+    step 2). Out-of-frame views and views behind which a centre lies do not vote."""
+    dev = means.device
+    n = means.shape[0]
+    out = torch.zeros(n, dtype=torch.bool, device=dev)
+    sdf = [signed_mask_distance(v.mask).to(dev) for v in views]
+    for s0 in range(0, n, chunk):
+        x = means[s0 : s0 + chunk].float()
+        framed = torch.zeros(len(x), dtype=torch.int32, device=dev)
+        outside = torch.zeros_like(framed)
+        for v, sd in zip(views, sdf):
+            pc = x @ v.viewmat[:3, :3].to(dev).T + v.viewmat[:3, 3].to(dev)
+            z = pc[:, 2]
+            K = v.K.to(dev)
+            u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
+            w = K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]
+            ok = (z > 1e-6) & (u >= 0) & (u < v.width) & (w >= 0) & (w < v.height)
+            d = _sample(sd, u.clamp(0, v.width), w.clamp(0, v.height))
+            framed += ok.int()
+            outside += (ok & (d > cfg.hull_margin_px)).int()
+        out[s0 : s0 + chunk] = (outside >= cfg.hull_min_votes) & (outside >= cfg.hull_vote_fraction * framed)
+    return out
 
 
 def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
@@ -131,10 +176,17 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     if cfg.bbox is not None:
         b = torch.as_tensor(cfg.bbox, dtype=g.means.dtype, device=g.means.device)
         cand &= ((g.means >= b[:3]) & (g.means <= b[3:])).all(-1)
+    outside_hull = 0
+    if cfg.hull_vote_fraction <= 1 and bool(cand.any()):
+        ci = torch.nonzero(cand).squeeze(1)
+        drop = outside_mask_hull(g.means[ci], views, cfg)
+        cand[ci[drop]] = False
+        outside_hull = int(drop.sum())
     centre = np.asarray(cfg.point, dtype=np.float64) if cfg.point is not None else capture_centre(views)
     if not bool(cand.any()):
         raise GeometryError("no Gaussian lies on the object masks of the views (foreground probability >= "
-                         f"{cfg.min_prob}): check that perception ran on this dataset, or give a bbox.")  # fmt: skip
+                         f"{cfg.min_prob}, inside the masks' hull): check that perception ran on this dataset, or "
+                         "give a bbox.")  # fmt: skip
     idx = torch.nonzero(cand).squeeze(1)
     means = g.means[idx].double().cpu().numpy()
     lab, _, _, ids = _clusters(means, cfg)
@@ -150,6 +202,6 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
         chosen = lab == int(np.argmin(dmin))
     selected = torch.zeros_like(cand)
     selected[idx[torch.from_numpy(chosen).to(idx.device)]] = True
-    logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
-                g.means.shape[0], len(ids))  # fmt: skip
-    return ObjectSelection(prob, selected, centre, len(ids))
+    logger.info("object: %d of %d Gaussians (%d clusters on the foreground; %d foreground Gaussians outside the "
+                "masks' hull)", int(selected.sum()), g.means.shape[0], len(ids), outside_hull)  # fmt: skip
+    return ObjectSelection(prob, selected, centre, len(ids), outside_hull)
