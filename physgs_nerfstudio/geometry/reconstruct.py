@@ -25,7 +25,7 @@ from .errors import GeometryError
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
 from .parts import PartGeometry, material_quantiles, part_areas, part_labels, pooled_part_alpha, voxel_mixture
-from .select import ObjectSelection, SelectConfig, select_object
+from .select import ObjectSelection, SelectConfig, outside_mask_hull, select_object
 from .structure import PartStructure, StructureConfig, fuse_structure
 
 logger = logging.getLogger(__name__)
@@ -168,6 +168,23 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     return out, renders
 
 
+def _within_hull(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], obj_views: list[CaptureView],
+                 cfg: GeometryConfig) -> list[ViewRender] | None:  # fmt: skip
+    """Drop the selected Gaussians outside the carving masks' hull (:mod:`.select`, step 4), in place; the depth
+    and alpha of what is left, or None when nothing was dropped."""
+    if cfg.select.hull_vote_fraction > 1:
+        return None
+    idx = torch.nonzero(selection.selected).squeeze(1)
+    drop = outside_mask_hull(g.means[idx], obj_views, cfg.select)
+    if not bool(drop.any()) or bool(drop.all()):  # all: the masks and the selection disagree; the carving says so
+        return None
+    selection.selected[idx[drop]] = False
+    selection.outside_hull = int(drop.sum())
+    logger.info("object: %d selected Gaussians outside the masks' hull dropped, %d left", selection.outside_hull,
+                selection.num_selected)  # fmt: skip
+    return render_depth(_Subset(g, selection.selected), views, backend=cfg.backend)
+
+
 @dataclass
 class _Subset:
     g: Any
@@ -240,6 +257,7 @@ def reconstruct_object(
     selection = select_object(g, views, cfg.select, backend=cfg.backend)
     step("rendering depth")
     obj_views, renders = _object_views(g, selection, views, cfg)
+    renders = _within_hull(g, selection, views, obj_views, cfg) or renders
     sources: dict[str, int] = {}
     for v in obj_views:
         sources[v.mask_source] = sources.get(v.mask_source, 0) + 1

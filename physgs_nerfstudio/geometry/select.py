@@ -4,22 +4,22 @@
    view that sees it (:func:`.gaussians.lift_masks`: per view, the share of its blending weight on mask pixels):
    ``P(object) = (a0 + inside) / (a0 + b0 + inside + outside)``. The floor, walls and background are outside
    the masks in the views that see them, so they come out near 0.
-2. **Inside the masks' hull.** A Gaussian whose centre projects outside the foreground masks (by more than
-   ``hull_margin_px``) in at least ``hull_min_votes`` views and ``hull_vote_fraction`` of the views whose frame
-   holds it is not the object, whatever its probability. This is the carving's own silhouette vote
-   (:mod:`.carve`, same defaults) applied to the Gaussians, so it removes nothing that the carving would keep.
-   It counts every view that frames the centre, seen or hidden, so a floater or a background Gaussian that only
-   a few views see (and whose masks bled over it) cannot join the object: the probability of step 1 counts
-   only the views that see a Gaussian. Such Gaussians, kept, rendered the object's depth behind its surface
-   and stretched its box (a 60-view, 7,000-step GPU run; benchmarks/README.md).
-3. Foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``, inside the hull) are grouped
-   into 3-D clusters (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side but no finer than
+2. Foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``) are grouped into 3-D clusters
+   (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side but no finer than
    1.5 x the Gaussians' median nearest-neighbour spacing, cells dilated by ``bridge_cells`` so that an
    object's parts a few millimetres apart stay one cluster).
-4. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
+3. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
    camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
    the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
    restricts the candidates first.
+4. **Inside the masks' hull** (:func:`outside_mask_hull`, applied by :func:`.reconstruct.reconstruct_object` once
+   it has decided each view's mask for the carving). A selected Gaussian whose centre projects outside the
+   carving's masks (by more than ``hull_margin_px``) in at least ``hull_min_votes`` views and
+   ``hull_vote_fraction`` of the views whose frame holds it is dropped: this is the carving's own silhouette vote
+   (:mod:`.carve`, same masks and defaults) applied to the Gaussians, so it removes nothing the carving keeps.
+   It counts every view that frames the centre, seen or hidden, whereas the probability of step 1 counts only
+   the views that see a Gaussian: floaters and background that few views see, over masks that bled, can get a
+   high probability and join the object's cluster; kept, they stretch its box and mix into its rendered depth.
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ class ObjectSelection:
     """the point the object was chosen by (capture centre or the user's point), scene units"""
     num_clusters: int
     outside_hull: int = 0
-    """foreground Gaussians dropped by the hull test (module doc, step 2)"""
+    """selected Gaussians dropped by the hull test (module doc, step 4)"""
 
     @property
     def num_selected(self) -> int:
@@ -119,7 +119,7 @@ def capture_centre(views: Sequence[CaptureView]) -> np.ndarray:
 def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectConfig, *,
                       chunk: int = 1 << 20) -> Tensor:  # fmt: skip
     """bool [N]: centres that project outside the views' masks in enough of the views that frame them (module doc,
-    step 2). Out-of-frame views and views behind which a centre lies do not vote."""
+    step 4). Out-of-frame views and views behind which a centre lies do not vote."""
     dev = means.device
     n = means.shape[0]
     out = torch.zeros(n, dtype=torch.bool, device=dev)
@@ -176,17 +176,10 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     if cfg.bbox is not None:
         b = torch.as_tensor(cfg.bbox, dtype=g.means.dtype, device=g.means.device)
         cand &= ((g.means >= b[:3]) & (g.means <= b[3:])).all(-1)
-    outside_hull = 0
-    if cfg.hull_vote_fraction <= 1 and bool(cand.any()):
-        ci = torch.nonzero(cand).squeeze(1)
-        drop = outside_mask_hull(g.means[ci], views, cfg)
-        cand[ci[drop]] = False
-        outside_hull = int(drop.sum())
     centre = np.asarray(cfg.point, dtype=np.float64) if cfg.point is not None else capture_centre(views)
     if not bool(cand.any()):
         raise GeometryError("no Gaussian lies on the object masks of the views (foreground probability >= "
-                         f"{cfg.min_prob}, inside the masks' hull): check that perception ran on this dataset, or "
-                         "give a bbox.")  # fmt: skip
+                         f"{cfg.min_prob}): check that perception ran on this dataset, or give a bbox.")  # fmt: skip
     idx = torch.nonzero(cand).squeeze(1)
     means = g.means[idx].double().cpu().numpy()
     lab, _, _, ids = _clusters(means, cfg)
@@ -202,6 +195,6 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
         chosen = lab == int(np.argmin(dmin))
     selected = torch.zeros_like(cand)
     selected[idx[torch.from_numpy(chosen).to(idx.device)]] = True
-    logger.info("object: %d of %d Gaussians (%d clusters on the foreground; %d foreground Gaussians outside the "
-                "masks' hull)", int(selected.sum()), g.means.shape[0], len(ids), outside_hull)  # fmt: skip
-    return ObjectSelection(prob, selected, centre, len(ids), outside_hull)
+    logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
+                g.means.shape[0], len(ids))  # fmt: skip
+    return ObjectSelection(prob, selected, centre, len(ids))
