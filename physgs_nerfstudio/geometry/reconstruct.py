@@ -68,6 +68,13 @@ class GeometryConfig:
     object_mask_dilate_px: int = 2
     """the object's own silhouette (its Gaussians rendered alone) is dilated by this before it cuts the
     foreground masks, so that other objects in the views do not count as this one"""
+    complete_masks: bool = True
+    """a view's mask gets back the pieces of the object's rendered silhouette that it misses (:func:`_complete`):
+    the silhouette is the consensus of every view's masks, so a part that this view's segmentation dropped is not
+    carved away by it"""
+    complete_min_share: float = 0.02
+    """... a missed piece counts when its area is at least this share of the silhouette's (smaller ones are the
+    silhouette's blur at the boundary, or thin parts the consensus is no surer of than the mask)"""
     min_mask_agreement: float = 0.5
     """IoU between a view's object mask and the object's rendered silhouette below which the view carves with
     the silhouette (:func:`_object_views`)"""
@@ -151,7 +158,7 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
         fg = v.mask.cpu().numpy() & sil
         union = (fg | core).sum()
         iou = (fg & core).sum() / union if union else 1.0
-        cut.append(replace(v, mask=torch.from_numpy(fg)))
+        cut.append(replace(v, mask=torch.from_numpy(_complete(fg, core, kernel, cfg) if cfg.complete_masks else fg)))
         if iou < cfg.min_mask_agreement:  # this view's segmentation lost the object: use the splat's consensus
             replaced += 1
             out.append(replace(v, mask=torch.from_numpy(sil), mask_source="silhouette"))
@@ -168,21 +175,37 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     return out, renders
 
 
-def _within_hull(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], obj_views: list[CaptureView],
-                 cfg: GeometryConfig) -> list[ViewRender] | None:  # fmt: skip
-    """Drop the selected Gaussians outside the carving masks' hull (:mod:`.select`, step 4), in place; the depth
-    and alpha of what is left, or None when nothing was dropped."""
+def _within_hull(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
+    """Drop the selected Gaussians outside the masks' hull (:mod:`.select`, step 4), in place, before the views'
+    masks are judged against the selection's silhouette (:func:`_object_views`)."""
     if cfg.select.hull_vote_fraction > 1:
-        return None
+        return
     idx = torch.nonzero(selection.selected).squeeze(1)
-    drop = outside_mask_hull(g.means[idx], obj_views, cfg.select)
+    drop = outside_mask_hull(g.means[idx], views, cfg.select)
     if not bool(drop.any()) or bool(drop.all()):  # all: the masks and the selection disagree; the carving says so
-        return None
+        return
     selection.selected[idx[drop]] = False
     selection.outside_hull = int(drop.sum())
     logger.info("object: %d selected Gaussians outside the masks' hull dropped, %d left", selection.outside_hull,
                 selection.num_selected)  # fmt: skip
-    return render_depth(_Subset(g, selection.selected), views, backend=cfg.backend)
+
+
+def _complete(fg: np.ndarray, core: np.ndarray, kernel: np.ndarray, cfg: GeometryConfig) -> np.ndarray:
+    """``fg`` with the connected pieces of the silhouette ``core`` that it misses (beyond its dilation by
+    ``kernel``, which absorbs boundary disagreement) and that cover ``complete_min_share`` of ``core``: the
+    segmentation dropped a part there (the built-in segmenter at 512 px lost the chair's seat in a quarter of the
+    views) and the consensus of the other views has it."""
+    import cv2
+
+    miss = core & ~cv2.dilate(fg.astype(np.uint8), kernel).astype(bool)
+    if not miss.any():
+        return fg
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(miss.astype(np.uint8), connectivity=8)
+    big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= cfg.complete_min_share * max(int(core.sum()), 1))
+    big = big[big > 0]
+    if not len(big):
+        return fg
+    return fg | np.isin(lab, big)
 
 
 @dataclass
@@ -255,9 +278,9 @@ def reconstruct_object(
         raise GeometryError("no views to carve the object from: the run has no training cameras.")
     step("selecting the object")
     selection = select_object(g, views, cfg.select, backend=cfg.backend)
+    _within_hull(g, selection, views, cfg)
     step("rendering depth")
     obj_views, renders = _object_views(g, selection, views, cfg)
-    renders = _within_hull(g, selection, views, obj_views, cfg) or renders
     sources: dict[str, int] = {}
     for v in obj_views:
         sources[v.mask_source] = sources.get(v.mask_source, 0) + 1
