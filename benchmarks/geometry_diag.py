@@ -100,7 +100,9 @@ def main() -> None:
     ap.add_argument("--near-m", type=float, default=0.01, help="a Gaussian is on the object within this (metres)")
     ap.add_argument("--dump", action="store_true")
     ap.add_argument("--max-view-width", type=int, default=640)
-    ap.add_argument("--no-hull", action="store_true", help="select without the masks' hull test (before/after)")
+    ap.add_argument("--no-hull", action="store_true", help="select without the masks' hull test")
+    ap.add_argument("--baseline", action="store_true",
+                    help="the geometry before the hull test and the mask completion (before/after comparisons)")
     ap.add_argument("--tag", default="", help="suffix of the output files (geometry_diag<tag>.json)")
     a = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
@@ -131,9 +133,11 @@ def main() -> None:
     real = op >= 0.05
     done("ground truth per Gaussian")
     cfg = reconstruct.GeometryConfig()
-    if a.no_hull:
+    if a.no_hull or a.baseline:
         cfg.select.hull_vote_fraction = 2.0
-    out["select"] = {"hull_vote_fraction": cfg.select.hull_vote_fraction}
+    if a.baseline:
+        cfg.complete_masks = False
+    out["geometry_config"] = {"hull_vote_fraction": cfg.select.hull_vote_fraction, "complete_masks": cfg.complete_masks}
     sel = select_object(pf, views, cfg.select, backend=cfg.backend)
     prob = sel.prob.double().cpu().numpy()
     chosen = sel.selected.cpu().numpy()

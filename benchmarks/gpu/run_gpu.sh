@@ -214,14 +214,25 @@ case "${1:-kernels}" in
     fi
     ;;
   geometry)
-    # issue 12 (about 7 minutes on an H100): the chair scene (60 views at 512 px), `ns-train physgs` (STEPS, 7000),
-    # the user's `physgs export --outputs mass`, then benchmarks/geometry_diag.py: selection, masks and carving vs
-    # the generator's ground truth, and a compact copy of the splat (splat.npz) for offline experiments
+    # issue 12 (about 6-7 minutes on an H100): the chair scene (60 views at 512 px), `ns-train physgs` (STEPS, 7000),
+    # with USER_EXPORT=1 the user's `physgs export --outputs mass`, then benchmarks/geometry_diag.py for this tree's
+    # geometry and the baseline's (DIAG_VARIANTS): selection, masks and carving vs the generator's ground truth,
+    # mass, and a compact copy of the splat (splat.npz; DUMP= for none); SUITE_SEEDS: the CPU suite beside it
     STEPS=${STEPS:-7000}
     # (the device returns 8 files: the logs go to stdout; the dump holds the dataparser transform)
     make_scene 2>&1 | tail -3
     wait  # the gsplat build
     echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
+    if [ -n "${SUITE_SEEDS:-}" ]; then  # the CPU mass suite at these seeds on the spare cores, beside the training,
+      # then re-exported with the baseline geometry (no hull test, no mask completion) for a side-by-side comparison
+      (CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $SUITE_SEEDS --jobs "${JOBS:-12}" \
+        --out /tmp/mass_suite > "$OUT/mass_suite.log" 2>&1; cp /tmp/mass_suite/mass_suite.json "$OUT/" 2>/dev/null
+       CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $SUITE_SEEDS --jobs "${JOBS:-12}" --out \
+        /tmp/mass_suite --alt-name baseline --export-args "--mass.geometry.select.hull-vote-fraction 2 \
+        --mass.geometry.no-complete-masks" > "$OUT/mass_suite_baseline.log" 2>&1
+       cp /tmp/mass_suite/mass_suite_baseline.json "$OUT/" 2>/dev/null; echo "[$(elapsed) s] suite done") &
+      SUITE_PID=$!
+    fi
     python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
       --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
       --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -4
@@ -232,12 +243,16 @@ case "${1:-kernels}" in
         > "$OUT/full_export.log" 2>&1; tail -25 "$OUT/full_export.log"
       cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
     fi
-    for variant in ${DIAG_VARIANTS:-default nohull}; do  # this tree's selection, and without the masks' hull test
+    for variant in ${DIAG_VARIANTS:-default baseline}; do  # this tree's geometry, and the baseline's
       echo "[$(elapsed) s] geometry_diag $variant"
-      FLAGS=$([ "$variant" = nohull ] && echo "--no-hull --tag _nohull" || echo "${DUMP-"--dump"}")
+      FLAGS=$([ "$variant" = baseline ] && echo "--baseline --tag _baseline" || echo "${DUMP-"--dump"}")
       PYTHONUNBUFFERED=1 timeout $((${LIMIT:-575} - $(elapsed))) python3 benchmarks/geometry_diag.py --load-config \
         "$CFG" --out "$OUT" $FLAGS 2>&1 | grep --line-buffered "^\[\|object:\|wrote\|Error\|error"
     done
+    if [ -n "${SUITE_PID:-}" ]; then  # until the suite ends or the time is up (its log has every finished row)
+      while kill -0 "$SUITE_PID" 2>/dev/null && [ $(elapsed) -lt ${LIMIT:-575} ]; do sleep 5; done
+      tail -n 1 "$OUT/mass_suite.log" "$OUT/mass_suite_baseline.log" 2>/dev/null
+    fi
     echo "[$(elapsed) s] done"
     ;;
   full)  # HEAD=latent|lifted: another material head; LIFT_EVERY=N: lift every N steps as well

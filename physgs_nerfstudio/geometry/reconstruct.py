@@ -69,9 +69,8 @@ class GeometryConfig:
     """the object's own silhouette (its Gaussians rendered alone) is dilated by this before it cuts the
     foreground masks, so that other objects in the views do not count as this one"""
     complete_masks: bool = True
-    """a view's mask gets back the pieces of the object's rendered silhouette that it misses (:func:`_complete`):
-    the silhouette is the consensus of every view's masks, so a part that this view's segmentation dropped is not
-    carved away by it"""
+    """a view's mask gets back the pieces of the object's rendered silhouette that it misses: the silhouette is the
+    consensus of every view's masks, so a part that this view's segmentation dropped is not carved away by it"""
     complete_min_share: float = 0.02
     """... a missed piece counts when its area is at least this share of the silhouette's (smaller ones are the
     silhouette's blur at the boundary, or thin parts the consensus is no surer of than the mask)"""
