@@ -220,6 +220,10 @@ def main() -> None:
     out["carving"] = carving
     done("carving vs truth")
     print(json.dumps({k: out[k] for k in ("selection", "masks", "carving", "mass")}, indent=1))
+    m = out["mass"]
+    print(f"[{time.time() - t0:.1f} s] summary: mass {m['mean_kg']:.3f} kg, 90% [{m['interval_kg'][0]:.3f}, "
+          f"{m['interval_kg'][1]:.3f}], truth {m['truth_kg']:.3f} kg; carved {carving['solid_m3']:.5f} m^3 against "
+          f"{carving['true_on_grid_m3']:.5f} m^3 true on the grid (IoU {carving['iou']:.3f})", flush=True)
 
 
 if __name__ == "__main__":

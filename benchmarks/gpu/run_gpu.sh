@@ -10,6 +10,7 @@
 #   BASE=.export_base bash benchmarks/gpu/run_gpu.sh export  # issues 12+13: full chair run, its mass, exports before/after
 #   OBJECTS=5 STEPS=3000 bash benchmarks/gpu/run_gpu.sh batch     # issue 14: physgs batch (local) over the suite
 #   bash benchmarks/gpu/run_gpu.sh geometry  # issue 12: full chair run, geometry vs ground truth (geometry_diag.py)
+#   OBJECTS="table stool" bash benchmarks/gpu/run_gpu.sh gsuite  # issue 12: the same for other generated objects
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
 set -uo pipefail
@@ -26,7 +27,7 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
-case "${1:-}" in perf|suite|mem|export|batch|geometry) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
+case "${1:-}" in perf|suite|mem|export|batch|geometry|gsuite) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -247,12 +248,38 @@ case "${1:-kernels}" in
       echo "[$(elapsed) s] geometry_diag $variant"
       FLAGS=$([ "$variant" = baseline ] && echo "--baseline --tag _baseline" || echo "${DUMP-"--dump"}")
       PYTHONUNBUFFERED=1 timeout $((${LIMIT:-575} - $(elapsed))) python3 benchmarks/geometry_diag.py --load-config \
-        "$CFG" --out "$OUT" $FLAGS 2>&1 | grep --line-buffered "^\[\|object:\|wrote\|Error\|error"
+        "$CFG" --out "$OUT" $FLAGS 2>&1 | grep --line-buffered "^\[\|object:\|wrote\|summary\|Error\|error"
     done
     if [ -n "${SUITE_PID:-}" ]; then  # until the suite ends or the time is up (its log has every finished row)
       while kill -0 "$SUITE_PID" 2>/dev/null && [ $(elapsed) -lt ${LIMIT:-575} ]; do sleep 5; done
       tail -n 1 "$OUT/mass_suite.log" "$OUT/mass_suite_baseline.log" 2>/dev/null
     fi
+    echo "[$(elapsed) s] done"
+    ;;
+  gsuite)
+    # issue 12 (about 4-5 minutes per object on an H100): generated OBJECTS at 60 views 512 px (scenes made in
+    # parallel on the CPUs), then per object `ns-train physgs` (STEPS, 7000) and geometry_diag.py (this tree's
+    # geometry; BASELINE=1: the baseline's as well) -> geometry_diag_<object>.json; stops before LIMIT
+    STEPS=${STEPS:-7000} LIMIT=${LIMIT:-575}
+    for o in ${OBJECTS:?OBJECTS="table stool"}; do
+      (python3 -m physgs_nerfstudio.cli synth --out /tmp/gs_$o --object $o --views 60 --resolution 512 --overwrite \
+         > /dev/null 2>&1 && python3 -m physgs_nerfstudio.cli perceive --data /tmp/gs_$o --vlm simulated \
+         --segmenter builtin --no-progress --max-concurrency 8 > /dev/null 2>&1; echo "[$(elapsed) s] scene $o") &
+    done
+    wait
+    for o in $OBJECTS; do
+      [ $(elapsed) -gt $((LIMIT - 200)) ] && { echo "[$(elapsed) s] no time left for $o"; break; }
+      python3 -m nerfstudio.scripts.train physgs --data /tmp/gs_$o --max-num-iterations "$STEPS" --vis tensorboard \
+        --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
+        --output-dir /tmp/gs_runs_$o --timestamp gpu 2>&1 | grep "train_iteration"
+      CFG=$(ls /tmp/gs_runs_$o/*/physgs/gpu/config.yml) || continue
+      for variant in default ${BASELINE:+baseline}; do
+        FLAGS=$([ "$variant" = baseline ] && echo "--baseline --tag _${o}_baseline" || echo "--tag _$o")
+        echo "[$(elapsed) s] geometry_diag $o $variant"
+        PYTHONUNBUFFERED=1 timeout $((LIMIT - $(elapsed))) python3 benchmarks/geometry_diag.py --load-config "$CFG" \
+          --out "$OUT" $FLAGS 2>&1 | grep --line-buffered "object:\|summary\|Error\|error"
+      done
+    done
     echo "[$(elapsed) s] done"
     ;;
   full)  # HEAD=latent|lifted: another material head; LIFT_EVERY=N: lift every N steps as well
