@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import integrate, optimize, stats
 
 from physgs_nerfstudio.bayes import (
@@ -236,3 +238,24 @@ def test_property_fields_shape_errors_and_speed():
     out = property_fields(alpha, nig, [True, False, False, True], material_weights="predictive")
     assert time.perf_counter() - t0 < 5.0
     assert all(torch.isfinite(v).all() for v in out.values())
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.lists(st.integers(1, 4), max_size=4), min_size=1, max_size=4),
+       st.lists(st.integers(0, 3), max_size=4))  # fmt: skip
+def test_broadcast_shapes_matches_torch(shapes, ones):
+    """The module's broadcast_shapes (no sympy import) equals torch.broadcast_shapes, errors included."""
+    from physgs_nerfstudio.bayes.mixture import broadcast_shapes
+
+    shapes = [list(s) for s in shapes]
+    for k, i in enumerate(ones):  # some dimensions of size 1, which broadcast
+        s = shapes[k % len(shapes)]
+        if s:
+            s[i % len(s)] = 1
+    try:
+        want = torch.broadcast_shapes(*shapes)
+    except RuntimeError:
+        with pytest.raises(RuntimeError):
+            broadcast_shapes(*shapes)
+        return
+    assert broadcast_shapes(*shapes) == want

@@ -9,6 +9,9 @@ export TORCH_CUDA_ARCH_LIST=9.0 MAX_JOBS=16 PYTHONUNBUFFERED=1
 # cache every process compiled thousands of .py files again (6.3 s of a 9 s export load on the H100 machine, in
 # the profile of 2026-11-23). A user's pip install writes .pyc files; this gives the benchmarks the same.
 export PYTHONPYCACHEPREFIX=${PYTHONPYCACHEPREFIX:-/tmp/pycache}
+# ... and the machine's environment may forbid writing bytecode at all (PYTHONDONTWRITEBYTECODE=1, as on the
+# development machine), which made every process compile again despite the prefix: a user's Python writes it.
+unset PYTHONDONTWRITEBYTECODE
 export TORCH_EXTENSIONS_DIR=$PWD/.gsplat_build
 export NERFSTUDIO_METHOD_CONFIGS="physgs=method_configs.physgs_config:physgs_method,physgs-lite=method_configs.physgs_config:physgs_lite_method"
 # The wheels were just unpacked, so every gsplat source is newer than a carried build: ninja would recompile

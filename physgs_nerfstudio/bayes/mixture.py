@@ -48,6 +48,20 @@ __all__ = [
 ]
 
 
+def broadcast_shapes(*shapes: Sequence[int]) -> torch.Size:
+    """``torch.broadcast_shapes`` without its import of torch's symbolic-shape machinery (and sympy: 3.8 s of an
+    export's start on a machine that compiles bytecode; issue 13). RuntimeError, as torch's, when they do not
+    broadcast."""
+    nd = max((len(s) for s in shapes), default=0)
+    out = []
+    for i in range(1, nd + 1):
+        dims = {int(s[-i]) for s in shapes if len(s) >= i and int(s[-i]) != 1}
+        if len(dims) > 1:
+            raise RuntimeError(f"shapes {[tuple(s) for s in shapes]} cannot be broadcast together")
+        out.append(dims.pop() if dims else 1)
+    return torch.Size(out[::-1])
+
+
 def _components(
     pi: Tensor, loc: Tensor, scale: Tensor, df: Tensor | float | None, where: str
 ) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
@@ -155,13 +169,13 @@ def mixture_quantile(
     """
     where = "mixture_quantile"
     pi, loc, scale, dft = _components(pi, loc, scale, df, where)
-    batch = torch.broadcast_shapes(pi.shape[:-1], loc.shape[:-1], scale.shape[:-1],
+    batch = broadcast_shapes(pi.shape[:-1], loc.shape[:-1], scale.shape[:-1],
                                    dft.shape[:-1] if dft is not None and dft.dim() else ())
     qt = as_float_tensor(q, like=loc)
     check_finite(qt, where=f"{where}(q)")
     raise_if((qt <= 0) | (qt >= 1), qt, where=f"{where}(q)", what="quantile level outside (0, 1)",
              fix="Pass q strictly between 0 and 1.")
-    batch = torch.broadcast_shapes(batch, qt.shape)
+    batch = broadcast_shapes(batch, qt.shape)
     qt = qt.expand(batch)
     eps = torch.finfo(loc.dtype).eps
 
@@ -233,7 +247,7 @@ def mixture_sample(
     """
     pi, loc, scale, dft = _components(pi, loc, scale, df, "mixture_sample")
     shapes = [pi.shape, loc.shape, scale.shape] + ([dft.shape] if dft is not None else [])
-    full = torch.broadcast_shapes(*shapes)
+    full = broadcast_shapes(*shapes)
     batch, k = full[:-1], full[-1]
     n = int(math.prod(batch))
     pi_f = pi.expand(full).reshape(n, k)
