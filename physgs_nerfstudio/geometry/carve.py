@@ -48,7 +48,6 @@ from typing import Literal
 import numpy as np
 import torch
 from jaxtyping import Float
-from scipy import ndimage
 from torch import Tensor
 
 from .capture import CaptureView
@@ -110,6 +109,7 @@ class CarveConfig:
 def signed_mask_distance(mask: np.ndarray | Tensor) -> Float[Tensor, "H W"]:
     """Signed distance in pixels at pixel centres, > 0 outside and < 0 inside, offset by half a pixel so that
     its bilinear interpolation (:func:`_sample`) crosses 0 on the pixel edges between inside and outside."""
+    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     m = np.asarray(mask.cpu() if isinstance(mask, Tensor) else mask, dtype=bool)
     if not m.any():
         return torch.full(m.shape, 1e6)
@@ -282,6 +282,7 @@ def carve_votes_many(
 
 def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
     """bool [X, Y, Z]: voxels not carved by the vote (module doc), without specks."""
+    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     e = votes.empty.float()
     carved = (e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * votes.seen.float())
     carved |= votes.seen.float() < cfg.min_seen_fraction * votes.num_views

@@ -41,8 +41,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
-from skimage.measure import marching_cubes
 from torch import Tensor
 
 from .grid import VoxelGrid
@@ -54,6 +52,7 @@ def voxel_mixture(grid: VoxelGrid, solid: np.ndarray, means: Tensor, opacities: 
                   observed: Tensor | None = None, *, min_evidence: float = 0.5) -> np.ndarray:  # fmt: skip
     """float64 [X, Y, Z, K] mixture on the solid's voxels (zeros elsewhere); module doc. ``observed``: per
     Gaussian observed share in [0, 1] (None: every Gaussian counts as observed)."""
+    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     K = pi.shape[1]
     idx = grid.index_of(means.float()).cpu().numpy()
     shape = np.asarray(grid.shape)
@@ -105,6 +104,7 @@ def pooled_part_alpha(grid: VoxelGrid, parts: np.ndarray, num_parts: int, means:
 
 def part_labels(solid: np.ndarray, mixture: np.ndarray, min_part_fraction: float = 2e-3) -> np.ndarray:
     """int [X, Y, Z]: part id (0..P-1) per solid voxel, -1 elsewhere (module doc)."""
+    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     dom = np.where(solid, np.argmax(mixture, -1), -1)
     out = np.full(solid.shape, -1, np.int64)
     offset = 0
@@ -140,6 +140,8 @@ class PartGeometry:
 def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts: int, *,
                sheet_voxels: float = 1.5, area_sigma: float = 0.5) -> PartGeometry:  # fmt: skip
     """Per-part volume and wall area of ``solid`` (module doc)."""
+    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
+    from skimage.measure import marching_cubes
     h = grid.voxel_size
     vol = np.bincount(parts[solid], minlength=num_parts).astype(np.float64) * h**3
     area = np.zeros(num_parts)

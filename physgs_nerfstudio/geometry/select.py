@@ -35,7 +35,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy import ndimage
 from torch import Tensor
 
 from .capture import CaptureView
@@ -151,6 +150,7 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
 
 
 def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     lo = np.quantile(means, 0.002, axis=0)
     hi = np.quantile(means, 0.998, axis=0)
     from scipy.spatial import cKDTree

@@ -34,7 +34,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.special import betainc
 
 from ..bayes.nig import NIG, Moments, nig_posterior
 from .capture import CaptureView, MaskObservation
@@ -73,6 +72,7 @@ class PartStructure:
     @property
     def p_hollow(self) -> np.ndarray:
         """P(theta > 1/2): the probability that the part is hollow (module doc)."""
+        from scipy.special import betainc  # lazily: a PLY-only export needs no SciPy
         return 1.0 - betainc(self.hollow_a, self.hollow_b, 0.5)
 
     @property
