@@ -220,7 +220,8 @@ def blob_model(dm, **config):
     from physgs_nerfstudio.nerfstudio import PhysGSModelConfig
 
     meta = dm.train_dataparser_outputs.metadata
-    return PhysGSModelConfig(sh_degree=1, num_downscales=0, **config).setup(
+    config = {"sh_degree": 1, "num_downscales": 0, **config}
+    return PhysGSModelConfig(**config).setup(
         scene_box=SceneBox(torch.tensor([[-1.0, -1, -1], [1, 1, 1]])),
         num_train_data=len(dm.train_dataset),
         metadata=dm.train_dataset.metadata,

@@ -233,3 +233,21 @@ def test_labelled_fraction_ignores_confidence_and_old_checkpoints_fall_back(blob
     other.load_state_dict(state)
     assert other.labelled_fraction_legacy
     assert PropertyField.from_model(other).labelled is None
+
+
+def test_small_training_images_are_not_downscaled_into_splitting_every_gaussian(blob_dm) -> None:
+    """splatfacto's schedule trains at 1/4 resolution first; on small captures the screen-size split then takes
+    every Gaussian (issue 14's out-of-memory run). The model keeps the render and the target image at the same,
+    safe, downscale, and switches the split off where even full resolution is too small for it."""
+    from physgs_nerfstudio.nerfstudio.model import training_downscale
+
+    model = make_model(blob_dm, num_downscales=2, stop_screen_size_at=4000, split_screen_size=0.05)
+    cam, batch = blob_dm.next_train(0)
+    long_side = int(max(cam.width.item(), cam.height.item()))
+    model.train()
+    out = model.get_outputs(cam)
+    d = model._get_downscale_factor()
+    assert d == training_downscale(4, long_side, 0.05, model.strategy.refine_scale2d_stop_iter > 0)
+    assert out["rgb"].shape[:2] == model.get_gt_img(batch["image"]).shape[:2]
+    assert long_side * 0.05 < 6.0  # the blob's 32 px: even full resolution is too small for the split
+    assert model.strategy.refine_scale2d_stop_iter == 0 and d == 4  # split off; the schedule is then harmless

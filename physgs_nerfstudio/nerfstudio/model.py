@@ -177,6 +177,25 @@ class _LazyLPIPS:
         return self.metric(a, b)
 
 
+MIN_SPLIT_RADIUS_PX = 6.0
+"""A rendered Gaussian's radius is at least 2 pixels (gsplat: 3 sigma of the 0.3 px^2 blur, rounded up). The
+screen-size split (`split_screen_size`, a fraction of the image's longer side) is only meaningful where it asks for
+3 times that: below it every Gaussian qualifies and splits at every refinement."""
+
+
+def training_downscale(scheduled: int, long_side: int, split_screen_size: float, screen_split_on: bool) -> int:
+    """splatfacto's scheduled training downscale ``scheduled`` (a power of 2), reduced while the screen-size split
+    is on so that ``long_side / d * split_screen_size >= MIN_SPLIT_RADIUS_PX``: at 1/4 of a 128 px capture (32 px)
+    every Gaussian was "large on screen", the count doubled every 100 steps (45k at step 800, 949k at step 1,400
+    on CPU) and a 3,000-step GPU run ran out of 80 GB (benchmarks/README.md)."""
+    d = max(1, int(scheduled))
+    if not screen_split_on or split_screen_size <= 0:
+        return d
+    while d > 1 and long_side / d * split_screen_size < MIN_SPLIT_RADIUS_PX:
+        d //= 2
+    return d
+
+
 def downscale_labels(t: Tensor, d: int, height: int, width: int) -> Tensor:
     """Nearest-neighbour downscale of a [H, W, C] map by d (centre sample of each d x d block)."""
     if d > 1:
@@ -495,6 +514,29 @@ class PhysGSModel(SplatfactoModel):
                 out[name] = out["rgb"].clone()
         return out
 
+    def _get_downscale_factor(self) -> int:
+        """splatfacto's schedule, never so coarse that the screen-size split takes every Gaussian
+        (:func:`training_downscale`); the full-resolution size is the last training camera's."""
+        d = super()._get_downscale_factor()
+        long_side = getattr(self, "_train_long_side", None)
+        if not self.training or long_side is None:
+            return d
+        on = self.step < self.strategy.refine_scale2d_stop_iter  # the strategy's: the guard below may switch it off
+        return training_downscale(d, long_side, self.config.split_screen_size, on)
+
+    def _screen_split_guard(self, camera: Cameras) -> None:
+        """Record the training image size; below the size where any Gaussian is "large on screen" even at full
+        resolution (:data:`MIN_SPLIT_RADIUS_PX`), switch the screen-size split off, once, with a note."""
+        long_side = int(max(camera.width.item(), camera.height.item()))
+        self._train_long_side = long_side
+        c = self.config
+        if (long_side * c.split_screen_size < MIN_SPLIT_RADIUS_PX and self.strategy.refine_scale2d_stop_iter > 0
+                and not getattr(self, "_screen_split_off", False)):  # fmt: skip
+            self._screen_split_off = True
+            self.strategy.refine_scale2d_stop_iter = 0
+            CONSOLE.log(f"[yellow]{long_side} px training images: the screen-size split (split_screen_size "
+                        f"{c.split_screen_size}) would split every Gaussian; it is off for this run.[/yellow]")
+
     def get_outputs(self, camera: Cameras) -> dict[str, torch.Tensor | list]:
         """RGB, depth, accumulation, background; training adds `material_logits` [H, W, K]; evaluation adds
         `material` [H, W, 3] (legend colours, or one material's probability: `viewer_settings`), `material_id`
@@ -506,6 +548,7 @@ class PhysGSModel(SplatfactoModel):
             return {}
         assert camera.shape[0] == 1, "PhysGSModel renders one camera at a time"
         if self.training:
+            self._screen_split_guard(camera)
             c2w = self.camera_optimizer.apply_to_camera(camera)
             Ks, W, H = self._render_intrinsics(camera)
             return self._training_outputs(camera, c2w, Ks, W, H)
