@@ -127,12 +127,12 @@ def test_dry_run_plan_from_state_and_settings(tmp_path, capsys):
     save_state(out, "s2", {"stages": {"perceive": {"status": "done", "metrics": {"vlm_calls": 12}},
                                       "train": {"status": "done"}}})  # fmt: skip
     rates = EstimateRates(masks_per_view=2.5, prompt_tokens_per_call=1000, completion_tokens_per_call=100,
-                          seconds_per_iteration=0.01)  # fmt: skip
+                          seconds_per_iteration=0.01, train_seconds_per_view=1.5)  # fmt: skip
     from physgs_nerfstudio.batch.scenes import Scene
 
     p = plan_scene(Scene("s1", data), ["perceive", "train", "export"], out, Policy(), "physgs", 2000, None, rates)
     assert (p.calls, p.prompt_tokens, p.completion_tokens) == (25, 25000, 2500)
-    assert p.device_seconds == pytest.approx(2000 * 0.01 + 6.0)
+    assert p.device_seconds == pytest.approx(2000 * 0.01 + 10 * 1.5 + 6.0)  # steps, outside the steps (10 views), export
     tot = BatchCommand(scenes=tmp_path / "scenes", output_dir=out, dry_run=True, iterations=2000, estimate=rates,
                        usd_per_1k_prompt_tokens=0.01).run()  # fmt: skip
     assert tot["vlm_calls"] == 25 and tot["stages"] == 4  # s2 only needs export

@@ -2,7 +2,8 @@
 
 Per scene: the stages to run (state on disk decides: done ones are skipped), the VLM calls (views x masks
 per view, minus the scene's cached answers when it was perceived before), tokens (calls x tokens per call)
-and the training device time (iterations x seconds per iteration of the method, plus export). The rates
+and the training device time (iterations x seconds per iteration of the method, plus the training process's
+time outside the steps, per view, plus export). The rates
 are settings with measured defaults (README, "Many scenes"); the estimate is only as good as they are.
 """
 
@@ -32,6 +33,10 @@ class EstimateRates:
     completion_tokens_per_call: int = 250
     seconds_per_iteration: float | None = None
     """Device seconds per training iteration (None: the method's measured H100 figure)."""
+    train_seconds_per_view: float = 1.15
+    """Seconds of a training process outside its steps (start, the dataset, liftings, evaluation), per view: H100,
+    median 27.1 s over 5 scenes of 24 views and 47.7 s for one of 40 views (1.13 and 1.19 s a view;
+    benchmarks/README.md, "Many scenes on the GPU"). Without it the estimate was 2.4x low."""
 
 
 @dataclass
@@ -65,7 +70,8 @@ def plan_scene(scene: Scene, stages: list[str], output_dir: Path, policy: Policy
         calls = max(0, masks - int(answered.get("vlm_calls", 0)))
     iters = iterations if iterations is not None else DEFAULT_ITERATIONS[method]
     spi = rates.seconds_per_iteration if rates.seconds_per_iteration is not None else SECONDS_PER_ITERATION[method]
-    secs = (iters * spi if "train" in todo else 0.0) + (EXPORT_SECONDS if "export" in todo else 0.0)
+    train = iters * spi + views * rates.train_seconds_per_view
+    secs = (train if "train" in todo else 0.0) + (EXPORT_SECONDS if "export" in todo else 0.0)
     return ScenePlan(scene.name, todo, views, calls, calls * rates.prompt_tokens_per_call,
                      calls * rates.completion_tokens_per_call, secs)  # fmt: skip
 
