@@ -32,6 +32,10 @@ SETTINGS: dict[str, list[str]] = {
     "depth_margin_voxels=1": ["--mass.geometry.carve.depth-margin-voxels", "1"],
     "min_voxel_evidence=0.25": ["--mass.geometry.min-voxel-evidence", "0.25"],
     "min_voxel_evidence=1": ["--mass.geometry.min-voxel-evidence", "1"],
+    "hull_vote_fraction=0.35": ["--mass.geometry.select.hull-vote-fraction", "0.35"],
+    "hull_vote_fraction=0.65": ["--mass.geometry.select.hull-vote-fraction", "0.65"],
+    "complete_min_share=0.01": ["--mass.geometry.complete-min-share", "0.01"],
+    "complete_min_share=0.05": ["--mass.geometry.complete-min-share", "0.05"],
     "no_variants": ["--mass.geometry.no-variants"],
 }
 

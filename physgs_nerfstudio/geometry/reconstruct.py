@@ -73,7 +73,8 @@ class GeometryConfig:
     consensus of every view's masks, so a part that this view's segmentation dropped is not carved away by it"""
     complete_min_share: float = 0.02
     """... a missed piece counts when its area is at least this share of the silhouette's (smaller ones are the
-    silhouette's blur at the boundary, or thin parts the consensus is no surer of than the mask)"""
+    silhouette's blur at the boundary, or thin parts the consensus is no surer of than the mask); documented range
+    0.01-0.05"""
     min_mask_agreement: float = 0.5
     """IoU between a view's object mask and the object's rendered silhouette below which the view carves with
     the silhouette (:func:`_object_views`)"""

@@ -60,8 +60,9 @@ class SelectConfig:
     bridge_cells: int = 1
     """dilation of occupied cells before labelling clusters"""
     hull_vote_fraction: float = 0.5
-    """a Gaussian is outside the masks' hull when its centre projects outside the masks in at least this fraction
-    of the views that frame it (module doc; the carving's ``min_vote_fraction``); > 1 switches the test off"""
+    """a selected Gaussian is outside the masks' hull when its centre projects outside the views' masks in at least
+    this fraction of the views that frame it (module doc, step 4: a majority; documented range 0.35-0.65); > 1
+    switches the test off"""
     hull_min_votes: int = 2
     """... and in at least this many views (the carving's ``min_votes``)"""
     hull_min_framed_fraction: float = 0.5
