@@ -11,6 +11,7 @@
 #   OBJECTS=5 STEPS=3000 bash benchmarks/gpu/run_gpu.sh batch     # issue 14: physgs batch (local) over the suite
 #   bash benchmarks/gpu/run_gpu.sh geometry  # issue 12: full chair run, geometry vs ground truth (geometry_diag.py)
 #   OBJECTS="table stool" bash benchmarks/gpu/run_gpu.sh gsuite  # issue 12: the same for other generated objects
+#   bash benchmarks/gpu/run_gpu.sh mprofile  # issue 13: profile of `physgs export --outputs mass` on the chair
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
 set -uo pipefail
@@ -27,7 +28,7 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
-case "${1:-}" in perf|suite|mem|export|batch|geometry|gsuite) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
+case "${1:-}" in perf|suite|mem|export|batch|geometry|gsuite|mprofile) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -280,6 +281,35 @@ case "${1:-kernels}" in
           --out "$OUT" $FLAGS 2>&1 | grep --line-buffered "object:\|summary\|Error\|error"
       done
     done
+    echo "[$(elapsed) s] done"
+    ;;
+  mprofile)
+    # issue 13 (about 7 minutes on an H100): where `physgs export --outputs mass` spends its time. The chair scene,
+    # `ns-train physgs` (STEPS, default 7000), the export timed twice from outside, then once under cProfile with
+    # CUDA_LAUNCH_BLOCKING=1 (each kernel charged to the Python call that launched it); the stamped gsplat build
+    # is returned in $OUT/gsplat_cuda for later calls (carry it as .gsplat_build/gsplat_cuda)
+    STEPS=${STEPS:-7000}
+    make_scene 2>&1 | tail -3
+    wait  # the gsplat build
+    echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
+    mkdir -p "$OUT/gsplat_cuda"; cp .gsplat_build/gsplat_cuda/gsplat_cuda.so .gsplat_build/gsplat_cuda/physgs_build_stamp.json \
+      "$OUT/gsplat_cuda/" 2>/dev/null
+    python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
+      --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
+      --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -3
+    CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml)
+    for i in 1 2; do
+      echo "[$(elapsed) s] physgs export --outputs mass ($i)"
+      /usr/bin/time -f "wall %e s" python3 -m physgs_nerfstudio.cli export --load-config "$CFG" --output-dir /tmp/pm \
+        --outputs mass --overwrite > "$OUT/mass_export_$i.log" 2>&1; tail -2 "$OUT/mass_export_$i.log"
+    done
+    cp /tmp/pm/report.json "$OUT/mass_report.json" 2>/dev/null
+    CUDA_LAUNCH_BLOCKING=1 python3 -m cProfile -o /tmp/mass.prof -m physgs_nerfstudio.cli export --load-config "$CFG" \
+      --output-dir /tmp/pm --outputs mass --overwrite > /dev/null 2>&1
+    python3 -c "import pstats; p = pstats.Stats('/tmp/mass.prof'); p.sort_stats('cumulative').print_stats(90); \
+p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
+    grep -E "reconstruct|select_object|lift_masks|render_depth|carve|part_|voxel_mixture|fuse_structure|integrate|pi\)|load_run" \
+      "$OUT/mass_profile.txt" | head -40
     echo "[$(elapsed) s] done"
     ;;
   full)  # HEAD=latent|lifted: another material head; LIFT_EVERY=N: lift every N steps as well

@@ -41,6 +41,7 @@ evidence (a depth rendered too deep through a semi-transparent wall), never seen
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -55,7 +56,7 @@ from .gaussians import ViewRender
 from .grid import VoxelGrid
 
 __all__ = ["CarveConfig", "CarveVotes", "carve_votes", "carve_votes_many", "signed_mask_distance",
-           "solid_from_votes"]
+           "signed_mask_distances", "solid_from_votes"]
 
 
 @dataclass
@@ -108,16 +109,33 @@ class CarveConfig:
 
 def signed_mask_distance(mask: np.ndarray | Tensor) -> Float[Tensor, "H W"]:
     """Signed distance in pixels at pixel centres, > 0 outside and < 0 inside, offset by half a pixel so that
-    its bilinear interpolation (:func:`_sample`) crosses 0 on the pixel edges between inside and outside."""
-    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
+    its bilinear interpolation (:func:`_sample`) crosses 0 on the pixel edges between inside and outside.
+
+    Exact Euclidean distances (OpenCV's ``DIST_MASK_PRECISE``, the same values as SciPy's
+    ``distance_transform_edt``, tested against it; about 5x faster at 512 px, and it releases the GIL, so
+    :func:`signed_mask_distances` computes many views at once)."""
+    import cv2
+
     m = np.asarray(mask.cpu() if isinstance(mask, Tensor) else mask, dtype=bool)
     if not m.any():
         return torch.full(m.shape, 1e6)
     if m.all():
         return torch.full(m.shape, -1e6)
-    out = ndimage.distance_transform_edt(~m)
-    inside = ndimage.distance_transform_edt(m)
+    u8 = np.ascontiguousarray(m).view(np.uint8)
+    out = cv2.distanceTransform(1 - u8, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inside = cv2.distanceTransform(u8, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     return torch.from_numpy(np.where(m, 0.5 - inside, out - 0.5).astype(np.float32))
+
+
+def signed_mask_distances(masks: Sequence[np.ndarray | Tensor], workers: int | None = None) -> list[Tensor]:
+    """:func:`signed_mask_distance` of every mask, on a thread pool (OpenCV releases the GIL)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    masks = list(masks)
+    if len(masks) < 4:
+        return [signed_mask_distance(m) for m in masks]
+    with ThreadPoolExecutor(max_workers=workers or min(16, os.cpu_count() or 1)) as pool:
+        return list(pool.map(signed_mask_distance, masks))
 
 
 def _shift(t: Tensor, dim: int, step: int, fill: float | bool) -> Tensor:
@@ -229,7 +247,7 @@ def carve_votes_many(
     G = len(cfgs)
     empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32, device=device) for _ in cfgs] for _ in range(3))
     seen = torch.zeros(M, dtype=torch.int32, device=device)
-    sdf = [t.to(device) for t in (sdf if sdf is not None else [signed_mask_distance(v.mask) for v in views])]
+    sdf = [t.to(device) for t in (sdf if sdf is not None else signed_mask_distances([v.mask for v in views]))]
     cams = [(v.viewmat[:3, :3].to(device), v.viewmat[:3, 3].to(device), v.K.to(device)) for v in views]
     any_depth = renders is not None and any(c.use_depth for c in cfgs)
     slope = any(c.depth_slope_margin > 0 for c in cfgs)

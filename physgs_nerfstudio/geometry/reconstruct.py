@@ -20,7 +20,7 @@ import torch
 
 from ..bayes.mixture import material_mixture_weights
 from .capture import CaptureView, MaskObservation
-from .carve import CarveConfig, carve_votes_many, signed_mask_distance, solid_from_votes
+from .carve import CarveConfig, carve_votes_many, signed_mask_distances, solid_from_votes
 from .errors import GeometryError
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
@@ -285,7 +285,7 @@ def reconstruct_object(
     for v in obj_views:
         sources[v.mask_source] = sources.get(v.mask_source, 0) + 1
     grid = _domain(g, selection.selected, cfg)
-    sdf = [signed_mask_distance(v.mask) for v in obj_views]
+    sdf = signed_mask_distances([v.mask for v in obj_views])
     device = g.means.device
     step("carving")
     variants = _variants(cfg)

@@ -38,7 +38,7 @@ import torch
 from torch import Tensor
 
 from .capture import CaptureView
-from .carve import _sample, signed_mask_distance
+from .carve import _sample, signed_mask_distances
 from .errors import GeometryError
 from .gaussians import lift_masks
 
@@ -130,7 +130,7 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
     dev = means.device
     n = means.shape[0]
     out = torch.zeros(n, dtype=torch.bool, device=dev)
-    sdf = [signed_mask_distance(v.mask).to(dev) for v in views]
+    sdf = [d.to(dev) for d in signed_mask_distances([v.mask for v in views])]
     for s0 in range(0, n, chunk):
         x = means[s0 : s0 + chunk].float()
         framed = torch.zeros(len(x), dtype=torch.int32, device=dev)
