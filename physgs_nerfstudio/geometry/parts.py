@@ -139,7 +139,8 @@ class PartGeometry:
 
 def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts: int, *,
                sheet_voxels: float = 1.5, area_sigma: float = 0.5) -> PartGeometry:  # fmt: skip
-    """Per-part volume and wall area of ``solid`` (module doc)."""
+    """Per-part volume and wall area of ``solid`` (module doc). Computed on the solid's bounding box (with a margin
+    for the smoothing and the sheet window): the same faces, nearest voxels and sheet test as on the whole grid."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     from skimage.measure import marching_cubes
     h = grid.voxel_size
@@ -149,6 +150,11 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     total_area = np.zeros(num_parts)
     if solid.sum() == 0:
         return PartGeometry(vol, area, sheet_area)
+    idx = np.argwhere(solid)
+    m = int(np.floor(sheet_voxels)) + 2  # empty voxels kept around the solid: the sheet test's ball fits inside
+    lo, hi = np.maximum(idx.min(0) - m, 0), np.minimum(idx.max(0) + 1 + m, solid.shape)
+    crop = tuple(slice(a, b) for a, b in zip(lo, hi))
+    solid, parts = solid[crop], parts[crop]
     pad = 2
     padded = np.pad(solid, pad).astype(np.float32)
     if area_sigma > 0:
@@ -156,16 +162,11 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     verts, faces, _, _ = marching_cubes(padded, 0.5)
     tri = verts[faces]  # [T, 3, 3] in padded voxel index units
     fa = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) * h**2
-    centroid = tri.mean(1) - pad  # unpadded voxel-index coordinates (voxel i has its centre at i)
+    centroid = tri.mean(1) - pad  # cropped voxel-index coordinates (voxel i has its centre at i)
     fv = np.clip(np.rint(centroid).astype(np.int64), 0, np.asarray(solid.shape) - 1)
-    _, near = ndimage.distance_transform_edt(~solid, return_indices=True)
-    nv = tuple(near[a][fv[:, 0], fv[:, 1], fv[:, 2]] for a in range(3))
+    nv = _nearest_solid(solid, fv)
     pid = parts[nv]
-    # local half-thickness: the largest inscribed distance near the face
-    edt = ndimage.distance_transform_edt(solid)
-    r = int(np.ceil(sheet_voxels)) + 1
-    local = ndimage.maximum_filter(edt, size=2 * r + 1)[nv]
-    sheet = local <= sheet_voxels
+    sheet = _sheet_faces(solid, nv, sheet_voxels)
     factor = np.where(sheet, 0.5, 1.0)
     ok = pid >= 0
     np.add.at(area, pid[ok], (fa * factor)[ok])
@@ -173,6 +174,61 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     np.add.at(total_area, pid[ok], fa[ok])
     share = np.divide(sheet_area, total_area, out=np.zeros_like(area), where=total_area > 0)
     return PartGeometry(vol, area, share)
+
+
+def _nearest_solid(solid: np.ndarray, at: np.ndarray, radius: int = 3) -> tuple[np.ndarray, ...]:
+    """Index arrays of the solid voxel nearest to each voxel ``at`` [F, 3] (Euclidean; ties to the first offset in
+    (distance, x, y, z) order). A face lies within a voxel or so of the solid, so the offsets are tried nearest
+    first up to ``radius`` voxels, only for the faces still unresolved; a distance transform answers the rest."""
+    shape = np.asarray(solid.shape)
+    out = at.copy()
+    todo = np.flatnonzero(~solid[tuple(at.T)])
+    if len(todo):
+        o = np.arange(-radius, radius + 1)
+        offs = np.stack(np.meshgrid(o, o, o, indexing="ij"), -1).reshape(-1, 3)
+        offs = offs[np.lexsort((offs[:, 2], offs[:, 1], offs[:, 0], (offs**2).sum(1)))][1:]
+        for off in offs:
+            q = at[todo] + off
+            inb = ((q >= 0) & (q < shape)).all(1)
+            hit = np.zeros(len(todo), bool)
+            hit[inb] = solid[tuple(q[inb].T)]
+            out[todo[hit]] = q[hit]
+            todo = todo[~hit]
+            if not len(todo):
+                break
+    if len(todo):  # farther than ``radius``: the exact transform
+        from scipy import ndimage
+
+        _, near = ndimage.distance_transform_edt(~solid, return_indices=True)
+        out[todo] = np.stack([n[tuple(at[todo].T)] for n in near], -1)
+    return tuple(out.T)
+
+
+def _sheet_faces(solid: np.ndarray, nv: tuple[np.ndarray, ...], sheet_voxels: float) -> np.ndarray:
+    """bool per face: the solid's largest inscribed distance (Euclidean distance to the nearest empty voxel of the
+    grid) within a cube of half-width ``ceil(sheet_voxels) + 1`` around the face's voxel ``nv`` is at most
+    ``sheet_voxels``. Without a distance transform: a voxel's inscribed distance exceeds ``s`` exactly when every
+    grid voxel within distance ``s`` of it is solid (the erosion by that ball, the grid's outside counted solid
+    as the transform does), and the cube's maximum exceeds ``s`` when an eroded voxel lies in the cube (a
+    summed-volume table, looked up per face)."""
+    from scipy import ndimage
+
+    s = float(sheet_voxels)
+    k = int(np.floor(s))
+    o = np.arange(-k, k + 1)
+    ball = (o[:, None, None] ** 2 + o[None, :, None] ** 2 + o[None, None, :] ** 2) <= s * s
+    core = ndimage.binary_erosion(solid, ball, border_value=1) if k > 0 else solid.copy()
+    r = int(np.ceil(s)) + 1
+    table = np.zeros(tuple(n + 1 for n in solid.shape), np.int64)
+    table[1:, 1:, 1:] = core.cumsum(0).cumsum(1).cumsum(2)
+    shape = np.asarray(solid.shape)
+    lo = [np.clip(c - r, 0, n) for c, n in zip(nv, shape)]
+    hi = [np.clip(c + r + 1, 0, n) for c, n in zip(nv, shape)]
+    x0, y0, z0 = lo
+    x1, y1, z1 = hi
+    count = (table[x1, y1, z1] - table[x0, y1, z1] - table[x1, y0, z1] - table[x1, y1, z0]
+             + table[x0, y0, z1] + table[x0, y1, z0] + table[x1, y0, z0] - table[x0, y0, z0])  # fmt: skip
+    return count == 0
 
 
 def material_quantiles(parts: np.ndarray, mixture: np.ndarray, num_parts: int, part_mixture: np.ndarray,
