@@ -149,7 +149,7 @@ def object_geometry(run: LoadedRun, cfg: GeometryConfig, progress: Any = None) -
         raise ValueError("the run has no training cameras with object masks (transforms.json of the dataset not "
                          "found): mass and voxels need them; export --outputs ply maps instead.")  # fmt: skip
     pf = run.field
-    return reconstruct_object(pf, pf.pi(), run.views, run.observations, library_thickness(pf), cfg,
+    return reconstruct_object(pf, pf.pi_rows, run.views, run.observations, library_thickness(pf), cfg,
                               material_names=pf.material_names, alpha=pf.alpha,
                               material_weights=pf.material_weights, progress=progress)  # fmt: skip
 

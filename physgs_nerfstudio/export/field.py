@@ -146,6 +146,13 @@ class PropertyField:
             self._pi = material_mixture_weights(self.alpha, self.material_weights)
         return self._pi
 
+    def pi_rows(self, rows: Tensor) -> Float[Tensor, "m k"]:
+        """:meth:`pi` of the Gaussians ``rows`` (a bool mask or indices) only: the same weights, without computing
+        them for every Gaussian when only a few are needed (the object's, for its mass) and none were yet."""
+        if self._pi is not None and self._pi.shape == self.alpha.shape:
+            return self._pi[rows]
+        return material_mixture_weights(self.alpha[rows], self.material_weights)
+
     def fields(self, rows: slice | Tensor | None = None) -> dict[str, Float[Tensor, "n p"]]:
         """Per-Gaussian mixture predictive (mean, aleatoric, epistemic, total variance), linear units, with the
         weights of :meth:`pi` (``rows``: only those Gaussians)."""

@@ -11,7 +11,7 @@ solids, so a part keeps its identity across variants.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -251,7 +251,7 @@ def _variants(cfg: GeometryConfig) -> list[tuple[str, CarveConfig]]:
 @torch.no_grad()
 def reconstruct_object(
     g: Any,
-    pi: torch.Tensor,
+    pi: torch.Tensor | Callable[[torch.Tensor], torch.Tensor],
     views: Sequence[CaptureView],
     observations: Sequence[MaskObservation] = (),
     library_thickness: Sequence[float | None] | None = None,
@@ -263,7 +263,8 @@ def reconstruct_object(
     progress: Any = None,
 ) -> ObjectGeometry:
     """Select, carve, split into parts and measure the object (module doc). ``g``: the Gaussians (activated
-    ``means``, ``quats``, ``scales``, ``opacities``), ``pi``: their material mixture weights [N, K],
+    ``means``, ``quats``, ``scales``, ``opacities``), ``pi``: their material mixture weights [N, K]
+    (or a function of a bool row mask giving those rows' weights, so that only the object's are computed),
     ``library_thickness[k]``: material k's typical wall thickness in the library (None: solid),
     ``material_names[k]``: the names observations use; ``alpha``: their Dirichlet posteriors [N, K] and
     ``material_weights`` the field's weighting, for ``part_materials="pooled"`` (None: "voxels").
@@ -308,11 +309,12 @@ def reconstruct_object(
     step("materials and parts")
     sel = selection.selected
     labelled = getattr(g, "labelled", None)
-    mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi[sel],
+    pi_sel = pi(sel) if callable(pi) else pi[sel]
+    mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi_sel,
                             labelled[sel] if labelled is not None else None, min_evidence=cfg.min_voxel_evidence)
     parts = part_labels(union, mixture, cfg.min_part_fraction)
     P = int(parts.max()) + 1
-    K = pi.shape[1]
+    K = pi_sel.shape[1]
     nominal_parts = np.where(solids[0], parts, -1)
     pm = np.zeros((P, K))
     np.add.at(pm, nominal_parts[solids[0]], mixture[solids[0]])

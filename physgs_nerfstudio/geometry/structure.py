@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from ..bayes.nig import NIG, Moments, nig_posterior
 from .capture import CaptureView, MaskObservation
@@ -99,22 +100,37 @@ class PartStructure:
                  "observation_weight": float(self.observations[i])} for i in range(len(self.hollow_a))]  # fmt: skip
 
 
+@dataclass
+class _Boundary:
+    """The solid's boundary voxels (a voxel with an empty 6-neighbour): centres and part ids, for :func:`part_maps`
+    in many views."""
+
+    x: Tensor
+    pid: Tensor
+
+    @classmethod
+    def of(cls, grid: VoxelGrid, parts: np.ndarray) -> _Boundary:
+        solid = parts >= 0
+        inner = np.zeros_like(solid)
+        inner[1:-1, 1:-1, 1:-1] = (solid[1:-1, 1:-1, 1:-1] & solid[:-2, 1:-1, 1:-1] & solid[2:, 1:-1, 1:-1]
+                                   & solid[1:-1, :-2, 1:-1] & solid[1:-1, 2:, 1:-1] & solid[1:-1, 1:-1, :-2]
+                                   & solid[1:-1, 1:-1, 2:])  # fmt: skip
+        ijk = np.argwhere(solid & ~inner)
+        return cls(grid.centres(torch.from_numpy(ijk)), torch.from_numpy(parts[tuple(ijk.T)]))
+
+
 @torch.no_grad()
-def part_maps(grid: VoxelGrid, parts: np.ndarray, view: CaptureView, width: int, height: int) -> np.ndarray:
+def part_maps(grid: VoxelGrid, parts: np.ndarray | _Boundary, view: CaptureView, width: int, height: int
+              ) -> np.ndarray:  # fmt: skip
     """int [height, width] id of the part whose boundary voxel is nearest the camera at each pixel (-1: none);
-    the view's intrinsics are rescaled to ``width`` x ``height``."""
-    solid = parts >= 0
-    inner = np.zeros_like(solid)
-    inner[1:-1, 1:-1, 1:-1] = (solid[1:-1, 1:-1, 1:-1] & solid[:-2, 1:-1, 1:-1] & solid[2:, 1:-1, 1:-1]
-                               & solid[1:-1, :-2, 1:-1] & solid[1:-1, 2:, 1:-1] & solid[1:-1, 1:-1, :-2]
-                               & solid[1:-1, 1:-1, 2:])  # fmt: skip
-    ijk = np.argwhere(solid & ~inner)
+    the view's intrinsics are rescaled to ``width`` x ``height``. ``parts``: the part grid, or its boundary
+    computed once for many views."""
+    b = parts if isinstance(parts, _Boundary) else _Boundary.of(grid, parts)
     out = np.full(height * width, -1, np.int64)
-    if len(ijk) == 0:
+    if len(b.pid) == 0:
         return out.reshape(height, width)
-    x = grid.centres(torch.from_numpy(ijk))
     R, t = view.viewmat[:3, :3], view.viewmat[:3, 3]
-    pc = x @ R.T + t
+    pc = b.x @ R.T + t
     sx, sy = width / view.width, height / view.height
     z = pc[:, 2]
     u = (view.K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + view.K[0, 2]) * sx
@@ -124,7 +140,7 @@ def part_maps(grid: VoxelGrid, parts: np.ndarray, view: CaptureView, width: int,
     zz = z[ok]
     best = torch.full((height * width,), float("inf")).scatter_reduce(0, pix, zz, reduce="amin")
     front = zz <= best[pix]
-    pid = torch.from_numpy(parts[tuple(ijk.T)])[ok]
+    pid = b.pid[ok]
     out_t = torch.from_numpy(out)
     out_t[pix[front]] = pid[front]
     return out_t.numpy().reshape(height, width)
@@ -156,6 +172,7 @@ def fuse_structure(
     by_view = {v.name: v for v in views}
     mat_index = {n: i for i, n in enumerate(material_names)}
     maps: dict[tuple[str, int, int], np.ndarray] = {}
+    boundary = _Boundary.of(grid, parts)
     for ob in observations:
         view = by_view.get(ob.view)
         k = mat_index.get(ob.material)
@@ -164,7 +181,7 @@ def fuse_structure(
         h, w = ob.mask.shape
         key = (ob.view, h, w)
         if key not in maps:
-            maps[key] = part_maps(grid, parts, view, w, h)
+            maps[key] = part_maps(grid, boundary, view, w, h)
         ids = maps[key][ob.mask]
         ids = ids[ids >= 0]
         if len(ids) == 0:

@@ -1,4 +1,6 @@
-"""part_areas on the solid's bounding box, with the sheet test by erosion and a summed-volume table and the
+"""The geometry's faster paths against the direct computations they replace (independent oracles).
+
+part_areas on the solid's bounding box, with the sheet test by erosion and a summed-volume table and the
 nearest solid voxel by a search of nearby offsets, against the direct computation on the whole grid (distance
 transforms with indices, maximum filter): the independent oracle of the faster code."""
 
@@ -83,3 +85,40 @@ def test_nearest_solid_is_a_nearest_voxel():
         got = np.stack(_nearest_solid(solid, at, radius=radius), -1)
         assert solid[tuple(got.T)].all()
         np.testing.assert_allclose(np.linalg.norm(got - at, axis=1), dist, atol=1e-9)
+
+
+def test_pi_rows_are_the_rows_of_pi():
+    """The object's mixture weights computed for its rows only equal those rows of the whole field's."""
+    from physgs_nerfstudio.export.shapes import field_from
+
+    g = torch.Generator().manual_seed(0)
+    n = 300
+    pf = field_from(torch.rand(n, 3, generator=g), torch.full((n, 3), 0.01), torch.nn.functional.normalize(
+        torch.randn(n, 4, generator=g), dim=1), densities=[700.0, 2700.0, 7800.0], names=["oak", "aluminium", "steel"],
+        thickness_m=[None, 0.002, None])  # fmt: skip
+    pf.alpha = 1.0 + 5.0 * torch.rand(n, 3, generator=g, dtype=pf.alpha.dtype)
+    pf._pi = None
+    rows = torch.rand(n, generator=g) < 0.3
+    got = pf.pi_rows(rows)
+    assert pf._pi is None  # nothing computed for the other rows
+    torch.testing.assert_close(got, pf.pi()[rows])
+    torch.testing.assert_close(pf.pi_rows(rows), got)  # from the cache once pi() ran
+
+
+def test_part_maps_with_the_boundary_computed_once():
+    from physgs_nerfstudio.geometry.capture import CaptureView, viewmat_from_c2w
+    from physgs_nerfstudio.geometry.structure import _Boundary, part_maps
+
+    grid = VoxelGrid.from_bounds(torch.zeros(3), torch.ones(3), 24)
+    solid = np.zeros(grid.shape, bool)
+    solid[4:20, 6:18, 8:16] = True
+    parts = np.where(solid, (np.indices(grid.shape)[0] >= 12).astype(np.int64), -1)
+    c2w = torch.eye(4)[:3]
+    c2w[:, 3] = torch.tensor([0.5, 0.5, 3.0])
+    K = torch.tensor([[40.0, 0, 32], [0, 40.0, 24], [0, 0, 1]])
+    view = CaptureView(viewmat_from_c2w(c2w), K, 64, 48, torch.zeros(48, 64, dtype=torch.bool))
+    direct = part_maps(grid, parts, view, 64, 48)
+    assert set(np.unique(direct)) == {-1, 0, 1}
+    np.testing.assert_array_equal(part_maps(grid, _Boundary.of(grid, parts), view, 64, 48), direct)
+    np.testing.assert_array_equal(part_maps(grid, _Boundary.of(grid, parts), view, 32, 24),
+                                  part_maps(grid, parts, view, 32, 24))  # fmt: skip
