@@ -12,9 +12,11 @@ The model is the one ``eval_setup`` would build (same class, config, legend, cam
 
 An export does not even build the model (:func:`load_run_state`): the field is a function of the checkpoint's
 model tensors, the legend and two numbers of the model's config (:meth:`.field.PropertyField.from_state`), so
-the config is read as a tree of names (:func:`physgs_nerfstudio.safe_yaml.load_config_tree`) and only the
-dataparser's config is built. splatfacto, the viewer and nerfstudio's trainer are never imported; that import
-was most of an export's fixed cost. :func:`load_run_model` (the model itself) stays for callers that need it.
+the config is read as a tree of names (:func:`physgs_nerfstudio.safe_yaml.load_config_tree`) and the training
+cameras are read without nerfstudio (:func:`.train_split.read_train_split`, the same values as its dataparser;
+where that reader cannot reproduce it, only the dataparser's config is built and nerfstudio's dataparser runs).
+splatfacto, the viewer and nerfstudio's trainer are never imported; that import was most of an export's fixed
+cost. :func:`load_run_model` (the model itself) stays for callers that need it.
 """
 
 from __future__ import annotations
