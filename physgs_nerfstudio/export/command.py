@@ -100,7 +100,7 @@ def load_run(
     from .loader import load_run_state
 
     run_files = check_run(Path(config_path))  # safe YAML, method, checkpoint (beside the config if moved)
-    rs = load_run_state(run_files.config, run_files.checkpoint)
+    rs = load_run_state(run_files.config, run_files.checkpoint, run_files.run_dir)
     pf = PropertyField.from_run_state(rs, run_files.run_dir, scale=scale, known_length=known_length, env=env)
     data = getattr(run_files.config.pipeline.datamanager, "data", None)
     return _assemble_run(pf, rs.dataparser_outputs, data, max_view_width=max_view_width, capture=capture)

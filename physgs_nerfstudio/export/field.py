@@ -55,7 +55,7 @@ class PropertyField:
     """(w, x, y, z), need not be normalised"""
     scales: Float[Tensor, "n 3"]
     """activated standard deviations, scene units"""
-    opacities: Float[Tensor, n]
+    opacities: Float[Tensor, " n"]
     """activated, in (0, 1)"""
     alpha: Float[Tensor, "n k"]
     """per-Gaussian Dirichlet posterior concentrations (> 0)"""
@@ -271,7 +271,7 @@ class PropertyField:
                 labelled = frac.clamp(0.0, 1.0).reshape(-1)
                 total = evidence.sum(-1)
         nig = NIG(*(state[f"nig_{f}"].detach() for f in ("tau", "kappa", "a", "b")))
-        colors = [tuple(int(round(float(c) * 255)) for c in row) for row in legend.colors.reshape(-1, 3).tolist()]
+        colors = [tuple(round(float(c) * 255) for c in row) for row in legend.colors.reshape(-1, 3).tolist()]
         path = materials_json if materials_json is not None else getattr(legend, "path", None)
         thickness = load_thickness(path, list(legend.names), env=env)
         sc = resolve_scale(dataparser_scale, scale=scale, known_length=known_length)
@@ -301,7 +301,7 @@ class PropertyField:
         from .runcheck import check_run
 
         run_files = check_run(Path(config_path))  # safe YAML, PhysGS method, checkpoint (beside the config if moved)
-        rs = load_run_state(run_files.config, run_files.checkpoint)
+        rs = load_run_state(run_files.config, run_files.checkpoint, run_files.run_dir)
         return cls.from_run_state(rs, run_files.run_dir, scale=scale, known_length=known_length, env=env)
 
     @classmethod

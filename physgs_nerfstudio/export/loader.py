@@ -12,9 +12,11 @@ The model is the one ``eval_setup`` would build (same class, config, legend, cam
 
 An export does not even build the model (:func:`load_run_state`): the field is a function of the checkpoint's
 model tensors, the legend and two numbers of the model's config (:meth:`.field.PropertyField.from_state`), so
-the config is read as a tree of names (:func:`physgs_nerfstudio.safe_yaml.load_config_tree`) and only the
-dataparser's config is built. splatfacto, the viewer and nerfstudio's trainer are never imported; that import
-was most of an export's fixed cost. :func:`load_run_model` (the model itself) stays for callers that need it.
+the config is read as a tree of names (:func:`physgs_nerfstudio.safe_yaml.load_config_tree`) and the training
+cameras are read without nerfstudio (:func:`.train_split.read_train_split`, the same values as its dataparser;
+where that reader cannot reproduce it, only the dataparser's config is built and nerfstudio's dataparser runs).
+splatfacto, the viewer and nerfstudio's trainer are never imported; that import was most of an export's fixed
+cost. :func:`load_run_model` (the model itself) stays for callers that need it.
 """
 
 from __future__ import annotations
@@ -75,10 +77,24 @@ class RunState:
         return out[0], out[1]
 
 
-def _dataparser_outputs(config: Any) -> Any:
+def _dataparser_outputs(config: Any, run_dir: Path | None = None) -> Any:
     """The training split's DataparserOutputs of a run config (a built one or a ConfigObject tree), as
-    ``eval_setup(test_mode="inference")`` makes them: no image opened, no seed points read."""
+    ``eval_setup(test_mode="inference")`` makes them: no image opened, no seed points read. With the tree and
+    ``run_dir`` (the folder of its dataparser_transforms.json), :func:`.train_split.read_train_split` reads the
+    same without importing nerfstudio where it can (a debug line says why not)."""
+    from ..safe_yaml import ConfigObject
+
     dm = config.pipeline.datamanager
+    if run_dir is not None and isinstance(config, ConfigObject):
+        from .train_split import Unsupported, read_train_split
+
+        try:
+            dpo = read_train_split(dm.dataparser, getattr(dm, "data", None), Path(run_dir))
+            if getattr(dm, "data", None) is None:  # as below
+                dm.data = dm.dataparser.data
+            return dpo
+        except Unsupported as why:
+            logger.debug("reading the training cameras through nerfstudio's dataparser: %s", why)
     dp_config = dm.dataparser
     if hasattr(dp_config, "build"):
         dp_config = dp_config.build()
@@ -93,10 +109,11 @@ def _dataparser_outputs(config: Any) -> Any:
     return dataparser.get_dataparser_outputs(split="train")
 
 
-def load_run_state(config: Any, checkpoint: Path) -> RunState:
+def load_run_state(config: Any, checkpoint: Path, run_dir: Path | None = None) -> RunState:
     """The model's checkpoint tensors and the training split's dataparser outputs of a run (module doc): its
-    ``config`` as :func:`.runcheck.check_run` read it and the ``checkpoint`` it chose."""
-    dpo = _dataparser_outputs(config)
+    ``config`` as :func:`.runcheck.check_run` read it, the ``checkpoint`` it chose and its ``run_dir`` (where
+    dataparser_transforms.json is; without it the cameras are read through nerfstudio's dataparser)."""
+    dpo = _dataparser_outputs(config, run_dir)
     state, step = _model_state(Path(checkpoint))
     return RunState(config.pipeline.model, state, dpo, Path(checkpoint), step)
 

@@ -19,7 +19,7 @@ import torch
 from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, NerfstudioDataParserConfig
 
-from .legend import MATERIALS_FILENAME, PERCEIVE_HINT, MaterialsFileError, load_legend
+from .legend import MATERIALS_FILENAME, check_material_paths, frame_material_maps, load_legend
 
 
 @dataclass
@@ -49,27 +49,11 @@ class PhysGSDataParser(Nerfstudio):
         data_dir, meta = self._data_dir_and_meta()
 
         frames = meta.get("frames", [])
-        if not any("material_path" in f for f in frames):
-            raise MaterialsFileError(
-                f"{data_dir}: no frame of transforms.json has a `material_path`. {PERCEIVE_HINT}"
-            )
-        legend = load_legend(data_dir / self.config.materials_file)
-
         # nerfstudio sorts and splits the frames; match them back through the resolved image filename.
         by_image: dict[Path, dict] = {self._get_fname(Path(f["file_path"]), data_dir): f for f in frames}
-        material_files: list[Path | None] = []
-        confidence_files: list[Path | None] = []
-        for image_filename in outputs.image_filenames:
-            frame = by_image[image_filename]
-            mat = frame.get("material_path")
-            conf = frame.get("material_confidence_path")
-            material_files.append(data_dir / mat if mat else None)
-            confidence_files.append(data_dir / conf if (mat and conf) else None)
-        for p in [*material_files, *confidence_files]:
-            if p is not None and not p.exists():
-                raise MaterialsFileError(
-                    f"material map {p} listed in transforms.json does not exist. {PERCEIVE_HINT}"
-                )
+        check_material_paths(frames, data_dir)
+        legend = load_legend(data_dir / self.config.materials_file)
+        material_files, confidence_files = frame_material_maps(by_image, outputs.image_filenames, data_dir)
 
         outputs.metadata.update(
             material_filenames=material_files,

@@ -8,6 +8,7 @@ dataparser and handed to the model through the dataparser metadata.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -116,3 +117,30 @@ def load_legend(path: Path) -> MaterialLegend:
         simulated=bool(meta.get("simulated", False)),
         path=path,
     )
+
+
+def check_material_paths(frames: Sequence[dict], data_dir: Path) -> None:
+    """MaterialsFileError unless some frame of transforms.json has a ``material_path`` (perception ran)."""
+    if not any("material_path" in f for f in frames):
+        raise MaterialsFileError(f"{data_dir}: no frame of transforms.json has a `material_path`. {PERCEIVE_HINT}")
+
+
+def frame_material_maps(
+    frames_by_image: Mapping[Path, dict], image_filenames: Sequence[Path], data_dir: Path
+) -> tuple[list[Path | None], list[Path | None]]:
+    """Per image of a split, its frame's material map and confidence map (``material_path``,
+    ``material_confidence_path`` of transforms.json, relative to ``data_dir``; None where the frame has none, a
+    confidence map only with a material map). ``frames_by_image``: the frames by their image filename as the
+    split names it. MaterialsFileError when a listed map does not exist."""
+    material_files: list[Path | None] = []
+    confidence_files: list[Path | None] = []
+    for image_filename in image_filenames:
+        frame = frames_by_image[image_filename]
+        mat = frame.get("material_path")
+        conf = frame.get("material_confidence_path")
+        material_files.append(data_dir / mat if mat else None)
+        confidence_files.append(data_dir / conf if (mat and conf) else None)
+    for p in [*material_files, *confidence_files]:
+        if p is not None and not p.exists():
+            raise MaterialsFileError(f"material map {p} listed in transforms.json does not exist. {PERCEIVE_HINT}")
+    return material_files, confidence_files
