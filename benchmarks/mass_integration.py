@@ -102,7 +102,7 @@ def make_scene(n: int, views: int, size: int, device: str, seed: int = 0):
     centre = np.array([0.0, 0.0, 0.4])
     cams = []
     for i in range(views):
-        el = math.radians((15.0, 35.0, 60.0)[i % 3])
+        el = math.radians((0.0, 20.0, 50.0)[i % 3])  # the lowest ring sees under the top
         az = 2 * math.pi * i / views
         pos = centre + 2.2 * np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
         fwd = (centre - pos) / np.linalg.norm(centre - pos)

@@ -122,3 +122,29 @@ def test_part_maps_with_the_boundary_computed_once():
     np.testing.assert_array_equal(part_maps(grid, _Boundary.of(grid, parts), view, 64, 48), direct)
     np.testing.assert_array_equal(part_maps(grid, _Boundary.of(grid, parts), view, 32, 24),
                                   part_maps(grid, parts, view, 32, 24))  # fmt: skip
+
+
+def test_solid_from_votes_on_the_bounding_box_equals_the_whole_grid():
+    """Components and cavities on the solid's box (with its empty border layer) are those of the whole grid
+    (oracle: label and fill on the whole grid), for pockets enclosed, open to the outside, and at the border."""
+    from physgs_nerfstudio.geometry.carve import CarveConfig, CarveVotes, solid_from_votes
+
+    grid = VoxelGrid.from_bounds(torch.zeros(3), torch.ones(3), 30)
+    rng = np.random.default_rng(0)
+    for trial in range(6):
+        solid = ndimage.gaussian_filter(rng.random(grid.shape), 2) > 0.5
+        solid[:, :, : 10 + trial] = False
+        if trial % 2:
+            solid[0:8, 0:8, 20:30] = True  # at the grid's border
+        solid[12:20, 12:20, 12:20] = True
+        solid[14:18, 14:18, 14:18] = trial < 3  # an enclosed pocket (filled), or a solid block
+        solid[5, 5, 5] = True  # a speck (dropped)
+        votes = CarveVotes(empty=torch.from_numpy((~solid).reshape(-1).astype(np.int32) * 5),
+                           seen=torch.full((solid.size,), 10, dtype=torch.int32), num_views=10)  # fmt: skip
+        cfg = CarveConfig()
+        got = solid_from_votes(votes, grid, cfg)
+        labels, n = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
+        sizes = np.bincount(labels.ravel())
+        sizes[0] = 0
+        want = ndimage.binary_fill_holes((sizes >= cfg.min_component * sizes.max())[labels] & (labels > 0))
+        np.testing.assert_array_equal(got, want)

@@ -307,7 +307,14 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
     if votes.direct is not None and votes.depth_empty is not None and cfg.min_direct_fraction <= 1:
         d = votes.direct.float()
         carved |= (e >= cfg.min_votes) & (d > 0) & (votes.depth_empty.float() >= cfg.min_direct_fraction * d)
-    solid = (~carved).reshape(grid.shape).cpu().numpy()
+    full = (~carved).reshape(grid.shape).cpu().numpy()
+    if not full.any():
+        return full
+    # on the solid's bounding box with one empty voxel around it (the same components, and the same cavities: a
+    # pocket open to the grid's outside is open to the box's border layer)
+    idx = np.argwhere(full)
+    crop = tuple(slice(max(a - 1, 0), b + 2) for a, b in zip(idx.min(0), idx.max(0)))
+    solid = full[crop]
     labels, n = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
     if n > 1:
         sizes = np.bincount(labels.ravel())
@@ -315,4 +322,6 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
         solid = (sizes >= cfg.min_component * sizes.max())[labels] & (labels > 0)
     if cfg.fill_cavities:
         solid = ndimage.binary_fill_holes(solid)
-    return solid
+    out = np.zeros_like(full)
+    out[crop] = solid
+    return out

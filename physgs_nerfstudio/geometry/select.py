@@ -157,7 +157,10 @@ def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndar
     from scipy.spatial import cKDTree
 
     sub = means[:: max(1, len(means) // 100_000)]
-    nn = cKDTree(sub).query(sub, k=2)[0][:, 1] if len(sub) > 1 else np.zeros(1)
+    # the median nearest-neighbour spacing, estimated from the neighbours of 20,000 of the points (each found among
+    # all of them): the query of every point cost 0.9 s at 150k points, and the median moved by < 0.1%
+    probe = sub[:: max(1, len(sub) // 20_000)]
+    nn = cKDTree(sub).query(probe, k=2)[0][:, 1] if len(sub) > 1 else np.zeros(1)
     # cells no finer than the Gaussians' own spacing, so a sparse splat stays one cluster
     cell = max(float((hi - lo).max()) / cfg.cluster_cells, 1.5 * float(np.median(nn)), 1e-9)
     lo = lo - 2 * cell
