@@ -12,6 +12,8 @@
 #   bash benchmarks/gpu/run_gpu.sh geometry  # issue 12: full chair run, geometry vs ground truth (geometry_diag.py)
 #   OBJECTS="table stool" bash benchmarks/gpu/run_gpu.sh gsuite  # issue 12: the same for other generated objects
 #   bash benchmarks/gpu/run_gpu.sh mprofile  # issue 13: profile of `physgs export --outputs mass` on the chair
+#   bash benchmarks/gpu/run_gpu.sh after     # issue 13, after `export` on the same machine: mass_integration.py,
+#                                            # the run's ns-eval, physgs vs splatfacto-big
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
 set -uo pipefail
@@ -118,6 +120,8 @@ case "${1:-kernels}" in
     make_scene 2>&1 | tail -3 | tee "$OUT/scene.log"
     wait  # the gsplat build
     echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
+    # the stamped build, returned as one file (carry it back as .gsplat_build/: tar xzf gsplat_cuda.tgz -C .gsplat_build)
+    tar czf "$OUT/gsplat_cuda.tgz" -C .gsplat_build gsplat_cuda/gsplat_cuda.so gsplat_cuda/physgs_build_stamp.json 2>/dev/null
     python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
       --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
       --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -4 | tee "$OUT/full_train.log"
@@ -310,6 +314,19 @@ case "${1:-kernels}" in
 p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     grep -E "reconstruct|select_object|lift_masks|render_depth|carve|part_|voxel_mixture|fuse_structure|integrate|pi\)|load_run" \
       "$OUT/mass_profile.txt" | head -40
+    echo "[$(elapsed) s] done"
+    ;;
+  after)
+    # issue 13, a second call on the machine that ran `export` (its scene, run and gsplat build are still there):
+    # benchmarks/mass_integration.py at 1M Gaussians, the run's ns-eval (material accuracy on held-out views), and
+    # physgs vs splatfacto-big (bench_training.py, each in its own process) on the same scene
+    python3 benchmarks/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
+      --out "$OUT/mass_integration.json" 2>&1 | tee "$OUT/mass_integration.log" | tail -12
+    CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml 2>/dev/null)
+    [ -n "$CFG" ] && python3 -m nerfstudio.scripts.eval --load-config "$CFG" --output-path "$OUT/full_eval.json" 2>&1 | tail -2
+    echo "[$(elapsed) s] training cost"
+    python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps ${TRAIN_STEPS:-1500} --warmup 300 \
+      --methods ${METHODS:-splatfacto-big physgs} --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -8
     echo "[$(elapsed) s] done"
     ;;
   full)  # HEAD=latent|lifted: another material head; LIFT_EVERY=N: lift every N steps as well
