@@ -32,6 +32,26 @@ one view":
   depth votes; it never adds volume, because the masks of the other views still carve around the object;
 * the fraction keeps the rule meaningful when the capture has many views (60 views: 9 must agree at 0.15).
 
+First surface. A depth vote is right only if the rendered depth is the *first* surface along the pixel's ray.
+The expected depth (the blending-weighted mean of the Gaussians' depths) is that surface only when the surface is
+opaque: where the first surface lets part of the ray through (trained Gaussians on a sphere, a handle, a shoe are
+not opaque at 96 px), the mean is pulled towards the back surface, the voxels between lie "in front of the surface",
+and every view carves its front of the object away (a solid sphere of Gaussians with opacity 0.5 kept 0.60 of its
+volume with exact masks: tests/test_geometry.py). On a thin slab the front and the back surfaces are within a voxel
+and the mean is right. ``depth_render="median"`` carves with the depth at which the ray's transmittance falls to
+1/2 (the *median depth* of 3-D Gaussian surface reconstruction,
+:func:`physgs_nerfstudio.render.reference_median_depth`): a surface that stops half of the ray keeps it, whatever
+lies behind; on one thin layer of Gaussians it is that layer's depth, as the mean is, but on a layer that is
+spread in depth it lies in front of the layer's mean (the weights fall off behind the first Gaussians), which
+thickens thin walls. Two rules from the moments of the
+contributing Gaussians' depths (:func:`.gaussians.depth_spread`, the spread about a plane through them:
+``front_spread``, carve only in front of depth - k x spread; ``max_spread_voxels``, no depth vote where the spread
+is large) are kept as options: the variance is dominated by a few per cent of weight on the far surface (the
+spread of an opaque box's faces was 2-9 cm on a 40 cm box), so they withhold carving that was right. The default
+stays the expected depth: at the development seed 101 the median raised the compact solids' volume (hammer 0.62x
+-> 0.74x, dumbbell 0.80x -> 0.96x) and moved slabs by less than 0.1, but thin walls came out thicker and the suite's
+median APE rose (docs/architecture.md, "Mass geometry"; benchmarks/README.md, round 5).
+
 The centre test makes the recovered volume unbiased to first order in the voxel size (a boundary voxel is
 counted when its centre is inside). The solid's small disconnected specks (below ``min_component`` of the
 largest component's volume) are dropped, and cavities that the solid encloses completely are filled: a view
@@ -80,6 +100,19 @@ class CarveConfig:
     bilinear lookup; half a pixel's depth change with the nearest); 0 = off"""
     min_alpha: float = 0.5
     """pixels less opaque than this do not carve by depth"""
+    depth_render: Literal["expected", "median", "first"] = "expected"
+    """the rendered depth that carves (module doc, "First surface"): "expected", the blending-weighted mean of the
+    Gaussians' depths; "median", the depth where the transmittance crosses 1/2; "first", the expected depth
+    except where it lies more than ``mixed_depth_voxels`` behind the median (the pixel mixes surfaces), the
+    median there"""
+    mixed_depth_voxels: float = 1.0
+    """"first": a pixel mixes surfaces when its expected depth lies this many voxels behind its median depth"""
+    front_spread: float = 0.0
+    """carve by depth only in front of depth - this times the pixel's depth spread about a plane
+    (:func:`.gaussians.depth_spread`): a front-surface estimate where a pixel mixes surfaces (module doc,
+    "First surface"); 0 = the expected depth"""
+    max_spread_voxels: float = float("inf")
+    """pixels whose depth spread exceeds this many voxels do not carve by depth (their depth is no surface)"""
     min_direct_fraction: float = 2.0
     """... or at least this fraction of the views that see it directly see past it by depth (module doc);
     > 1 (the default) switches the direct rule off: over the generated suite at seed 101 it carved the space
@@ -168,18 +201,26 @@ def depth_slack(depth: Tensor, alpha: Tensor, min_alpha: float = 0.5, lookup: st
     return out
 
 
-def _sample_opaque(depth: Tensor, alpha: Tensor, u: Tensor, v: Tensor, min_alpha: float) -> tuple[Tensor, Tensor]:
+def _sample_opaque(depth: Tensor, alpha: Tensor, u: Tensor, v: Tensor, min_alpha: float,
+                   extra: Tensor | None = None) -> tuple[Tensor, Tensor] | tuple[Tensor, Tensor, Tensor]:  # fmt: skip
     """Bilinear depth at continuous pixel coordinates from the opaque pixels among the four around each point
-    (their bilinear weights renormalised), and whether any of them is opaque."""
+    (their bilinear weights renormalised), and whether any of them is opaque; with ``extra`` [H, W] also that
+    image interpolated with the same weights (0 where none is opaque)."""
     num = torch.zeros_like(u)
     den = torch.zeros_like(u)
+    num2 = torch.zeros_like(u) if extra is not None else None
     for yy, xx, w in _corners(depth.shape, u, v):
         ok = alpha[yy, xx] >= min_alpha
         w = torch.where(ok, w, 0.0)
         num += w * torch.where(ok, depth[yy, xx], 0.0)
+        if num2 is not None:
+            num2 += w * torch.where(ok, extra[yy, xx], 0.0)
         den += w
     has = den > 0
-    return torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf"))), has
+    d = torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
+    if num2 is None:
+        return d, has
+    return d, has, torch.where(has, num2 / den.clamp_min(1e-12), torch.zeros_like(num2))
 
 
 def _corners(shape: tuple[int, ...], u: Tensor, v: Tensor) -> list[tuple[Tensor, Tensor, Tensor]]:
@@ -198,6 +239,22 @@ def _corners(shape: tuple[int, ...], u: Tensor, v: Tensor) -> list[tuple[Tensor,
 def _sample(img: Tensor, u: Tensor, v: Tensor) -> Tensor:
     """Bilinear sample of ``img`` [H, W] at continuous pixel coordinates (pixel i covers [i, i+1))."""
     return sum(img[yy, xx] * w for yy, xx, w in _corners(img.shape, u, v))
+
+
+def carve_depth(render: ViewRender, kind: str, mixed: float = 0.0) -> Tensor:
+    """float [H, W]: the depth image that carves (:class:`CarveConfig` ``depth_render``; ``mixed``: the
+    "first" rule's threshold in depth units). "median" and "first" need a render with its median depth, unless
+    the render's ``depth`` already is the median."""
+    if kind == "expected" or (kind == "median" and render.median is None):
+        return render.depth
+    if render.median is None:
+        raise ValueError("carve_depth: depth_render 'first' needs renders with their median depth "
+                         "(render_depth(..., depth='both')).")  # fmt: skip
+    if kind == "median":
+        return render.median
+    if kind != "first":
+        raise ValueError(f"carve_depth: unknown depth_render {kind!r}")
+    return torch.where(render.depth - render.median > mixed, render.median, render.depth)
 
 
 @dataclass
@@ -254,9 +311,18 @@ def carve_votes_many(
     lookup = cfgs[0].depth_lookup
     if any(c.depth_lookup != lookup for c in cfgs):
         raise ValueError("carve_votes_many: every setting must use the same depth_lookup.")
-    depth = ([(r.depth.to(device), r.alpha.to(device),
-               depth_slack(r.depth.to(device), r.alpha.to(device), lookup=lookup) if slope else None)
-              for r in renders] if any_depth else [None] * len(views))  # fmt: skip
+    kind = cfgs[0].depth_render
+    if any((c.depth_render, c.mixed_depth_voxels) != (kind, cfgs[0].mixed_depth_voxels) for c in cfgs):
+        raise ValueError("carve_votes_many: every setting must use the same depth_render and mixed_depth_voxels.")
+    images = ([carve_depth(r, kind, cfgs[0].mixed_depth_voxels * grid.voxel_size).to(device) for r in renders]
+              if any_depth else [None] * len(views))  # fmt: skip
+    depth = ([(d, r.alpha.to(device), depth_slack(d, r.alpha.to(device), lookup=lookup) if slope else None)
+              for d, r in zip(images, renders)] if any_depth else [None] * len(views))  # fmt: skip
+    use_spread = any_depth and any(c.front_spread > 0 or c.max_spread_voxels < float("inf") for c in cfgs)
+    if use_spread and any(r.spread is None for r in renders):
+        raise ValueError("carve_votes_many: front_spread / max_spread_voxels need renders with a depth spread "
+                         "(render_depth(..., spread=True)).")  # fmt: skip
+    spreads = [r.spread.to(device) for r in renders] if use_spread else [None] * len(views)
     shape = torch.as_tensor(grid.shape, device=device)
     for s0 in range(0, M, chunk):  # voxel centres once per chunk, then every view
         flat = torch.arange(s0, min(M, s0 + chunk), device=device)
@@ -264,7 +330,7 @@ def carve_votes_many(
         x = grid.centres(ijk)
         n_seen = torch.zeros(len(flat), dtype=torch.int32, device=device)
         n_empty, n_depth, n_direct = ([torch.zeros_like(n_seen) for _ in range(G)] for _ in range(3))
-        for view, (R, t, K), sd, dz in zip(views, cams, sdf, depth):
+        for view, (R, t, K), sd, dz, spr in zip(views, cams, sdf, depth, spreads):
             pc = x @ R.T + t
             z = pc[:, 2]
             u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
@@ -276,8 +342,13 @@ def carve_votes_many(
                 vi = w.floor().long().clamp(0, view.height - 1)
                 d, a = dz[0][vi, ui], dz[1][vi, ui]
                 sl = dz[2][vi, ui] if dz[2] is not None else None
+                sp = spr[vi, ui] if spr is not None else None
                 if lookup == "bilinear":
-                    d = _sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5)[0]
+                    if spr is not None:
+                        d, _, sp = _sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height),
+                                                  0.5, spr)  # fmt: skip
+                    else:
+                        d = _sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5)[0]
             for g, cfg in enumerate(cfgs):
                 vote = ok & (dist > cfg.mask_margin_px)
                 if dz is not None and cfg.use_depth:
@@ -285,7 +356,12 @@ def carve_votes_many(
                     if sl is not None and cfg.depth_slope_margin > 0:
                         margin = margin + cfg.depth_slope_margin * sl
                     inside = ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha)
-                    dvote = inside & (z < d - margin)
+                    front = d
+                    if sp is not None:
+                        front = d - cfg.front_spread * sp
+                        if cfg.max_spread_voxels < float("inf"):
+                            inside = inside & (sp <= cfg.max_spread_voxels * grid.voxel_size)
+                    dvote = inside & (z < front - margin)
                     vote |= dvote
                     n_depth[g] += dvote.int()
                     n_direct[g] += (inside & (z <= d + margin)).int()

@@ -9,17 +9,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import torch
 from jaxtyping import Float
 from torch import Tensor
 
 from ..lifting import lift_evidence
-from ..render import rasterize
+from ..render import rasterize, reference_median_depth
 from .capture import CaptureView
 
-__all__ = ["ViewRender", "lift_masks", "render_depth"]
+__all__ = ["ViewRender", "depth_spread", "lift_masks", "render_depth"]
 
 
 @dataclass
@@ -27,21 +27,80 @@ class ViewRender:
     depth: Float[Tensor, "H W"]
     """expected depth (camera z) where alpha > 0, else +inf"""
     alpha: Float[Tensor, "H W"]
+    spread: Float[Tensor, "H W"] | None = None
+    """the depth spread that a plane does not explain (:func:`depth_spread`), camera-z units; None = not rendered"""
+    median: Float[Tensor, "H W"] | None = None
+    """median depth (the transmittance crosses 1/2) where alpha >= 1/2, the expected depth elsewhere; None = not
+    rendered"""
+
+
+def depth_spread(m: Tensor) -> Tensor:
+    """float [H, W] from the blending-weighted moments ``m`` [H, W, 9] of the contributing Gaussians' centres
+    (z, u, v, z^2, u^2, v^2, zu, zv, uv; z camera depth, u, v pixel coordinates, each normalised by alpha): the
+    standard deviation of their depths about the least-squares plane z = a + b u + c v through them.
+
+    A pixel's expected depth mixes every Gaussian that its ray meets, weighted by blending weight. On one plane,
+    however oblique, the centres' depths differ only by the plane's slope across their image footprint, which the
+    fit removes: the spread is 0. It is large where the weights mix surfaces at different depths (the front and
+    the back of a thin part whose front is not opaque) or a curved surface across the pixel's footprint (a
+    sphere, a handle): there the expected depth lies *behind* the first surface. By Cantelli's inequality at most
+    1 / (1 + k^2) of the pixel's weight lies more than k spreads in front of the plane (k = 1: at most half, so
+    ``depth - spread`` is not behind the weighted median of the depths)."""
+    m = m.double()
+    mz, mu, mv = m[..., 0], m[..., 1], m[..., 2]
+    vzz = m[..., 3] - mz * mz
+    vuu = m[..., 4] - mu * mu
+    vvv = m[..., 5] - mv * mv
+    czu = m[..., 6] - mz * mu
+    czv = m[..., 7] - mz * mv
+    cuv = m[..., 8] - mu * mv
+    eps = 1e-6  # px^2: a pixel whose Gaussians share one centre explains nothing by the plane
+    a, b, d = vuu.clamp_min(0) + eps, cuv, vvv.clamp_min(0) + eps
+    det = (a * d - b * b).clamp_min(eps * eps)
+    explained = (d * czu * czu - 2 * b * czu * czv + a * czv * czv) / det
+    return (vzz - explained).clamp_min(0).sqrt().float()
 
 
 @torch.no_grad()
-def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto") -> list[ViewRender]:
-    """Expected depth and alpha of the Gaussians ``g`` in every view."""
+def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto", spread: bool = False,
+                 depth: Literal["expected", "median", "both"] = "expected") -> list[ViewRender]:  # fmt: skip
+    """Expected depth and alpha of the Gaussians ``g`` in every view; with ``spread`` also the depth spread
+    about a plane (:func:`depth_spread`, from the weighted moments of the Gaussians' centres rendered as colours).
+    ``depth="median"``: the depth where the transmittance crosses 1/2
+    (:func:`physgs_nerfstudio.render.reference_median_depth`, on any device) where alpha reaches 1/2, the
+    expected depth elsewhere; "both": the expected depth in ``depth`` and the median in ``median``."""
+    if depth not in ("expected", "median", "both"):
+        raise ValueError(f"render_depth: depth must be 'expected', 'median' or 'both', got {depth!r}")
     out = []
     dev = g.means.device
-    colors = torch.zeros(g.means.shape[0], 1, device=dev)
     for v in views:
-        rgbd, alpha, _ = rasterize(g.means, g.quats, g.scales, g.opacities, colors, v.viewmat[None].to(dev),
-                                   v.K[None].to(dev), v.width, v.height, render_mode="RGB+ED", packed=False,
-                                   backend=backend)  # fmt: skip
+        vm, K = v.viewmat.to(dev), v.K.to(dev)
+        if spread:
+            pc = g.means @ vm[:3, :3].T + vm[:3, 3]
+            z = pc[:, 2]
+            zc = z.clamp_min(1e-6)
+            # centred (depth about the Gaussians' median, pixels about the principal point) so float32 keeps the
+            # variances: the spread is a small difference of second moments
+            dz = z - z.median()
+            du, dv = K[0, 0] * pc[:, 0] / zc, K[1, 1] * pc[:, 1] / zc
+            colors = torch.stack([dz, du, dv, dz * dz, du * du, dv * dv, dz * du, dz * dv, du * dv], -1)
+        else:
+            colors = torch.zeros(g.means.shape[0], 1, device=dev)
+        rgbd, alpha, _ = rasterize(g.means, g.quats, g.scales, g.opacities, colors, vm[None], K[None], v.width,
+                                   v.height, render_mode="RGB+ED", packed=False, backend=backend)  # fmt: skip
         a = alpha[0, ..., 0]
         d = rgbd[0, ..., -1]
-        out.append(ViewRender(torch.where(a > 1e-3, d, torch.full_like(d, float("inf"))), a))
+        sp = None
+        if spread:
+            m = rgbd[0, ..., :-1] / a[..., None].clamp_min(1e-10)
+            sp = torch.where(a > 1e-3, depth_spread(m), torch.zeros_like(d))
+        med = None
+        if depth != "expected":
+            med = reference_median_depth(g.means, g.quats, g.scales, g.opacities, vm, K, v.width, v.height)
+            med = torch.where(a > 1e-3, torch.where(torch.isfinite(med), med.to(d.dtype), d), float("inf"))
+            if depth == "median":
+                d, med = med, None
+        out.append(ViewRender(torch.where(a > 1e-3, d, torch.full_like(d, float("inf"))), a, sp, med))
     return out
 
 

@@ -146,7 +146,9 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     import cv2
 
     sub = _Subset(g, selection.selected)
-    renders = render_depth(sub, views, backend=cfg.backend)
+    spread = cfg.carve.front_spread > 0 or cfg.carve.max_spread_voxels < float("inf")
+    kind = {"expected": "expected", "median": "median"}.get(cfg.carve.depth_render, "both")
+    renders = render_depth(sub, views, backend=cfg.backend, spread=spread, depth=kind)  # type: ignore[arg-type]
     k = 2 * cfg.object_mask_dilate_px + 1
     kernel = np.ones((k, k), np.uint8)
     out = []
@@ -200,7 +202,7 @@ def _complete(fg: np.ndarray, core: np.ndarray, kernel: np.ndarray, cfg: Geometr
     miss = core & ~cv2.dilate(fg.astype(np.uint8), kernel).astype(bool)
     if not miss.any():
         return fg
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(miss.astype(np.uint8), connectivity=8)
+    _n, lab, stats, _ = cv2.connectedComponentsWithStats(miss.astype(np.uint8), connectivity=8)
     big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= cfg.complete_min_share * max(int(core.sum()), 1))
     big = big[big > 0]
     if not len(big):

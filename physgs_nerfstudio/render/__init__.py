@@ -1,7 +1,8 @@
 """Gaussian rasterization: gsplat on CUDA, a pure-torch reference rasterizer on CPU (same call shape)."""
 
 from .backend import BACKENDS, Backend, rasterize, resolve_backend
-from .reference import reference_rasterization
+from .reference import reference_median_depth, reference_rasterization
 from .sh import eval_sh_colors
 
-__all__ = ["BACKENDS", "Backend", "eval_sh_colors", "rasterize", "reference_rasterization", "resolve_backend"]
+__all__ = ["BACKENDS", "Backend", "eval_sh_colors", "rasterize", "reference_median_depth", "reference_rasterization",
+           "resolve_backend"]

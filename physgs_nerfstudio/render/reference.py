@@ -14,7 +14,7 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-from .composite import composite_image
+from .composite import composite_image, crossing_depth_image
 from .projection import covariance_3d, project_gaussians
 from .sh import eval_sh_colors
 
@@ -214,3 +214,27 @@ def reference_rasterization(
         "backend": "reference",
     }
     return render_colors, render_alphas, meta
+
+
+@torch.no_grad()
+def reference_median_depth(
+    means: Float[Tensor, "N 3"],
+    quats: Float[Tensor, "N 4"],
+    scales: Float[Tensor, "N 3"],
+    opacities: Float[Tensor, " N"],
+    viewmat: Float[Tensor, "4 4"],
+    K: Float[Tensor, "3 3"],
+    width: int,
+    height: int,
+    *,
+    level: float = 0.5,
+    near_plane: float = 0.01,
+    eps2d: float = 0.3,
+) -> Float[Tensor, "H W"]:
+    """Per pixel the depth (camera z of the Gaussian's centre) at which the transmittance first drops to ``level``
+    (:func:`.composite.crossing_depth_image`; +inf where it never does), with the projection and compositing of
+    :func:`reference_rasterization` (classic mode). Runs on any device; gsplat has no such render mode."""
+    proj = project_gaussians(means, covariance_3d(quats, scales), viewmat[None], K[None], width, height, eps2d=eps2d,
+                             near_plane=near_plane, far_plane=1e10, radius_clip=0.0, calc_compensations=False)  # fmt: skip
+    return crossing_depth_image(proj.means2d[0], proj.conics[0], opacities, proj.depths[0], proj.radii[0],
+                                proj.covars2d[0], width, height, level=level)  # fmt: skip

@@ -1,0 +1,123 @@
+"""Carving rules side by side on trained runs of generated scenes, against the generator's exact parts.
+
+    python benchmarks/carve_diag.py RUN_DIR [RUN_DIR ...] --rules baseline median ... [--cache DIR]
+
+RUN_DIR: a `physgs demo` output folder (runs/**/config.yml and scene/ground_truth.json). Per run the selection,
+the object's views and their renders (expected depth with its spread, median depth) are computed once (cached
+with ``--cache``); then each rule's nominal carving is compared voxel by voxel with the true occupancy on the
+same grid: carved / true volume, per-part recall, false solid. Cheaper than a re-export (no materials, parts,
+structure or variants) and exact about geometry, so it screens carving rules before `mass_suite.py` measures
+them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from geometry_diag import _part_of, _to_world, _transform
+
+from physgs_nerfstudio.export.command import load_run
+from physgs_nerfstudio.geometry import reconstruct as rc
+from physgs_nerfstudio.geometry.carve import CarveConfig, signed_mask_distance
+from physgs_nerfstudio.geometry.gaussians import ViewRender, render_depth
+from physgs_nerfstudio.geometry.select import select_object
+from physgs_nerfstudio.synth.objects import build_layout
+
+RULES = {
+    "baseline": {},
+    "median": {"depth_render": "median"},
+    "spread1": {"front_spread": 1.0},
+    "spread0.5": {"front_spread": 0.5},
+    "maxspread1": {"max_spread_voxels": 1.0},
+    "maxspread2": {"max_spread_voxels": 2.0},
+    "median_maxspread2": {"depth_render": "median", "max_spread_voxels": 2.0},
+    "first0.5": {"depth_render": "first", "mixed_depth_voxels": 0.5},
+    "first1": {"depth_render": "first", "mixed_depth_voxels": 1.0},
+    "first2": {"depth_render": "first", "mixed_depth_voxels": 2.0},
+    "nodepth": {"use_depth": False},
+}
+
+
+def prepare(run_dir: Path, cache: Path | None) -> dict:
+    f = cache / f"{run_dir.name}.pt" if cache else None
+    if f is not None and f.is_file():
+        return torch.load(f, weights_only=False)
+    cfg_path = next((run_dir / "runs").glob("**/config.yml"))
+    run = load_run(cfg_path, max_view_width=640)
+    pf, views = run.field, run.views
+    cfg = rc.GeometryConfig()
+    sel = select_object(pf, views, cfg.select, backend=cfg.backend)
+    rc._within_hull(pf, sel, views, cfg)
+    obj_views, _ = rc._object_views(pf, sel, views, cfg)
+    sub = rc._Subset(pf, sel.selected)
+    ed = render_depth(sub, views, backend=cfg.backend, spread=True)
+    med = render_depth(sub, views, backend=cfg.backend, depth="median")
+    grid = rc._domain(pf, sel.selected, cfg)
+    T, s = _transform(cfg_path.parent)
+    truth = json.loads((run.data_dir / "ground_truth.json").read_text())
+    layout = build_layout(truth["layout"], int(truth.get("seed", 0)))
+    parts = [p for p in layout.parts if p.role == "object"]
+    out = {"views": obj_views, "ed": ed, "med": med, "grid": grid, "T": T, "s": s, "parts": parts,
+           "names": [p.name for p in parts], "truth": truth}
+    if f is not None:
+        torch.save(out, f)
+    return out
+
+
+def carve(d: dict, rule: dict) -> dict:
+    cc = replace(CarveConfig(), **rule)
+    renders = [ViewRender(e.depth, e.alpha, e.spread, m.depth) for m, e in zip(d["med"], d["ed"])]
+    sdf = [signed_mask_distance(v.mask) for v in d["views"]]
+    grid = d["grid"]
+    cfg = rc.GeometryConfig()
+    solid = rc._carve_variants(grid, d["views"], renders, [("nominal", cc)], sdf, "cpu")[0]
+    lo, hi = rc._solid_bounds(grid, solid)
+    if lo is not None and float((hi - lo).max()) < cfg.refit_fraction * float(np.max(grid.shape)) * grid.voxel_size:
+        pad = float((hi - lo).max()) * (cfg.pad_fraction + 2.0 / cfg.resolution)
+        grid = rc.VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad), cfg.resolution)
+        solid = rc._carve_variants(grid, d["views"], renders, [("nominal", cc)], sdf, "cpu")[0]
+    ijk = np.argwhere(np.ones(grid.shape, bool))
+    centres = grid.centres(torch.from_numpy(ijk)).double().numpy()
+    gt = _part_of(d["parts"], _to_world(centres, d["T"], d["s"]), 0.0).reshape(grid.shape)
+    true = gt >= 0
+    return {"ratio": float(solid.sum() / max(true.sum(), 1)),
+            "iou": float((solid & true).sum() / max((solid | true).sum(), 1)),
+            "false": float((solid & ~true).sum() / max(true.sum(), 1)),
+            "recall": {n: round(float((solid & (gt == i)).sum() / max((gt == i).sum(), 1)), 3)
+                       for i, n in enumerate(d["names"])}}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("--rules", nargs="*", default=list(RULES))
+    ap.add_argument("--cache", type=Path, default=None)
+    ap.add_argument("--out", type=Path, default=None)
+    a = ap.parse_args()
+    if a.cache:
+        a.cache.mkdir(parents=True, exist_ok=True)
+    res = {}
+    for r in a.runs:
+        d = prepare(r, a.cache)
+        res[r.name] = {}
+        for name in a.rules:
+            m = carve(d, RULES[name])
+            res[r.name][name] = m
+            print(f"{r.name:14s} {name:18s} ratio {m['ratio']:.3f} iou {m['iou']:.3f} false {m['false']:.3f} "
+                  f"recall {m['recall']}", flush=True)
+    if a.out:
+        a.out.write_text(json.dumps(res, indent=1))
+
+
+if __name__ == "__main__":
+    main()
