@@ -330,7 +330,15 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     python3 benchmarks/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
       --out "$OUT/mass_integration.json" 2>&1 | tee "$OUT/mass_integration.log" | tail -12
     CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml 2>/dev/null)
-    [ -n "$CFG" ] && python3 -m nerfstudio.scripts.eval --load-config "$CFG" --output-path "$OUT/full_eval.json" 2>&1 | tail -2
+    if [ -n "$CFG" ]; then  # the maps cases of bench_export (this tree), then the mass export under cProfile
+      python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "after=$PWD" --views 10 --cases maps1 mapsN \
+        --out "$OUT/export_maps.json" 2>&1 | grep -v Warning > "$OUT/export_maps.log"; tail -8 "$OUT/export_maps.log"
+      CUDA_LAUNCH_BLOCKING=1 python3 -m cProfile -o /tmp/mass.prof -m physgs_nerfstudio.cli export --load-config "$CFG" \
+        --output-dir /tmp/pm --outputs mass --overwrite > /dev/null 2>&1
+      python3 -c "import pstats; p = pstats.Stats('/tmp/mass.prof'); p.sort_stats('cumulative').print_stats(120)" \
+        > "$OUT/mass_profile.txt" 2>&1
+      grep -E "physgs_nerfstudio" "$OUT/mass_profile.txt" | head -45 | cut -c1-150
+    fi
     echo "[$(elapsed) s] training cost"
     python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps ${TRAIN_STEPS:-1500} --warmup 300 \
       --methods ${METHODS:-splatfacto-big physgs} --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -8

@@ -27,7 +27,7 @@ from ..geometry import (
     load_observations,
     reconstruct_object,
 )
-from ..geometry.capture import viewmat_from_c2w
+from ..geometry.capture import clear_mask_cache, viewmat_from_c2w
 from ..mass import MassConfig, MassReport, integrate_mass, library_thickness
 from .field import PropertyField
 from .maps import View, save_property_maps
@@ -140,6 +140,7 @@ def _assemble_run(pf: PropertyField, dpo: Any, data: Path | None, *, max_view_wi
         views = load_capture(dpo.cameras, dpo.image_filenames, data_dir, label_paths=labels,
                              max_width=max_view_width)  # fmt: skip
         observations = load_observations(data_dir)
+        clear_mask_cache()  # the views and observations hold what they need
     return LoadedRun(pf, cameras, views, observations, data_dir)
 
 

@@ -16,6 +16,7 @@ Formats: docs/architecture.md.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
@@ -30,7 +31,8 @@ from torch import Tensor
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CaptureView", "MaskObservation", "load_capture", "load_observations", "viewmat_from_c2w"]
+__all__ = ["CaptureView", "MaskObservation", "clear_mask_cache", "load_capture", "load_observations",
+           "viewmat_from_c2w"]
 
 MASK_DIR = "perception/masks"
 _LEVELS = ("whole", "part", "subpart")
@@ -100,17 +102,38 @@ def _mask_file(data_dir: Path, view: str) -> Path:
 
 
 def _read_masks(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """(masks bool [n, h, w], level index [n]) of a perception mask file; None when absent or unreadable."""
+    """(masks bool [n, h, w], level index [n]) of a perception mask file; None when absent or unreadable. Read once
+    per file version until :func:`clear_mask_cache` (the views' foregrounds and the observations both need a view's
+    masks); the arrays are shared and read-only."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return _read_masks_cached(str(path), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=512)
+def _read_masks_cached(name: str, _mtime_ns: int, _size: int) -> tuple[np.ndarray, np.ndarray] | None:
+    path = Path(name)
     if not path.is_file():
         return None
     try:
         with np.load(path) as z:
             n, h, w = (int(v) for v in z["shape"])
             bits = np.unpackbits(z["bits"], axis=1, count=h * w) if n else np.zeros((0, h * w), np.uint8)
-            return bits.reshape(n, h, w).astype(bool), np.asarray(z["level"], dtype=np.int64)
+            masks, level = bits.reshape(n, h, w).astype(bool), np.asarray(z["level"], dtype=np.int64)
+            masks.flags.writeable = False
+            level.flags.writeable = False
+            return masks, level
     except Exception as err:  # noqa: BLE001 - an unreadable mask file falls back to the label map
         logger.warning("ignoring unreadable mask file %s (%s)", path, err)
         return None
+
+
+def clear_mask_cache() -> None:
+    """Forget the mask files read (:func:`_read_masks`): a loader calls it once it has built its views and
+    observations, so no process keeps every view's masks."""
+    _read_masks_cached.cache_clear()
 
 
 def _resize_mask(mask: np.ndarray, width: int, height: int) -> np.ndarray:
