@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from physgs_nerfstudio.export.shapes import field_from  # noqa: E402
 from physgs_nerfstudio.geometry import CaptureView, GeometryConfig, reconstruct_object  # noqa: E402
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w  # noqa: E402
+from physgs_nerfstudio.geometry.carve import CarveConfig  # noqa: E402
 from physgs_nerfstudio.geometry.gaussians import render_depth  # noqa: E402
 from physgs_nerfstudio.mass import MassConfig, integrate_mass  # noqa: E402
 
@@ -118,7 +119,7 @@ def make_scene(n: int, views: int, size: int, device: str, seed: int = 0):
     return pf, cams, true_kg
 
 
-def run_once(pf, views, device: str) -> tuple[dict[str, float], float]:
+def run_once(pf, views, device: str, cfg: GeometryConfig | None = None) -> tuple[dict[str, float], float]:
     sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
     marks: list[tuple[str, float]] = []
 
@@ -129,7 +130,7 @@ def run_once(pf, views, device: str) -> tuple[dict[str, float], float]:
     pf._pi = None  # as in a fresh export: nothing cached
     sync()
     t0 = time.perf_counter()
-    geo = reconstruct_object(pf, pf.pi_rows, views, (), [None] * pf.num_materials, GeometryConfig(),
+    geo = reconstruct_object(pf, pf.pi_rows, views, (), [None] * pf.num_materials, cfg or GeometryConfig(),
                              material_names=pf.material_names, alpha=pf.alpha, material_weights=pf.material_weights,
                              progress=step)  # fmt: skip
     step("mass Monte Carlo")
@@ -149,6 +150,8 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    ap.add_argument("--depth-render", default="expected", choices=["expected", "median", "first"],
+                    help="the carving's depth (--mass.geometry.carve.depth-render)")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     device = ("cuda" if torch.cuda.is_available() else "cpu") if args.device == "auto" else args.device
@@ -156,8 +159,9 @@ def main() -> None:
     pf, views, true_kg = make_scene(args.gaussians, args.views, args.size, device)
     print(f"scene: {pf.num_gaussians} Gaussians, {len(views)} views at {args.size} px on {device} "
           f"({time.perf_counter() - t:.1f} s to make)")  # fmt: skip
-    run_once(pf, views, device)  # untimed: CUDA context, kernels, thread pools
-    runs = [run_once(pf, views, device) for _ in range(args.repeats)]
+    cfg = GeometryConfig(carve=CarveConfig(depth_render=args.depth_render))
+    run_once(pf, views, device, cfg)  # untimed: CUDA context, kernels, thread pools
+    runs = [run_once(pf, views, device, cfg) for _ in range(args.repeats)]
     med = {k: statistics.median(r[0][k] for r in runs) for k in runs[0][0]}
     print(f"{'stage':<24}{'median s':>10}")
     for k, v in med.items():
@@ -165,7 +169,7 @@ def main() -> None:
     print(f"mass {runs[-1][1]:.2f} kg (the table's true mass {true_kg:.2f} kg; a sanity check, not an accuracy figure)")
     if args.out:
         args.out.write_text(json.dumps({"gaussians": pf.num_gaussians, "views": len(views), "size": args.size,
-                                        "device": device, "gpu": torch.cuda.get_device_name() if device == "cuda"
+                                        "device": device, "depth_render": args.depth_render, "gpu": torch.cuda.get_device_name() if device == "cuda"
                                         else None, "repeats": args.repeats, "median_s": med,
                                         "runs_s": [r[0] for r in runs], "mass_kg": runs[-1][1],
                                         "true_kg": true_kg}, indent=2))  # fmt: skip
