@@ -16,6 +16,7 @@ accuracy figure (benchmarks/mass_suite.py measures accuracy).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import statistics
@@ -28,12 +29,12 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from physgs_nerfstudio.export.shapes import field_from  # noqa: E402
-from physgs_nerfstudio.geometry import CaptureView, GeometryConfig, reconstruct_object  # noqa: E402
-from physgs_nerfstudio.geometry.capture import viewmat_from_c2w  # noqa: E402
-from physgs_nerfstudio.geometry.carve import CarveConfig  # noqa: E402
-from physgs_nerfstudio.geometry.gaussians import render_depth  # noqa: E402
-from physgs_nerfstudio.mass import MassConfig, integrate_mass  # noqa: E402
+from physgs_nerfstudio.export.shapes import field_from
+from physgs_nerfstudio.geometry import CaptureView, GeometryConfig, reconstruct_object
+from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
+from physgs_nerfstudio.geometry.carve import CarveConfig
+from physgs_nerfstudio.geometry.gaussians import render_depth
+from physgs_nerfstudio.mass import MassConfig, integrate_mass
 
 TOP = ((-0.5, -0.3, 0.70), (0.5, 0.3, 0.74))  # metres: an oak top 1.0 x 0.6 x 0.04
 LEG = 0.04  # steel legs 4 cm square, under the top's corners
@@ -137,7 +138,7 @@ def run_once(pf, views, device: str, cfg: GeometryConfig | None = None) -> tuple
     report = integrate_mass(pf, geo, MassConfig())
     step("end")
     times = {"total": marks[-1][1] - t0}
-    for (name, t), (_, t_next) in zip(marks[:-1], marks[1:]):
+    for (name, t), (_, t_next) in itertools.pairwise(marks):
         times[name] = t_next - t
     times["geometry"] = marks[-2][1] - t0
     return times, float(report.mean_kg)

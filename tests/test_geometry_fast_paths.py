@@ -12,8 +12,8 @@ import torch
 from scipy import ndimage
 from skimage.measure import marching_cubes
 
-from physgs_nerfstudio.geometry.grid import VoxelGrid
 from physgs_nerfstudio.geometry import parts as parts_mod
+from physgs_nerfstudio.geometry.grid import VoxelGrid
 from physgs_nerfstudio.geometry.parts import _nearest_solid, part_areas
 
 
@@ -143,7 +143,7 @@ def test_solid_from_votes_on_the_bounding_box_equals_the_whole_grid():
                            seen=torch.full((solid.size,), 10, dtype=torch.int32), num_views=10)  # fmt: skip
         cfg = CarveConfig()
         got = solid_from_votes(votes, grid, cfg)
-        labels, n = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
+        labels, _ = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
         sizes = np.bincount(labels.ravel())
         sizes[0] = 0
         want = ndimage.binary_fill_holes((sizes >= cfg.min_component * sizes.max())[labels] & (labels > 0))
