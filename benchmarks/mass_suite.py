@@ -20,32 +20,52 @@ import shlex
 import statistics
 import subprocess
 import sys
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 OBJECTS = ("mug", "chair", "hammer", "bottle", "shoe", "table", "pan", "lamp", "crate", "stool", "dumbbell", "vase")
 
 
+def _demo_export_args(seed: int) -> list[str]:
+    """The flags that make `physgs export` match the demo's own export (its grid resolution, samples and seed)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from physgs_nerfstudio.demo import DemoCommand
+
+    d = DemoCommand()
+    return ["--mass.geometry.resolution", str(d.export_resolution), "--mass.n-samples", str(d.n_samples),
+            "--mass.seed", str(seed)]  # fmt: skip
+
+
 def run_one(obj: str, seed: int, out: Path, extra: list[str], jobs: int = 1,
-            export_args: list[str] | None = None, alt_name: str = "alt") -> dict:  # fmt: skip
+            export_args: list[str] | None = None, alt_name: str = "alt", trained: bool = False) -> dict:  # fmt: skip
     d = out / f"{obj}_s{seed}"
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "demo", "--object", obj, "--seed", str(seed),
            "--output-dir", str(d), *extra]  # fmt: skip
     env = dict(os.environ)
     if jobs > 1:  # one core per demo
         env.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    proc = subprocess.run(cmd, check=False, capture_output=True, text=True, env=env)
-    (out / f"{obj}_s{seed}.log").write_text(proc.stdout[-20000:] + proc.stderr[-20000:])
-    if proc.returncode != 0:
-        return {"object": obj, "seed": seed, "error": proc.stderr.strip().splitlines()[-1:] or ["failed"]}
+    finished = export_args is not None and (d / "demo_summary.json").is_file() and any((d / "runs").glob("**/config.yml"))
+    if trained:  # a run trained by `ns-train` (the GPU suite): OUT/OBJ_sSEED/{scene,runs}, exported with the defaults
+        finished = True
+        export_args = export_args if export_args is not None else []
+    if not finished:  # a re-export of a finished demo does not run the demo again
+        proc = subprocess.run(cmd, check=False, capture_output=True, text=True, env=env)
+        (out / f"{obj}_s{seed}.log").write_text(proc.stdout[-20000:] + proc.stderr[-20000:])
+        if proc.returncode != 0:
+            return {"object": obj, "seed": seed, "error": proc.stderr.strip().splitlines()[-1:] or ["failed"]}
     gt = json.loads((d / "scene" / "ground_truth.json").read_text())
     export = d / "export"
+    export_s = None
     if export_args is not None:
         cfg = next((d / "runs").glob("**/config.yml"))
         export = d / f"export_{alt_name}"
         cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "export", "--load-config", str(cfg), "--output-dir",
-               str(export), "--outputs", "mass", "--overwrite", *export_args]  # fmt: skip
+               str(export), "--outputs", "mass", "--overwrite", *([] if trained else _demo_export_args(seed)),
+               *export_args]  # fmt: skip
+        t0 = time.perf_counter()
         proc = subprocess.run(cmd, check=False, capture_output=True, text=True, env=env)
+        export_s = time.perf_counter() - t0
         if proc.returncode != 0:
             return {"object": obj, "seed": seed, "error": proc.stderr.strip().splitlines()[-1:] or ["failed"]}
     rep = json.loads((export / "report.json").read_text())["mass"]
@@ -60,7 +80,7 @@ def run_one(obj: str, seed: int, out: Path, extra: list[str], jobs: int = 1,
     right = [(p["structure"]["p_hollow"] > 0.5) == (p["material"] in shells) for p in rep["parts"]
              if p["material"] in shells | solid_mats]  # fmt: skip
     return {"object": obj, "seed": seed, "truth_kg": truth, "pred_kg": pred, "interval_kg": [lo, hi],
-            "covered": lo <= truth <= hi, "ape": abs(pred - truth) / truth,
+            "covered": lo <= truth <= hi, "ape": abs(pred - truth) / truth, "export_s": export_s,
             "volume_ratio": pred_vol / true_vol if true_vol > 0 else None,
             "structure_right": (sum(right) / len(right)) if right else None,
             "true_parts": [{k: p[k] for k in ("name", "material", "volume_model", "volume_m3", "enclosed_volume_m3",
@@ -85,12 +105,15 @@ def main() -> None:
                          "and score that export instead: a side-by-side comparison of geometry options")
     ap.add_argument("--alt-name", default="alt", help="name of the re-export (export_NAME/, mass_suite_NAME.json)")
     ap.add_argument("--jobs", type=int, default=1, help="demos run at once (each limited to one thread)")
+    ap.add_argument("--trained", action="store_true",
+                    help="score runs trained elsewhere (the GPU suite: OUT/OBJECT_sSEED/scene and runs/**/config.yml): "
+                         "`physgs export --outputs mass` with its defaults (plus --export-args) into export_NAME/")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     todo = [(o, s) for s in a.seeds for o in a.objects]
 
     def one(item: tuple[str, int]) -> dict:
-        row = run_one(item[0], item[1], a.out, a.demo_args, a.jobs, a.export_args, a.alt_name)
+        row = run_one(item[0], item[1], a.out, a.demo_args, a.jobs, a.export_args, a.alt_name, a.trained)
         short = {k: v for k, v in row.items() if k not in ("parts", "true_parts")}
         print(json.dumps(short), flush=True)
         return row
@@ -100,8 +123,9 @@ def main() -> None:
     ok = [r for r in rows if "error" not in r]
     if ok:
         print(f"median APE {statistics.median(r['ape'] for r in ok):.3f}; covered {sum(r['covered'] for r in ok)}/"
-              f"{len(ok)}; off by more than 2x: {sum(r['pred_kg'] > 2 * r['truth_kg'] or r['pred_kg'] < r['truth_kg'] / 2 for r in ok)}")  # fmt: skip
-    name = "mass_suite.json" if a.export_args is None else f"mass_suite_{a.alt_name}.json"
+              f"{len(ok)}; off by more than 2x: {sum(r['pred_kg'] > 2 * r['truth_kg'] or r['pred_kg'] < r['truth_kg'] / 2 for r in ok)}; "
+              f"median volume error {statistics.median(abs(r['volume_ratio'] - 1) for r in ok):.3f}")  # fmt: skip
+    name = "mass_suite.json" if a.export_args is None and not a.trained else f"mass_suite_{a.alt_name}.json"
     (a.out / name).write_text(json.dumps({"export_args": a.export_args, "rows": rows}, indent=2))
 
 

@@ -107,7 +107,7 @@ def test_pi_rows_are_the_rows_of_pi():
 
 def test_part_maps_with_the_boundary_computed_once():
     from physgs_nerfstudio.geometry.capture import CaptureView, viewmat_from_c2w
-    from physgs_nerfstudio.geometry.structure import _Boundary, part_maps
+    from physgs_nerfstudio.geometry.part_evidence import _Boundary, part_maps
 
     grid = VoxelGrid.from_bounds(torch.zeros(3), torch.ones(3), 24)
     solid = np.zeros(grid.shape, bool)

@@ -12,6 +12,8 @@
 #   bash benchmarks/gpu/run_gpu.sh geometry  # issue 12: full chair run, geometry vs ground truth (geometry_diag.py)
 #   OBJECTS="table stool" bash benchmarks/gpu/run_gpu.sh gsuite  # issue 12: the same for other generated objects
 #   bash benchmarks/gpu/run_gpu.sh mprofile  # issue 13: profile of `physgs export --outputs mass` on the chair
+#   PHASE=scenes CPU_SEEDS="1313 1414" bash benchmarks/gpu/run_gpu.sh msuite  # issue 12: GPU suite scenes (+ CPU suite)
+#   PHASE=train OBJECTS="mug chair" bash benchmarks/gpu/run_gpu.sh msuite     # ... then train and score them
 #   bash benchmarks/gpu/run_gpu.sh after     # issue 13, after `export` on the same machine: mass_integration.py,
 #                                            # the run's ns-eval, physgs vs splatfacto-big
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
@@ -30,7 +32,7 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
-case "${1:-}" in perf|suite|mem|export|batch|geometry|gsuite|mprofile) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
+case "${1:-}" in perf|suite|mem|export|batch|geometry|gsuite|mprofile|msuite) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -343,6 +345,54 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps ${TRAIN_STEPS:-1500} --warmup 300 \
       --methods ${METHODS:-splatfacto-big physgs} --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -8
     echo "[$(elapsed) s] done"
+    ;;
+  msuite)
+    # issue 12, the mass suite at 60 views 512 px on the GPU, in phases that each fit a 10-minute command on one
+    # machine kept warm between calls (its /tmp holds the scenes and runs):
+    #   PHASE=scenes: the generated OBJECTS (default: all 12) at GSEED (synth + simulated perception, one process per
+    #     object on the CPUs); beside them, with CPU_SEEDS, the CPU suite (`physgs demo` settings, CUDA hidden) at
+    #     those seeds and its re-export with ALT_ARGS (ALT_NAME)
+    #   PHASE=train: `ns-train physgs` (STEPS, 7000) of OBJECTS, CONC at a time on the one GPU, then
+    #     `mass_suite.py --trained` (`physgs export --outputs mass` with its defaults, 4 at a time) -> gpu_mass_suite*.json
+    GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
+    OBJECTS=${OBJECTS:-"mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase"}
+    case "${PHASE:?PHASE=scenes|train}" in
+      scenes)
+        for o in $OBJECTS; do
+          (d=/tmp/ms/${o}_s$GSEED; OMP_NUM_THREADS=1 python3 -m physgs_nerfstudio.cli synth --out $d/scene --object $o \
+             --seed $GSEED --views 60 --resolution 512 --overwrite > /tmp/ms_$o.log 2>&1 && OMP_NUM_THREADS=1 python3 -m \
+             physgs_nerfstudio.cli perceive --data $d/scene --vlm simulated --segmenter builtin --no-progress \
+             --max-concurrency 4 >> /tmp/ms_$o.log 2>&1; echo "[$(elapsed) s] scene $o: $(tail -c 200 /tmp/ms_$o.log | tail -1)") &
+        done
+        if [ -n "${CPU_SEEDS:-}" ]; then
+          CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $CPU_SEEDS --jobs "${JOBS:-8}" --out /tmp/mass_suite \
+            > "$OUT/mass_suite.log" 2>&1; tail -1 "$OUT/mass_suite.log"; cp /tmp/mass_suite/mass_suite.json "$OUT/" 2>/dev/null
+          if [ -n "${ALT_ARGS:-}" ]; then
+            CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $CPU_SEEDS --jobs "${JOBS:-8}" --out /tmp/mass_suite \
+              --alt-name "${ALT_NAME:-alt}" --export-args "$ALT_ARGS" > "$OUT/mass_suite_${ALT_NAME:-alt}.log" 2>&1
+            tail -1 "$OUT/mass_suite_${ALT_NAME:-alt}.log"; cp /tmp/mass_suite/mass_suite_${ALT_NAME:-alt}.json "$OUT/" 2>/dev/null
+          fi
+          echo "[$(elapsed) s] CPU suite done"
+        fi
+        wait; echo "[$(elapsed) s] done"
+        ;;
+      train)
+        n=0
+        for o in $OBJECTS; do
+          d=/tmp/ms/${o}_s$GSEED
+          [ -f $d/scene/materials.json ] || { echo "no scene for $o"; continue; }
+          (python3 -m nerfstudio.scripts.train physgs --data $d/scene --max-num-iterations "$STEPS" --vis tensorboard \
+             --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
+             --output-dir $d/runs --timestamp gpu > /tmp/ms_train_$o.log 2>&1; echo "[$(elapsed) s] trained $o: rc $?") &
+          n=$((n + 1)); [ $((n % CONC)) -eq 0 ] && wait
+        done
+        wait
+        python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
+          --alt-name "gpu${ALT_ARGS:+_$ALT_NAME}" ${ALT_ARGS:+--export-args "$ALT_ARGS"} > "$OUT/gpu_mass_suite.log" 2>&1
+        cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
+        echo "[$(elapsed) s] done"
+        ;;
+    esac
     ;;
   full)  # HEAD=latent|lifted: another material head; LIFT_EVERY=N: lift every N steps as well
     make_scene 2>&1 | tail -5

@@ -152,7 +152,8 @@ def object_geometry(run: LoadedRun, cfg: GeometryConfig, progress: Any = None) -
     pf = run.field
     return reconstruct_object(pf, pf.pi_rows, run.views, run.observations, library_thickness(pf), cfg,
                               material_names=pf.material_names, alpha=pf.alpha,
-                              material_weights=pf.material_weights, progress=progress)  # fmt: skip
+                              material_weights=pf.material_weights, dirichlet_prior=pf.dirichlet_prior,
+                              progress=progress)  # fmt: skip
 
 
 def run_export(run: LoadedRun, output_dir: Path, *, overwrite: bool = False, source: Path | None = None,

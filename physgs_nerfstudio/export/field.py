@@ -85,6 +85,9 @@ class PropertyField:
     """how ``alpha`` becomes the per-Gaussian material weights that every writer uses (PLY columns, voxels,
     maps, mass): "dominant" (dominance probability) or "predictive" (alpha / sum(alpha)); a trained model's
     own ``material_weights`` (PhysGSModelConfig) when built by :meth:`from_model`."""
+    dirichlet_prior: tuple[float, float] | None = None
+    """(alpha0, lambda) of the model's Dirichlet posterior ``alpha = alpha0 + lambda x evidence``; None = unknown.
+    The mass geometry fuses each 3-D part's material from the observations with the same prior"""
     _pi: Tensor | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -283,7 +286,7 @@ class PropertyField:
             thickness_m=thickness, metres_per_unit=sc.metres_per_unit, scale_source=sc.source,
             sh_dc=g("features_dc") if "gauss_params.features_dc" in state else None, sh_rest=sh_rest,
             property_keys=tuple(legend.property_keys), simulated=bool(legend.simulated), labelled=labelled,
-            evidence=total, material_weights=material_weights,
+            evidence=total, material_weights=material_weights, dirichlet_prior=(float(alpha0), float(lam)),
         )  # fmt: skip
 
     @classmethod

@@ -95,6 +95,8 @@ class MaskObservation:
     thickness_m: float | None
     """None: the answer called the part solid (or gave no wall)"""
     level: str = "part"
+    weight: float = 1.0
+    """the fusion's weight of the mask's level (materials.json ``level_weights``: whole 0.5, part 1, subpart 1.5)"""
 
 
 def _mask_file(data_dir: Path, view: str) -> Path:
@@ -200,6 +202,17 @@ def load_capture(
     return views
 
 
+def _level_weights(data_dir: Path) -> dict[str, float]:
+    """materials.json's ``level_weights`` (the fusion's weight per mask level), else the fusion's defaults."""
+    out = {"whole": 0.5, "part": 1.0, "subpart": 1.5}
+    try:
+        lw = json.loads((data_dir / "materials.json").read_text()).get("level_weights") or {}
+        out.update({str(k): float(v) for k, v in lw.items() if isinstance(v, (int, float)) and v >= 0})
+    except (OSError, ValueError, AttributeError):
+        pass
+    return out
+
+
 def load_observations(data_dir: Path) -> list[MaskObservation]:
     """Every candidate of ``observations.jsonl`` joined with its mask's pixels (skipped, with a count in the
     log, where the mask file is missing)."""
@@ -210,6 +223,7 @@ def load_observations(data_dir: Path) -> list[MaskObservation]:
     out: list[MaskObservation] = []
     cache: dict[str, tuple[np.ndarray, np.ndarray] | None] = {}
     missing = 0
+    level_w = _level_weights(data_dir)
     for line in path.read_text().splitlines():
         try:
             rec = json.loads(line)
@@ -225,7 +239,8 @@ def load_observations(data_dir: Path) -> list[MaskObservation]:
         t = (rec.get("properties") or {}).get("thickness_m")
         out.append(MaskObservation(view, read[0][mid], str(rec.get("material")), float(rec.get("confidence", 0.0)),
                                    float(t) if isinstance(t, (int, float)) and t > 0 else None,
-                                   str(rec.get("level", "part"))))  # fmt: skip
+                                   str(rec.get("level", "part")),
+                                   level_w.get(str(rec.get("level", "part")), 1.0)))  # fmt: skip
     if missing:
         logger.info("%d observations without a readable mask were not used for the part structure", missing)
     return out

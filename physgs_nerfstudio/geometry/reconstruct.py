@@ -24,6 +24,7 @@ from .carve import CarveConfig, carve_votes_many, signed_mask_distances, solid_f
 from .errors import GeometryError
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
+from .part_evidence import fuse_part_materials, observation_shares
 from .parts import PartGeometry, material_quantiles, part_areas, part_labels, pooled_part_alpha, voxel_mixture
 from .select import ObjectSelection, SelectConfig, outside_mask_hull, select_object
 from .structure import PartStructure, StructureConfig, fuse_structure
@@ -58,10 +59,16 @@ class GeometryConfig:
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1"""
     min_part_fraction: float = 2e-3
-    part_materials: Literal["pooled", "voxels"] = "pooled"
-    """a part's material mixture: "pooled", from the mean of its Gaussians' Dirichlet posteriors (one piece of one
-    material); "voxels", the volume-weighted mean of its voxels' mixtures, each voxel drawing its own material
+    part_materials: Literal["observations", "pooled", "voxels"] = "observations"
+    """a part's material mixture: "observations", the Dirichlet fusion of the views' answers about the part, each
+    view's answer counted once per part (:mod:`physgs_nerfstudio.geometry.part_evidence`; a part no observation
+    reaches falls back to "pooled"); "pooled", from the mean of its Gaussians' Dirichlet posteriors (one piece of
+    one material); "voxels", the volume-weighted mean of its voxels' mixtures, each voxel drawing its own material
     (:mod:`physgs_nerfstudio.geometry.parts`, "A part's material")"""
+    min_part_observation: float = 0.5
+    """``part_materials="observations"``: a part takes its material from the observations when their summed weight
+    (level weight x confidence x share of the mask, over views and candidates) reaches this, about half a view's
+    answer; else from its Gaussians (``"pooled"``)"""
     min_voxel_evidence: float = 0.5
     """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
     (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
@@ -262,6 +269,7 @@ def reconstruct_object(
     material_names: Sequence[str] | None = None,
     alpha: torch.Tensor | None = None,
     material_weights: str = "dominant",
+    dirichlet_prior: tuple[float, float] | None = None,
     progress: Any = None,
 ) -> ObjectGeometry:
     """Select, carve, split into parts and measure the object (module doc). ``g``: the Gaussians (activated
@@ -269,8 +277,9 @@ def reconstruct_object(
     (or a function of a bool row mask giving those rows' weights, so that only the object's are computed),
     ``library_thickness[k]``: material k's typical wall thickness in the library (None: solid),
     ``material_names[k]``: the names observations use; ``alpha``: their Dirichlet posteriors [N, K] and
-    ``material_weights`` the field's weighting, for ``part_materials="pooled"`` (None: "voxels").
-    ``progress(stage: str)`` is called as stages start."""
+    ``material_weights`` the field's weighting, for ``part_materials="pooled"`` (None: "voxels");
+    ``dirichlet_prior``: the model's (alpha0, lambda) for ``part_materials="observations"`` (None: (1, 4), the
+    fusion's defaults). ``progress(stage: str)`` is called as stages start."""
     cfg = cfg or GeometryConfig()
     step = progress or (lambda _s: None)
     views = list(views)
@@ -325,12 +334,20 @@ def reconstruct_object(
         np.add.at(pm, parts[union], mixture[union] * empty[parts[union]][:, None])
     pm /= pm.sum(1, keepdims=True)
     levels: np.ndarray | None = None  # one material per part and sample, from its pooled mixture
+    mat_names = material_names if material_names is not None else [str(k) for k in range(K)]
+    shares = observation_shares(grid, nominal_parts, P, views, observations) if observations else []
     if cfg.part_materials == "voxels" or alpha is None:
         levels = material_quantiles(parts, mixture, P, pm)
     else:
         pooled, support = pooled_part_alpha(grid, parts, P, g.means[sel], g.opacities[sel], alpha[sel],
                                             labelled[sel] if labelled is not None else None)
         has = support > 0
+        if cfg.part_materials == "observations" and shares:
+            a0, lam = dirichlet_prior if dirichlet_prior is not None else (1.0, 4.0)
+            fused, seen = fuse_part_materials(shares, observations, mat_names, P, a0, lam)
+            obs = seen >= cfg.min_part_observation
+            pooled[obs] = fused[obs]
+            has = has | obs
         if has.any():
             w = material_mixture_weights(torch.from_numpy(pooled[has]), material_weights)  # type: ignore[arg-type]
             pm[has] = w.double().numpy()
@@ -339,9 +356,8 @@ def reconstruct_object(
     step("structure")
     dom = np.argmax(pm, 1)
     lib = library_thickness if library_thickness is not None else [None] * K
-    mat_names = material_names if material_names is not None else [str(k) for k in range(K)]
     structure = fuse_structure(grid, nominal_parts, P, views, observations, [lib[k] for k in dom], pm, mat_names,
-                               cfg.structure)  # fmt: skip
+                               cfg.structure, shares=shares)  # fmt: skip
     return ObjectGeometry(
         grid=grid, solid=solids[0], parts=parts, part_mixture=pm, mixture=mixture, variant_names=names,
         volumes=np.stack([gm.volume for gm in geos]), areas=np.stack([gm.area for gm in geos]),

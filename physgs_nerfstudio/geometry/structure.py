@@ -34,11 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from torch import Tensor
 
 from ..bayes.nig import NIG, Moments, nig_posterior
 from .capture import CaptureView, MaskObservation
 from .grid import VoxelGrid
+from .part_evidence import observation_shares, part_maps
 
 __all__ = ["PartStructure", "StructureConfig", "fuse_structure", "part_maps"]
 
@@ -100,52 +100,6 @@ class PartStructure:
                  "observation_weight": float(self.observations[i])} for i in range(len(self.hollow_a))]  # fmt: skip
 
 
-@dataclass
-class _Boundary:
-    """The solid's boundary voxels (a voxel with an empty 6-neighbour): centres and part ids, for :func:`part_maps`
-    in many views."""
-
-    x: Tensor
-    pid: Tensor
-
-    @classmethod
-    def of(cls, grid: VoxelGrid, parts: np.ndarray) -> _Boundary:
-        solid = parts >= 0
-        inner = np.zeros_like(solid)
-        inner[1:-1, 1:-1, 1:-1] = (solid[1:-1, 1:-1, 1:-1] & solid[:-2, 1:-1, 1:-1] & solid[2:, 1:-1, 1:-1]
-                                   & solid[1:-1, :-2, 1:-1] & solid[1:-1, 2:, 1:-1] & solid[1:-1, 1:-1, :-2]
-                                   & solid[1:-1, 1:-1, 2:])  # fmt: skip
-        ijk = np.argwhere(solid & ~inner)
-        return cls(grid.centres(torch.from_numpy(ijk)), torch.from_numpy(parts[tuple(ijk.T)]))
-
-
-@torch.no_grad()
-def part_maps(grid: VoxelGrid, parts: np.ndarray | _Boundary, view: CaptureView, width: int, height: int
-              ) -> np.ndarray:  # fmt: skip
-    """int [height, width] id of the part whose boundary voxel is nearest the camera at each pixel (-1: none);
-    the view's intrinsics are rescaled to ``width`` x ``height``. ``parts``: the part grid, or its boundary
-    computed once for many views."""
-    b = parts if isinstance(parts, _Boundary) else _Boundary.of(grid, parts)
-    out = np.full(height * width, -1, np.int64)
-    if len(b.pid) == 0:
-        return out.reshape(height, width)
-    R, t = view.viewmat[:3, :3], view.viewmat[:3, 3]
-    pc = b.x @ R.T + t
-    sx, sy = width / view.width, height / view.height
-    z = pc[:, 2]
-    u = (view.K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + view.K[0, 2]) * sx
-    v = (view.K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + view.K[1, 2]) * sy
-    ok = (z > 1e-6) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    pix = (v.floor().long() * width + u.floor().long())[ok]
-    zz = z[ok]
-    best = torch.full((height * width,), float("inf")).scatter_reduce(0, pix, zz, reduce="amin")
-    front = zz <= best[pix]
-    pid = b.pid[ok]
-    out_t = torch.from_numpy(out)
-    out_t[pix[front]] = pid[front]
-    return out_t.numpy().reshape(height, width)
-
-
 def fuse_structure(
     grid: VoxelGrid,
     parts: np.ndarray,
@@ -156,9 +110,13 @@ def fuse_structure(
     part_mixture: np.ndarray,
     material_names: Sequence[str],
     cfg: StructureConfig | None = None,
+    *,
+    shares: Sequence[tuple[int, np.ndarray]] | None = None,
 ) -> PartStructure:
     """Per-part Beta hollowness and NIG log-thickness (module doc). ``library_thickness[s]``: the library's
-    typical wall thickness of part ``s``'s dominant material (None: the library calls it solid)."""
+    typical wall thickness of part ``s``'s dominant material (None: the library calls it solid). ``shares``:
+    :func:`physgs_nerfstudio.geometry.part_evidence.observation_shares` of these parts, views and observations,
+    when already computed."""
     cfg = cfg or StructureConfig()
     P = num_parts
     lib = np.array([t is not None for t in library_thickness], dtype=bool)
@@ -169,24 +127,14 @@ def fuse_structure(
     S = np.zeros(P)
     Q = np.zeros(P)
     seen = np.zeros(P)
-    by_view = {v.name: v for v in views}
     mat_index = {n: i for i, n in enumerate(material_names)}
-    maps: dict[tuple[str, int, int], np.ndarray] = {}
-    boundary = _Boundary.of(grid, parts)
-    for ob in observations:
-        view = by_view.get(ob.view)
+    if shares is None:
+        shares = observation_shares(grid, parts, P, views, observations)
+    for i, share in shares:
+        ob = observations[i]
         k = mat_index.get(ob.material)
-        if view is None or ob.confidence <= 0 or k is None:
+        if k is None:
             continue
-        h, w = ob.mask.shape
-        key = (ob.view, h, w)
-        if key not in maps:
-            maps[key] = part_maps(grid, boundary, view, w, h)
-        ids = maps[key][ob.mask]
-        ids = ids[ids >= 0]
-        if len(ids) == 0:
-            continue
-        share = np.bincount(ids, minlength=P) / len(ids)
         wt = ob.confidence * share * part_mixture[:, k]
         seen += wt
         if ob.thickness_m is not None:

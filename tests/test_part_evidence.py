@@ -1,0 +1,109 @@
+"""A part's material from the views' answers about it (geometry/part_evidence.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from test_geometry import _select, box_surface, ring_views
+
+from physgs_nerfstudio.export.shapes import field_from
+from physgs_nerfstudio.geometry import GeometryConfig, MaskObservation, reconstruct_object
+from physgs_nerfstudio.geometry.gaussians import render_depth
+from physgs_nerfstudio.geometry.part_evidence import fuse_part_materials, observation_shares, part_maps
+from physgs_nerfstudio.mass import MassConfig, integrate_mass
+
+# a steel box and an oak box among eight distractor materials of other densities
+NAMES = ["steel", "oak", "cast_iron", "pine", "glass", "abs", "cork", "wool", "granite", "eps"]
+DENS = [7850.0, 700.0, 7200.0, 500.0, 2500.0, 1050.0, 240.0, 300.0, 2700.0, 20.0]
+
+
+@pytest.fixture(scope="module")
+def two_boxes():
+    left = box_surface((0.2, 0.2, 0.2), 0.02, centre=(-0.3, 0.0, 0.0))
+    right = box_surface((0.2, 0.2, 0.2), 0.02, centre=(0.3, 0.0, 0.0))
+    means, scales, quats = (torch.cat([a, b]) for a, b in zip(left, right))
+    labels = torch.cat([torch.zeros(len(left[0])), torch.ones(len(right[0]))]).long()
+    # each Gaussian holds a sliver of one view's answer (evidence 0.3 on its material against a prior of 1 on each
+    # of the 10): the per-Gaussian posteriors are near the prior, as after a short training with few views
+    pf = field_from(means, scales, quats, densities=DENS, labels=labels, names=NAMES, confidence=0.3)
+    views = ring_views(pf, (0, 0, 0), 1.6, n=8)
+    lm = render_depth(field_from(*left, densities=DENS, names=NAMES), views, backend="reference")
+    rm = render_depth(field_from(*right, densities=DENS, names=NAMES), views, backend="reference")
+    obs = []
+    for v, a, b in zip(views, lm, rm):
+        lmask = (a.alpha > 0.5).numpy() & ~(b.alpha > 0.5).numpy()
+        rmask = (b.alpha > 0.5).numpy() & ~(a.alpha > 0.5).numpy()
+        obs += [MaskObservation(v.name, lmask, "steel", 0.7, None), MaskObservation(v.name, lmask, "cast_iron", 0.3, None),
+                MaskObservation(v.name, rmask, "oak", 0.8, None), MaskObservation(v.name, rmask, "pine", 0.2, None)]  # fmt: skip
+    return pf, views, obs
+
+
+@pytest.fixture(scope="module")
+def geos(two_boxes):
+    pf, views, obs = two_boxes
+    return {m: _reconstruct(pf, views, obs, m) for m in ("observations", "pooled")}
+
+
+def _reconstruct(pf, views, obs, part_materials):
+    cfg = GeometryConfig(resolution=48, backend="reference", select=_select(bridge_cells=1, cluster_cells=4),
+                         part_materials=part_materials)  # fmt: skip
+    return reconstruct_object(pf, pf.pi(), views, obs, [None] * len(NAMES), cfg, material_names=NAMES,
+                              alpha=pf.alpha, dirichlet_prior=(1.0, 4.0))  # fmt: skip
+
+
+def test_fused_evidence_equals_a_brute_force_count(two_boxes, geos):
+    """alpha_s = alpha0 + lambda sum_o l_o p_o share_os onehot(c_o), counted pixel by pixel from the part maps."""
+    pf, views, obs = two_boxes
+    geo = geos["observations"]
+    parts = np.where(geo.solid, geo.parts, -1)
+    P = geo.num_parts
+    weights = [1.0, 1.5, 0.5, 1.0] * len(views)
+    obs_w = [
+        MaskObservation(o.view, o.mask, o.material, o.confidence, None, weight=w)
+        for o, w in zip(obs, weights)
+    ]
+    shares = observation_shares(geo.grid, parts, P, views, obs_w)
+    alpha, seen = fuse_part_materials(shares, obs_w, NAMES, P, 1.0, 4.0)
+    expect = np.ones((P, len(NAMES)))
+    by_view = {v.name: v for v in views}
+    for o in obs_w:
+        h, w = o.mask.shape
+        ids = part_maps(geo.grid, parts, by_view[o.view], w, h)[o.mask]
+        ids = ids[ids >= 0]
+        for s in range(P):
+            if len(ids):
+                expect[s, NAMES.index(o.material)] += (
+                    4.0 * o.weight * o.confidence * float((ids == s).sum()) / len(ids)
+                )
+    np.testing.assert_allclose(alpha, expect, rtol=1e-12)
+    np.testing.assert_allclose(seen, (expect - 1.0).sum(1) / 4.0, rtol=1e-12)
+
+
+def test_parts_take_their_material_from_the_views_not_the_diluted_gaussians(two_boxes, geos):
+    pf, views, obs = two_boxes
+    geo, pooled = geos["observations"], geos["pooled"]
+    assert geo.num_parts == 2
+    xs = [float(np.argwhere(geo.parts == p)[:, 0].mean()) for p in range(2)]
+    left, right = (0, 1) if xs[0] < xs[1] else (1, 0)
+    # the views' answers, counted once per view: steel on the left (against cast iron), oak on the right
+    assert geo.part_mixture[left, NAMES.index("steel")] > 0.95
+    assert geo.part_mixture[right, NAMES.index("oak")] > 0.95
+    # the mean of the Gaussians' posteriors keeps most of the weight on materials no view named
+    assert pooled.part_mixture[left, NAMES.index("steel")] < 0.5
+    # and the mass follows: the boxes' solid volumes (each sample draws one geometry variant) at steel's and oak's
+    # densities
+    rep = integrate_mass(pf, geo, MassConfig(n_samples=4000, structure="solid"))
+    v = geo.volumes.mean(0)
+    expect = DENS[0] * v[left] + DENS[1] * v[right]
+    assert rep.mean_kg == pytest.approx(expect, rel=0.05)
+
+
+def test_a_part_no_view_answers_keeps_its_gaussians_posterior(two_boxes, geos):
+    pf, views, obs = two_boxes
+    only_left = [o for o in obs if o.material in ("steel", "cast_iron")]
+    geo = _reconstruct(pf, views, only_left, "observations")
+    pooled = geos["pooled"]
+    xs = [float(np.argwhere(geo.parts == p)[:, 0].mean()) for p in range(2)]
+    right = 1 if xs[0] < xs[1] else 0
+    np.testing.assert_allclose(geo.part_mixture[right], pooled.part_mixture[right])
