@@ -148,3 +148,157 @@ def test_solid_from_votes_on_the_bounding_box_equals_the_whole_grid():
         sizes[0] = 0
         want = ndimage.binary_fill_holes((sizes >= cfg.min_component * sizes.max())[labels] & (labels > 0))
         np.testing.assert_array_equal(got, want)
+
+
+def _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=1 << 20):
+    """The carving votes as computed before the views were voted on together (carve_votes_many at 95953ad, one view
+    and one setting at a time, 2-D indexing of each image): the oracle of the batched vote."""
+    from physgs_nerfstudio.geometry.carve import (
+        _corners,
+        _sample,
+        carve_depth,
+        depth_slack,
+        signed_mask_distances,
+    )
+
+    def sample_opaque(depth, alpha, u, v, min_alpha, extra=None):
+        num, den = torch.zeros_like(u), torch.zeros_like(u)
+        num2 = torch.zeros_like(u) if extra is not None else None
+        for yy, xx, w in _corners(depth.shape, u, v):
+            ok = alpha[yy, xx] >= min_alpha
+            w = torch.where(ok, w, 0.0)
+            num += w * torch.where(ok, depth[yy, xx], 0.0)
+            if num2 is not None:
+                num2 += w * torch.where(ok, extra[yy, xx], 0.0)
+            den += w
+        has = den > 0
+        d = torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
+        if num2 is None:
+            return d, has
+        return d, has, torch.where(has, num2 / den.clamp_min(1e-12), torch.zeros_like(num2))
+
+    M, G = grid.num_voxels, len(cfgs)
+    empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32) for _ in cfgs] for _ in range(3))
+    seen = torch.zeros(M, dtype=torch.int32)
+    sdf = signed_mask_distances([v.mask for v in views])
+    cams = [(v.viewmat[:3, :3], v.viewmat[:3, 3], v.K) for v in views]
+    any_depth = renders is not None and any(c.use_depth for c in cfgs)
+    slope = any(c.depth_slope_margin > 0 for c in cfgs)
+    lookup, kind = cfgs[0].depth_lookup, cfgs[0].depth_render
+    images = ([carve_depth(r, kind, cfgs[0].mixed_depth_voxels * grid.voxel_size) for r in renders]
+              if any_depth else [None] * len(views))  # fmt: skip
+    depth = ([(d, r.alpha, depth_slack(d, r.alpha, lookup=lookup) if slope else None)
+              for d, r in zip(images, renders)] if any_depth else [None] * len(views))  # fmt: skip
+    use_spread = any_depth and any(c.front_spread > 0 or c.max_spread_voxels < float("inf") for c in cfgs)
+    spreads = [r.spread for r in renders] if use_spread else [None] * len(views)
+    shape = torch.as_tensor(grid.shape)
+    for s0 in range(0, M, chunk):
+        flat = torch.arange(s0, min(M, s0 + chunk))
+        ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
+        x = grid.centres(ijk)
+        n_seen = torch.zeros(len(flat), dtype=torch.int32)
+        n_empty, n_depth, n_direct = ([torch.zeros_like(n_seen) for _ in range(G)] for _ in range(3))
+        for view, (R, t, K), sd, dz, spr in zip(views, cams, sdf, depth, spreads):
+            pc = x @ R.T + t
+            z = pc[:, 2]
+            u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
+            w = K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]
+            ok = (z > 1e-6) & (u >= 0) & (u < view.width) & (w >= 0) & (w < view.height)
+            dist = _sample(sd, u.clamp(0, view.width), w.clamp(0, view.height))
+            if dz is not None:
+                ui = u.floor().long().clamp(0, view.width - 1)
+                vi = w.floor().long().clamp(0, view.height - 1)
+                d, a = dz[0][vi, ui], dz[1][vi, ui]
+                sl = dz[2][vi, ui] if dz[2] is not None else None
+                sp = spr[vi, ui] if spr is not None else None
+                if lookup == "bilinear":
+                    if spr is not None:
+                        d, _, sp = sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height),
+                                                 0.5, spr)  # fmt: skip
+                    else:
+                        d = sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5)[0]
+            for g, cfg in enumerate(cfgs):
+                vote = ok & (dist > cfg.mask_margin_px)
+                if dz is not None and cfg.use_depth:
+                    margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
+                    if sl is not None and cfg.depth_slope_margin > 0:
+                        margin = margin + cfg.depth_slope_margin * sl
+                    inside = ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha)
+                    front = d
+                    if sp is not None:
+                        front = d - cfg.front_spread * sp
+                        if cfg.max_spread_voxels < float("inf"):
+                            inside = inside & (sp <= cfg.max_spread_voxels * grid.voxel_size)
+                    dvote = inside & (z < front - margin)
+                    vote |= dvote
+                    n_depth[g] += dvote.int()
+                    n_direct[g] += (inside & (z <= d + margin)).int()
+                n_empty[g] += vote.int()
+            n_seen += ok.int()
+        sl = slice(s0, s0 + len(flat))
+        seen[sl] = n_seen
+        for g in range(G):
+            empty[g][sl], depth_empty[g][sl], direct[g][sl] = n_empty[g], n_depth[g], n_direct[g]
+    return [(empty[g], seen, depth_empty[g], direct[g]) for g in range(G)]
+
+
+def _carving_scene(seed, sizes=((40, 32), (40, 32), (36, 30), (40, 32), (40, 32))):
+    """Views of a box of random opaque and translucent depth around a grid, some of another image size."""
+    from physgs_nerfstudio.geometry.capture import CaptureView
+    from physgs_nerfstudio.geometry.gaussians import ViewRender
+
+    g = torch.Generator().manual_seed(seed)
+    views, renders = [], []
+    for i, (W, H) in enumerate(sizes):
+        a = 2 * np.pi * i / len(sizes) + 0.3
+        eye = np.array([2.5 * np.cos(a), 2.5 * np.sin(a), 0.4 + 0.3 * i])
+        f = -eye / np.linalg.norm(eye)
+        r = np.cross(f, [0.0, 0.0, 1.0])
+        r /= np.linalg.norm(r)
+        R = np.stack([r, np.cross(f, r), f])
+        vm = np.eye(4)
+        vm[:3, :3], vm[:3, 3] = R, -R @ eye
+        K = torch.tensor([[0.9 * W, 0, W / 2], [0, 0.9 * W, H / 2], [0, 0, 1]])
+        mask = torch.from_numpy(ndimage.gaussian_filter(torch.rand(H, W, generator=g).numpy(), 2) > 0.5)
+        depth = 2.0 + torch.rand(H, W, generator=g)
+        alpha = torch.rand(H, W, generator=g)
+        depth[alpha < 0.1] = float("inf")
+        renders.append(ViewRender(depth=depth, alpha=alpha, spread=0.05 * torch.rand(H, W, generator=g),
+                                  median=depth - 0.2 * torch.rand(H, W, generator=g)))  # fmt: skip
+        views.append(CaptureView(torch.tensor(vm, dtype=torch.float32), K, W, H, mask, name=f"v{i}"))
+    grid = VoxelGrid.from_bounds(np.array([-0.6, -0.5, -0.4]), np.array([0.6, 0.5, 0.45]), 22)
+    return grid, views, renders
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_carve_votes_of_views_together_equal_one_view_at_a_time(seed):
+    """The votes of views batched (stacked images, [G, B, n] comparisons) equal, count for count, those of the
+    one-view-at-a-time loop they replace, under the reconstruction's variants and the other options, for any
+    batch size and chunk."""
+    from dataclasses import replace
+
+    from physgs_nerfstudio.geometry.carve import CarveConfig, carve_votes_many
+    from physgs_nerfstudio.geometry.reconstruct import GeometryConfig, _variants
+
+    grid, views, renders = _carving_scene(seed)
+    variants = [c for _, c in _variants(GeometryConfig())]
+    settings = [
+        variants,
+        [replace(c, depth_lookup="nearest") for c in variants],
+        [CarveConfig(front_spread=1.0), CarveConfig(max_spread_voxels=0.5), CarveConfig(use_depth=False),
+         CarveConfig(depth_slope_margin=0.0, depth_margin_rel=0.01, min_alpha=0.3)],
+        [CarveConfig(depth_render="first", front_spread=0.5, depth_lookup="nearest"),
+         CarveConfig(depth_render="first", max_spread_voxels=1.0, depth_lookup="nearest")],
+        [CarveConfig(depth_render="median"), CarveConfig(depth_render="median", mask_margin_px=0.7)],
+    ]
+    for cfgs in settings:
+        want = _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=2000)
+        for chunk, batch_points in ((1 << 20, None), (2000, 1), (2000, 6000), (3001, 1 << 20)):
+            got = carve_votes_many(grid, views, renders, cfgs, chunk=chunk, batch_points=batch_points)
+            for w, v in zip(want, got):
+                for name, a in zip(("empty", "seen", "depth_empty", "direct"), w):
+                    assert torch.equal(getattr(v, name), a), (name, cfgs, chunk, batch_points)
+        assert sum(int(w[0].sum()) for w in want) > 0
+    no_depth = carve_votes_many(grid, views, None, variants[:2], batch_points=1 << 20)
+    for w, v in zip(_carve_votes_one_view_at_a_time(grid, views, None, variants[:2]), no_depth):
+        assert torch.equal(v.empty, w[0]) and torch.equal(v.seen, w[1])
