@@ -526,8 +526,8 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
         return full
     # on the solid's bounding box with one empty voxel around it (the same components, and the same cavities: a
     # pocket open to the grid's outside is open to the box's border layer)
-    idx = np.argwhere(full)
-    crop = tuple(slice(max(a - 1, 0), b + 2) for a, b in zip(idx.min(0), idx.max(0)))
+    lo, hi = bounding_box(full)
+    crop = tuple(slice(max(a - 1, 0), b + 1) for a, b in zip(lo, hi))
     solid = full[crop]
     labels, n = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
     if n > 1:
@@ -535,7 +535,35 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
         sizes[0] = 0
         solid = (sizes >= cfg.min_component * sizes.max())[labels] & (labels > 0)
     if cfg.fill_cavities:
-        solid = ndimage.binary_fill_holes(solid)
+        solid = fill_holes(solid)
     out = np.zeros_like(full)
     out[crop] = solid
     return out
+
+
+def fill_holes(solid: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.binary_fill_holes(solid)``: the empty voxels that no face-connected path of empty voxels joins
+    to the array's border become solid. One labelling of the empty voxels (6-connected, the fill's flood), instead of
+    the fill's dilation repeated until nothing changes (a few times faster on a carved solid)."""
+    from scipy import ndimage
+
+    labels, n = ndimage.label(~solid)
+    if n == 0:
+        return solid.copy()
+    outside = np.zeros(n + 1, bool)
+    for axis in range(solid.ndim):
+        for end in (0, -1):
+            outside[np.take(labels, end, axis=axis)] = True
+    outside[0] = False  # the solid itself
+    return ~outside[labels]
+
+
+def bounding_box(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index bounds [lo, hi) of the True voxels of a non-empty ``mask`` (``argwhere``'s min and max + 1, from the
+    mask's projections on its axes)."""
+    lo, hi = [], []
+    for axis in range(mask.ndim):
+        hit = np.flatnonzero(mask.any(axis=tuple(a for a in range(mask.ndim) if a != axis)))
+        lo.append(hit[0])
+        hi.append(hit[-1] + 1)
+    return np.asarray(lo), np.asarray(hi)
