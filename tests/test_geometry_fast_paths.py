@@ -387,3 +387,54 @@ def test_voxel_mixture_equals_the_whole_grid_computation(seed):
         solid[a:b, a // 2 : b, 1:b] = True
         got = voxel_mixture(grid, solid, means, opac, pi, obs)
         np.testing.assert_array_equal(got, _voxel_mixture_before(grid, solid, means, opac, pi, obs))
+
+
+def test_unique_rows_by_hash_equals_torch_unique():
+    """The distinct rows found by a hash of their bits, then sorted as torch.unique sorts them, are unique(dim=0)'s
+    rows and inverse (the oracle), with rows that differ in one bit, a hash collision (the direct way then), and
+    None where the distinct rows are more than 3/4 (as dominance_probability decides from unique's count)."""
+    from physgs_nerfstudio.bayes.dirichlet import _unique_rows
+
+    g = torch.Generator().manual_seed(0)
+    base = 0.5 + 5 * torch.rand(7, 3, generator=g, dtype=torch.float64)
+    base[1] = torch.nextafter(base[0], torch.full_like(base[0], 10.0))  # one ulp from row 0
+    base[2, :2] = base[0, :2]
+    cases = [base[torch.randint(0, 7, (5000,), generator=g)], base[:2].repeat(3, 1),
+             torch.rand(1000, 4, generator=g, dtype=torch.float64)]  # fmt: skip
+    # a collision: two different rows with the same hash ((b0 * P) ^ b1 for two columns)
+    b0 = torch.tensor(4611686018427387904)  # 2.0
+    b1 = torch.tensor(4607182418800017408)  # 1.0
+    for step in range(1, 1000):
+        c0 = b0 + step * (1 << 40)
+        c1 = (b0 * 1000003) ^ b1 ^ (c0 * 1000003)
+        row = torch.stack([c0, c1]).view(torch.float64)
+        if bool(torch.isfinite(row).all()) and bool((row > 0).all()):
+            break
+    pair = torch.stack([torch.stack([b0, b1]).view(torch.float64), row])
+    cases.append(pair[torch.randint(0, 2, (400,), generator=g)])
+    for flat in cases:
+        uniq, inv = torch.unique(flat, dim=0, return_inverse=True)
+        got = _unique_rows(flat)
+        if uniq.shape[0] * 4 > flat.shape[0] * 3:
+            assert got is None
+        else:
+            assert torch.equal(got[0], uniq) and torch.equal(got[1], inv)
+    assert _unique_rows(cases[-1]) is not None and _unique_rows(cases[-1])[0].shape[0] == 2
+
+
+def test_dominance_of_repeated_rows_unchanged(monkeypatch):
+    """dominance_probability with the hashed distinct rows equals, bit for bit, its values with torch.unique's."""
+    from physgs_nerfstudio.bayes import dirichlet
+
+    def direct(flat):
+        uniq, inverse = torch.unique(flat, dim=0, return_inverse=True)
+        return None if uniq.shape[0] * 4 > flat.shape[0] * 3 else (uniq, inverse)
+
+    g = torch.Generator().manual_seed(1)
+    base = 0.3 + 8 * torch.rand(5, 4, generator=g, dtype=torch.float64)
+    for alpha in (base[torch.randint(0, 5, (3000,), generator=g)], 0.3 + torch.rand(500, 3, generator=g)):
+        got = dirichlet.dominance_probability(alpha, chunk_elements=1 << 14)
+        with monkeypatch.context() as m:
+            m.setattr(dirichlet, "_unique_rows", direct)
+            want = dirichlet.dominance_probability(alpha, chunk_elements=1 << 14)
+        assert torch.equal(got, want)
