@@ -148,3 +148,293 @@ def test_solid_from_votes_on_the_bounding_box_equals_the_whole_grid():
         sizes[0] = 0
         want = ndimage.binary_fill_holes((sizes >= cfg.min_component * sizes.max())[labels] & (labels > 0))
         np.testing.assert_array_equal(got, want)
+
+
+def _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=1 << 20):
+    """The carving votes as computed before the views were voted on together (carve_votes_many at 95953ad, one view
+    and one setting at a time, 2-D indexing of each image): the oracle of the batched vote."""
+    from physgs_nerfstudio.geometry.carve import (
+        _corners,
+        _sample,
+        carve_depth,
+        depth_slack,
+        signed_mask_distances,
+    )
+
+    def sample_opaque(depth, alpha, u, v, min_alpha, extra=None):
+        num, den = torch.zeros_like(u), torch.zeros_like(u)
+        num2 = torch.zeros_like(u) if extra is not None else None
+        for yy, xx, w in _corners(depth.shape, u, v):
+            ok = alpha[yy, xx] >= min_alpha
+            w = torch.where(ok, w, 0.0)
+            num += w * torch.where(ok, depth[yy, xx], 0.0)
+            if num2 is not None:
+                num2 += w * torch.where(ok, extra[yy, xx], 0.0)
+            den += w
+        has = den > 0
+        d = torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
+        if num2 is None:
+            return d, has
+        return d, has, torch.where(has, num2 / den.clamp_min(1e-12), torch.zeros_like(num2))
+
+    M, G = grid.num_voxels, len(cfgs)
+    empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32) for _ in cfgs] for _ in range(3))
+    seen = torch.zeros(M, dtype=torch.int32)
+    sdf = signed_mask_distances([v.mask for v in views])
+    cams = [(v.viewmat[:3, :3], v.viewmat[:3, 3], v.K) for v in views]
+    any_depth = renders is not None and any(c.use_depth for c in cfgs)
+    slope = any(c.depth_slope_margin > 0 for c in cfgs)
+    lookup, kind = cfgs[0].depth_lookup, cfgs[0].depth_render
+    images = ([carve_depth(r, kind, cfgs[0].mixed_depth_voxels * grid.voxel_size) for r in renders]
+              if any_depth else [None] * len(views))  # fmt: skip
+    depth = ([(d, r.alpha, depth_slack(d, r.alpha, lookup=lookup) if slope else None)
+              for d, r in zip(images, renders)] if any_depth else [None] * len(views))  # fmt: skip
+    use_spread = any_depth and any(c.front_spread > 0 or c.max_spread_voxels < float("inf") for c in cfgs)
+    spreads = [r.spread for r in renders] if use_spread else [None] * len(views)
+    shape = torch.as_tensor(grid.shape)
+    for s0 in range(0, M, chunk):
+        flat = torch.arange(s0, min(M, s0 + chunk))
+        ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
+        x = grid.centres(ijk)
+        n_seen = torch.zeros(len(flat), dtype=torch.int32)
+        n_empty, n_depth, n_direct = ([torch.zeros_like(n_seen) for _ in range(G)] for _ in range(3))
+        for view, (R, t, K), sd, dz, spr in zip(views, cams, sdf, depth, spreads):
+            pc = x @ R.T + t
+            z = pc[:, 2]
+            u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
+            w = K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]
+            ok = (z > 1e-6) & (u >= 0) & (u < view.width) & (w >= 0) & (w < view.height)
+            dist = _sample(sd, u.clamp(0, view.width), w.clamp(0, view.height))
+            if dz is not None:
+                ui = u.floor().long().clamp(0, view.width - 1)
+                vi = w.floor().long().clamp(0, view.height - 1)
+                d, a = dz[0][vi, ui], dz[1][vi, ui]
+                sl = dz[2][vi, ui] if dz[2] is not None else None
+                sp = spr[vi, ui] if spr is not None else None
+                if lookup == "bilinear":
+                    if spr is not None:
+                        d, _, sp = sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height),
+                                                 0.5, spr)  # fmt: skip
+                    else:
+                        d = sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5)[0]
+            for g, cfg in enumerate(cfgs):
+                vote = ok & (dist > cfg.mask_margin_px)
+                if dz is not None and cfg.use_depth:
+                    margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
+                    if sl is not None and cfg.depth_slope_margin > 0:
+                        margin = margin + cfg.depth_slope_margin * sl
+                    inside = ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha)
+                    front = d
+                    if sp is not None:
+                        front = d - cfg.front_spread * sp
+                        if cfg.max_spread_voxels < float("inf"):
+                            inside = inside & (sp <= cfg.max_spread_voxels * grid.voxel_size)
+                    dvote = inside & (z < front - margin)
+                    vote |= dvote
+                    n_depth[g] += dvote.int()
+                    n_direct[g] += (inside & (z <= d + margin)).int()
+                n_empty[g] += vote.int()
+            n_seen += ok.int()
+        sl = slice(s0, s0 + len(flat))
+        seen[sl] = n_seen
+        for g in range(G):
+            empty[g][sl], depth_empty[g][sl], direct[g][sl] = n_empty[g], n_depth[g], n_direct[g]
+    return [(empty[g], seen, depth_empty[g], direct[g]) for g in range(G)]
+
+
+def _carving_scene(seed, sizes=((40, 32), (40, 32), (36, 30), (40, 32), (40, 32))):
+    """Views of a box of random opaque and translucent depth around a grid, some of another image size."""
+    from physgs_nerfstudio.geometry.capture import CaptureView
+    from physgs_nerfstudio.geometry.gaussians import ViewRender
+
+    g = torch.Generator().manual_seed(seed)
+    views, renders = [], []
+    for i, (W, H) in enumerate(sizes):
+        a = 2 * np.pi * i / len(sizes) + 0.3
+        eye = np.array([2.5 * np.cos(a), 2.5 * np.sin(a), 0.4 + 0.3 * i])
+        f = -eye / np.linalg.norm(eye)
+        r = np.cross(f, [0.0, 0.0, 1.0])
+        r /= np.linalg.norm(r)
+        R = np.stack([r, np.cross(f, r), f])
+        vm = np.eye(4)
+        vm[:3, :3], vm[:3, 3] = R, -R @ eye
+        K = torch.tensor([[0.9 * W, 0, W / 2], [0, 0.9 * W, H / 2], [0, 0, 1]])
+        mask = torch.from_numpy(ndimage.gaussian_filter(torch.rand(H, W, generator=g).numpy(), 2) > 0.5)
+        depth = 2.0 + torch.rand(H, W, generator=g)
+        alpha = torch.rand(H, W, generator=g)
+        depth[alpha < 0.1] = float("inf")
+        renders.append(ViewRender(depth=depth, alpha=alpha, spread=0.05 * torch.rand(H, W, generator=g),
+                                  median=depth - 0.2 * torch.rand(H, W, generator=g)))  # fmt: skip
+        views.append(CaptureView(torch.tensor(vm, dtype=torch.float32), K, W, H, mask, name=f"v{i}"))
+    grid = VoxelGrid.from_bounds(np.array([-0.6, -0.5, -0.4]), np.array([0.6, 0.5, 0.45]), 22)
+    return grid, views, renders
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_carve_votes_of_views_together_equal_one_view_at_a_time(seed):
+    """The votes of views batched (stacked images, [G, B, n] comparisons) equal, count for count, those of the
+    one-view-at-a-time loop they replace, under the reconstruction's variants and the other options, for any
+    batch size and chunk."""
+    from dataclasses import replace
+
+    from physgs_nerfstudio.geometry.carve import CarveConfig, carve_votes_many
+    from physgs_nerfstudio.geometry.reconstruct import GeometryConfig, _variants
+
+    grid, views, renders = _carving_scene(seed)
+    variants = [c for _, c in _variants(GeometryConfig())]
+    settings = [
+        variants,
+        [replace(c, depth_lookup="nearest") for c in variants],
+        [CarveConfig(front_spread=1.0), CarveConfig(max_spread_voxels=0.5), CarveConfig(use_depth=False),
+         CarveConfig(depth_slope_margin=0.0, depth_margin_rel=0.01, min_alpha=0.3)],
+        [CarveConfig(depth_render="first", front_spread=0.5, depth_lookup="nearest"),
+         CarveConfig(depth_render="first", max_spread_voxels=1.0, depth_lookup="nearest")],
+        [CarveConfig(depth_render="median"), CarveConfig(depth_render="median", mask_margin_px=0.7)],
+    ]
+    for cfgs in settings:
+        want = _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=2000)
+        for chunk, batch_points in ((1 << 20, None), (2000, 1), (2000, 6000), (3001, 1 << 20)):
+            got = carve_votes_many(grid, views, renders, cfgs, chunk=chunk, batch_points=batch_points)
+            for w, v in zip(want, got):
+                for name, a in zip(("empty", "seen", "depth_empty", "direct"), w):
+                    assert torch.equal(getattr(v, name), a), (name, cfgs, chunk, batch_points)
+        assert sum(int(w[0].sum()) for w in want) > 0
+    no_depth = carve_votes_many(grid, views, None, variants[:2], batch_points=1 << 20)
+    for w, v in zip(_carve_votes_one_view_at_a_time(grid, views, None, variants[:2]), no_depth):
+        assert torch.equal(v.empty, w[0]) and torch.equal(v.seen, w[1])
+
+
+def test_fill_holes_equals_scipy():
+    """The cavity fill by one labelling equals SciPy's binary_fill_holes (the oracle), for pockets enclosed, open to
+    the border, touching it, nested, and for empty and full arrays."""
+    from physgs_nerfstudio.geometry.carve import fill_holes
+
+    rng = np.random.default_rng(5)
+    cases = [np.zeros((5, 6, 7), bool), np.ones((5, 6, 7), bool)]
+    for trial in range(8):
+        s = ndimage.gaussian_filter(rng.random((30, 26, 34)), 1 + trial % 3) > 0.5 - 0.02 * trial
+        s[5:15, 5:15, 5:15] = True
+        s[7:13, 7:13, 7:13] = False  # a pocket (filled unless the blob opens it)
+        s[9:11, 9:11, 9:11] = trial % 2 == 0  # an island in it
+        if trial % 3 == 0:
+            s[0, :, :] = True  # a wall on the border
+        cases.append(s)
+    for s in cases:
+        np.testing.assert_array_equal(fill_holes(s), ndimage.binary_fill_holes(s))
+    assert any(fill_holes(s).sum() > s.sum() for s in cases)
+
+
+def test_bounding_box_equals_argwhere():
+    from physgs_nerfstudio.geometry.carve import bounding_box
+
+    rng = np.random.default_rng(2)
+    for shape in ((1, 1, 1), (7, 5, 9), (30, 20, 25)):
+        for p in (0.001, 0.1, 0.9):
+            m = rng.random(shape) < p
+            m[tuple(rng.integers(0, n) for n in shape)] = True
+            idx = np.argwhere(m)
+            lo, hi = bounding_box(m)
+            np.testing.assert_array_equal(lo, idx.min(0))
+            np.testing.assert_array_equal(hi, idx.max(0) + 1)
+
+
+def _voxel_mixture_before(grid, solid, means, opacities, pi, observed=None, min_evidence=0.5):
+    """voxel_mixture at 95953ad (np.add.at, the distance transform on the whole grid): the oracle."""
+    K = pi.shape[1]
+    idx = grid.index_of(means.float()).cpu().numpy()
+    ok = ((idx >= 0) & (idx < np.asarray(grid.shape))).all(1)
+    acc = np.zeros((*grid.shape, K))
+    conf = opacities.double().reshape(-1)
+    if observed is not None:
+        conf = conf * observed.double().reshape(-1).clamp(0.0, 1.0)
+    w = (conf[:, None] * pi.double()).cpu().numpy()
+    np.add.at(acc, tuple(idx[ok].T), w[ok])
+    strength = np.zeros(grid.shape)
+    np.add.at(strength, tuple(idx[ok].T), conf.cpu().numpy()[ok])
+    has = strength >= min_evidence
+    if not has.any():
+        has = acc.sum(-1) > 0
+    out = np.zeros_like(acc)
+    if not has.any():
+        out[solid] = 1.0 / K
+        return out
+    _, near = ndimage.distance_transform_edt(~has, return_indices=True)
+    mix = acc[tuple(n[solid] for n in near)]
+    out[solid] = mix / mix.sum(-1, keepdims=True)
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_voxel_mixture_equals_the_whole_grid_computation(seed):
+    """Sums by bincount and the nearest evidence on the box of the evidence and the solid equal, bit for bit, the
+    np.add.at sums and the transform on the whole grid (the oracle): Gaussians outside the grid, evidence and solid
+    in a corner or at the border, equidistant sources (ties), no voxel over the bar, none at all."""
+    from physgs_nerfstudio.geometry.parts import voxel_mixture
+
+    g = torch.Generator().manual_seed(seed)
+    grid = VoxelGrid.from_bounds(torch.zeros(3), torch.tensor([1.0, 0.8, 0.9]), 30)
+    for case in range(6):
+        n = [400, 50, 3000, 200, 5, 0][case]
+        lo, hi = [(0.0, 1.0), (0.1, 0.3), (-0.1, 1.1), (0.6, 0.95), (0.4, 0.5), (0, 1)][case]
+        means = lo + (hi - lo) * torch.rand(n, 3, generator=g)
+        if case == 2:
+            means = (means * 30).round() / 30 + 0.5 / 30  # voxel centres: many equidistant sources
+        opac = torch.rand(n, generator=g) * (0.2 if case == 4 else 1.0)
+        pi = torch.softmax(3 * torch.randn(n, 4, generator=g), -1)
+        obs = torch.rand(n, generator=g) if case % 2 else None
+        solid = np.zeros(grid.shape, bool)
+        a, b = [(2, 20), (0, 8), (5, 30), (20, 30), (10, 14), (3, 9)][case]
+        solid[a:b, a // 2 : b, 1:b] = True
+        got = voxel_mixture(grid, solid, means, opac, pi, obs)
+        np.testing.assert_array_equal(got, _voxel_mixture_before(grid, solid, means, opac, pi, obs))
+
+
+def test_unique_rows_by_hash_equals_torch_unique():
+    """The distinct rows found by a hash of their bits, then sorted as torch.unique sorts them, are unique(dim=0)'s
+    rows and inverse (the oracle), with rows that differ in one bit, a hash collision (the direct way then), and
+    None where the distinct rows are more than 3/4 (as dominance_probability decides from unique's count)."""
+    from physgs_nerfstudio.bayes.dirichlet import _unique_rows
+
+    g = torch.Generator().manual_seed(0)
+    base = 0.5 + 5 * torch.rand(7, 3, generator=g, dtype=torch.float64)
+    base[1] = torch.nextafter(base[0], torch.full_like(base[0], 10.0))  # one ulp from row 0
+    base[2, :2] = base[0, :2]
+    cases = [base[torch.randint(0, 7, (5000,), generator=g)], base[:2].repeat(3, 1),
+             torch.rand(1000, 4, generator=g, dtype=torch.float64)]  # fmt: skip
+    # a collision: two different rows with the same hash ((b0 * P) ^ b1 for two columns)
+    b0 = torch.tensor(4611686018427387904)  # 2.0
+    b1 = torch.tensor(4607182418800017408)  # 1.0
+    for step in range(1, 1000):
+        c0 = b0 + step * (1 << 40)
+        c1 = (b0 * 1000003) ^ b1 ^ (c0 * 1000003)
+        row = torch.stack([c0, c1]).view(torch.float64)
+        if bool(torch.isfinite(row).all()) and bool((row > 0).all()):
+            break
+    pair = torch.stack([torch.stack([b0, b1]).view(torch.float64), row])
+    cases.append(pair[torch.randint(0, 2, (400,), generator=g)])
+    for flat in cases:
+        uniq, inv = torch.unique(flat, dim=0, return_inverse=True)
+        got = _unique_rows(flat)
+        if uniq.shape[0] * 4 > flat.shape[0] * 3:
+            assert got is None
+        else:
+            assert torch.equal(got[0], uniq) and torch.equal(got[1], inv)
+    assert _unique_rows(cases[-1]) is not None and _unique_rows(cases[-1])[0].shape[0] == 2
+
+
+def test_dominance_of_repeated_rows_unchanged(monkeypatch):
+    """dominance_probability with the hashed distinct rows equals, bit for bit, its values with torch.unique's."""
+    from physgs_nerfstudio.bayes import dirichlet
+
+    def direct(flat):
+        uniq, inverse = torch.unique(flat, dim=0, return_inverse=True)
+        return None if uniq.shape[0] * 4 > flat.shape[0] * 3 else (uniq, inverse)
+
+    g = torch.Generator().manual_seed(1)
+    base = 0.3 + 8 * torch.rand(5, 4, generator=g, dtype=torch.float64)
+    for alpha in (base[torch.randint(0, 5, (3000,), generator=g)], 0.3 + torch.rand(500, 3, generator=g)):
+        got = dirichlet.dominance_probability(alpha, chunk_elements=1 << 14)
+        with monkeypatch.context() as m:
+            m.setattr(dirichlet, "_unique_rows", direct)
+            want = dirichlet.dominance_probability(alpha, chunk_elements=1 << 14)
+        assert torch.equal(got, want)

@@ -217,6 +217,29 @@ def _dominance_chunk(alpha: Tensor, z: Tensor, w: Tensor, log_tail: float) -> Te
     return (torch.exp(log_int) * w).sum(-1) * half.unsqueeze(-1)
 
 
+def _unique_rows(flat: Tensor) -> tuple[Tensor, Tensor] | None:
+    """``torch.unique(flat, dim=0, return_inverse=True)`` of float64 rows [N, K], or None when the distinct rows are
+    more than 3/4 of them (little to gain). The rows are told apart first by a hash of their bits (a sort of N
+    integers, where ``unique(dim=0)`` sorts N rows: 0.4 s at N = 650k, K = 3 on a CPU); only the distinct rows are
+    then sorted as ``unique`` sorts them. Rows that share a hash but differ (a collision, checked) take the direct
+    way."""
+    bits = flat.contiguous().view(torch.int64)
+    key = bits[:, 0].clone()
+    for k in range(1, bits.shape[1]):
+        key = (key * 1000003) ^ bits[:, k]
+    keys, inverse = torch.unique(key, return_inverse=True)
+    if keys.shape[0] * 4 > flat.shape[0] * 3:
+        return None  # (a collision only lowers the count; the direct way would not go on either)
+    first = torch.empty(keys.shape[0], dtype=torch.long, device=flat.device)
+    first.scatter_(0, inverse, torch.arange(flat.shape[0], device=flat.device))
+    rows = flat[first]
+    if not bool((rows[inverse] == flat).all()):  # a collision: two different rows share a hash
+        uniq, inv = torch.unique(flat, dim=0, return_inverse=True)
+        return None if uniq.shape[0] * 4 > flat.shape[0] * 3 else (uniq, inv)
+    uniq, order = torch.unique(rows, dim=0, return_inverse=True)  # the distinct rows, in unique's order
+    return uniq, order[inverse]
+
+
 def dominance_probability(
     alpha: Float[Tensor, "... k"],
     *,
@@ -270,11 +293,9 @@ def dominance_probability(
     flat = alpha.reshape(-1, K).to(torch.float64)
     inverse = None
     if flat.shape[0] > 1:  # entities with identical alpha (pixels under the same masks) are computed once
-        uniq, inverse = torch.unique(flat, dim=0, return_inverse=True)
-        if uniq.shape[0] * 4 > flat.shape[0] * 3:  # little to gain
-            inverse = None
-        else:
-            flat = uniq
+        found = _unique_rows(flat)
+        if found is not None:
+            flat, inverse = found
     n = flat.shape[0]
     zq, wq = _gauss_legendre(int(num_nodes))
     z = torch.as_tensor(zq, dtype=torch.float64, device=alpha.device)

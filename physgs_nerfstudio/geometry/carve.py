@@ -201,28 +201,6 @@ def depth_slack(depth: Tensor, alpha: Tensor, min_alpha: float = 0.5, lookup: st
     return out
 
 
-def _sample_opaque(depth: Tensor, alpha: Tensor, u: Tensor, v: Tensor, min_alpha: float,
-                   extra: Tensor | None = None) -> tuple[Tensor, Tensor] | tuple[Tensor, Tensor, Tensor]:  # fmt: skip
-    """Bilinear depth at continuous pixel coordinates from the opaque pixels among the four around each point
-    (their bilinear weights renormalised), and whether any of them is opaque; with ``extra`` [H, W] also that
-    image interpolated with the same weights (0 where none is opaque)."""
-    num = torch.zeros_like(u)
-    den = torch.zeros_like(u)
-    num2 = torch.zeros_like(u) if extra is not None else None
-    for yy, xx, w in _corners(depth.shape, u, v):
-        ok = alpha[yy, xx] >= min_alpha
-        w = torch.where(ok, w, 0.0)
-        num += w * torch.where(ok, depth[yy, xx], 0.0)
-        if num2 is not None:
-            num2 += w * torch.where(ok, extra[yy, xx], 0.0)
-        den += w
-    has = den > 0
-    d = torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
-    if num2 is None:
-        return d, has
-    return d, has, torch.where(has, num2 / den.clamp_min(1e-12), torch.zeros_like(num2))
-
-
 def _corners(shape: tuple[int, ...], u: Tensor, v: Tensor) -> list[tuple[Tensor, Tensor, Tensor]]:
     """(row, column, bilinear weight) of the four pixels around continuous pixel coordinates (pixel i covers
     [i, i+1)), clamped to the image."""
@@ -295,11 +273,16 @@ def carve_votes_many(
     *,
     sdf: Sequence[Tensor] | None = None,
     chunk: int = 1 << 20,
+    batch_points: int | None = None,
     device: torch.device | str = "cpu",
 ) -> list[CarveVotes]:
     """:func:`carve_votes` under several settings in one pass: each voxel centre is projected into each view,
     and its mask distance and rendered depth are looked up, once; then it is voted on under every setting
-    (per setting the same arithmetic as a call of its own, so the votes are identical)."""
+    (per setting the same arithmetic as a call of its own, so the votes are identical). Views of one image size
+    are voted on together, ``batch_points`` (voxel, view) pairs at a time (default: 2^23 on a GPU, where it saves
+    kernel launches; one view at a time on the CPU): the same operations on every pair, so the same votes."""
+    if batch_points is None:
+        batch_points = 1 << 23 if torch.device(device).type == "cuda" else chunk
     M = grid.num_voxels
     G = len(cfgs)
     empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32, device=device) for _ in cfgs] for _ in range(3))
@@ -324,55 +307,210 @@ def carve_votes_many(
                          "(render_depth(..., spread=True)).")  # fmt: skip
     spreads = [r.spread.to(device) for r in renders] if use_spread else [None] * len(views)
     shape = torch.as_tensor(grid.shape, device=device)
+    rule = _Rule(cfgs, grid.voxel_size)
+    batches = _ViewBatch.group(views, cams, sdf, depth, spreads, lookup == "bilinear")
     for s0 in range(0, M, chunk):  # voxel centres once per chunk, then every view
         flat = torch.arange(s0, min(M, s0 + chunk), device=device)
         ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
         x = grid.centres(ijk)
         n_seen = torch.zeros(len(flat), dtype=torch.int32, device=device)
-        n_empty, n_depth, n_direct = ([torch.zeros_like(n_seen) for _ in range(G)] for _ in range(3))
-        for view, (R, t, K), sd, dz, spr in zip(views, cams, sdf, depth, spreads):
-            pc = x @ R.T + t
-            z = pc[:, 2]
-            u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
-            w = K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]
-            ok = (z > 1e-6) & (u >= 0) & (u < view.width) & (w >= 0) & (w < view.height)
-            dist = _sample(sd, u.clamp(0, view.width), w.clamp(0, view.height))
-            if dz is not None:
-                ui = u.floor().long().clamp(0, view.width - 1)
-                vi = w.floor().long().clamp(0, view.height - 1)
-                d, a = dz[0][vi, ui], dz[1][vi, ui]
-                sl = dz[2][vi, ui] if dz[2] is not None else None
-                sp = spr[vi, ui] if spr is not None else None
-                if lookup == "bilinear":
-                    if spr is not None:
-                        d, _, sp = _sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height),
-                                                  0.5, spr)  # fmt: skip
-                    else:
-                        d = _sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5)[0]
-            for g, cfg in enumerate(cfgs):
-                vote = ok & (dist > cfg.mask_margin_px)
-                if dz is not None and cfg.use_depth:
-                    margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
-                    if sl is not None and cfg.depth_slope_margin > 0:
-                        margin = margin + cfg.depth_slope_margin * sl
-                    inside = ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha)
-                    front = d
-                    if sp is not None:
-                        front = d - cfg.front_spread * sp
-                        if cfg.max_spread_voxels < float("inf"):
-                            inside = inside & (sp <= cfg.max_spread_voxels * grid.voxel_size)
-                    dvote = inside & (z < front - margin)
-                    vote |= dvote
-                    n_depth[g] += dvote.int()
-                    n_direct[g] += (inside & (z <= d + margin)).int()
-                n_empty[g] += vote.int()
-            n_seen += ok.int()
+        # [G, n]: one row per setting
+        n_empty, n_depth, n_direct = (torch.zeros(G, len(flat), dtype=torch.int32, device=device) for _ in range(3))
+        per = max(1, batch_points // max(len(flat), 1))
+        for batch in batches:  # views of one image size, several at once: [B, n] per quantity
+            for b0 in range(0, len(batch), per):
+                part = batch.part(b0, b0 + per)
+                ok, z, dist, d, a, sl, sp = part.lookup(x)
+                if d is None:
+                    vote = rule.silhouette(ok, dist)
+                else:
+                    vote, dvote, seen_directly = rule.votes(ok, dist, z, d, a, sl, sp)
+                    _add_views(n_depth, dvote)
+                    _add_views(n_direct, seen_directly)
+                _add_views(n_empty, vote)
+                _add_views(n_seen, ok)
         sl = slice(s0, s0 + len(flat))
         seen[sl] = n_seen
         for g in range(G):
             empty[g][sl], depth_empty[g][sl], direct[g][sl] = n_empty[g], n_depth[g], n_direct[g]
     return [CarveVotes(empty[g], seen, depth_empty[g], direct[g], len(views)) for g in range(G)]
 
+
+def _add_views(total: Tensor, votes: Tensor) -> None:
+    """``total`` [..., n] += the votes [..., B, n] summed over their B views."""
+    if votes.shape[-2] == 1:
+        total += votes.squeeze(-2)
+    else:
+        total += votes.sum(-2, dtype=total.dtype)
+
+
+class _ViewBatch:
+    """Views whose images share their sizes and types, voted on together: their images stacked (per size and type,
+    so that one gather reads all of them at a pixel) and their cameras' numbers as [B, 1] columns. Every operation
+    is, pair for pair, the one that a view on its own gets (:func:`carve_votes_many`)."""
+
+    def __init__(self, views: list[CaptureView], cams: list[tuple[Tensor, Tensor, Tensor]],
+                 around: dict[str, list[Tensor]], held: dict[str, list[Tensor]], bilinear: bool) -> None:  # fmt: skip
+        self.views, self.cams, self.bilinear = views, cams, bilinear
+        self._around, self._held = around, held
+        self.around = self._stacks(around)
+        self.held = self._stacks(held)
+        dev = cams[0][0].device
+        K = torch.stack([c[2] for c in cams])
+        self.fx, self.cx, self.fy, self.cy = (K[:, i, j][:, None] for i, j in ((0, 0), (0, 2), (1, 1), (1, 2)))
+        self.width = torch.tensor([v.width for v in views], device=dev)[:, None]
+        self.height = torch.tensor([v.height for v in views], device=dev)[:, None]
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    @classmethod
+    def group(cls, views: Sequence[CaptureView], cams: list[tuple[Tensor, Tensor, Tensor]], sdf: list[Tensor],
+              depth: list, spreads: list, bilinear: bool) -> list[_ViewBatch]:  # fmt: skip
+        """The views grouped by the sizes and types of their images (in their order)."""
+        groups: dict[tuple, list[int]] = {}
+        per_view = []
+        for i, (sd, dz, spr) in enumerate(zip(sdf, depth, spreads)):
+            around = {"sdf": sd}
+            held: dict[str, Tensor] = {}
+            if dz is not None:
+                held = {"depth": dz[0], "alpha": dz[1]}
+                if dz[2] is not None:
+                    held["slack"] = dz[2]
+                if spr is not None:
+                    held["spread"] = spr
+                if bilinear:
+                    around.update({k: v for k, v in held.items() if k != "slack"})
+            per_view.append((around, held))
+            key = tuple((k, tuple(v.shape), v.dtype) for d in (around, held) for k, v in d.items())
+            key += (cams[i][0].dtype, cams[i][2].dtype)
+            groups.setdefault(key, []).append(i)
+        out = []
+        for idx in groups.values():
+            around = {k: [per_view[i][0][k] for i in idx] for k in per_view[idx[0]][0]}
+            held = {k: [per_view[i][1][k] for i in idx] for k in per_view[idx[0]][1]}
+            out.append(cls([views[i] for i in idx], [cams[i] for i in idx], around, held, bilinear))
+        return out
+
+    def part(self, b0: int, b1: int) -> _ViewBatch:
+        if b0 == 0 and b1 >= len(self):
+            return self
+        sub = lambda d: {k: v[b0:b1] for k, v in d.items()}
+        return _ViewBatch(self.views[b0:b1], self.cams[b0:b1], sub(self._around), sub(self._held), self.bilinear)
+
+    @staticmethod
+    def _stacks(images: dict[str, list[Tensor]]) -> list[tuple[Tensor, tuple[int, ...], list[str]]]:
+        """[C, B * H * W] per size and type of image, with the names of its C images."""
+        groups: dict[tuple, list[str]] = {}
+        for name, ims in images.items():
+            groups.setdefault((tuple(ims[0].shape), ims[0].dtype), []).append(name)
+        return [(torch.stack([torch.stack(images[n]) for n in names]).reshape(len(names), -1), key[0], names)
+                for key, names in groups.items()]  # fmt: skip
+
+    def lookup(self, x: Tensor) -> tuple[Tensor, ...]:
+        """[B, n] each, for voxel centres ``x`` [n, 3]: whether the view frames the centre, its camera depth, the mask
+        distance there (:func:`_sample`), and the depth, alpha, slack and spread that the vote reads (None where not
+        rendered): the depth and the spread bilinear from the opaque pixels (alpha >= 0.5) among the four around the
+        point, their bilinear weights renormalised (the depth +inf and the spread 0 where none is opaque), or else
+        the pixel's own; the alpha and the slack the pixel's own."""
+        pc = (torch.stack([x @ R.T + t for R, t, _ in self.cams]) if len(self) > 1
+              else (x @ self.cams[0][0].T + self.cams[0][1])[None])  # [B, n, 3], each view's as on its own
+        z = pc[..., 2]
+        u = self.fx * pc[..., 0] / z.clamp_min(1e-9) + self.cx
+        v = self.fy * pc[..., 1] / z.clamp_min(1e-9) + self.cy
+        W, H = self.width.to(u.dtype), self.height.to(u.dtype)
+        ok = (z > 1e-6) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        uc, vc = u.clamp_min(0).minimum(W), v.clamp_min(0).minimum(H)
+        B = len(self)
+        at: dict[str, tuple[list[Tensor], list[Tensor]]] = {}  # name: (values at the four corners, their weights)
+        for stack, shape, names in self.around:
+            corners = _corners(shape, uc, vc)  # type: ignore[arg-type]
+            base = torch.arange(B, device=u.device)[:, None] * (shape[0] * shape[1])
+            got = [stack.index_select(1, (yy * shape[1] + xx + base).reshape(-1)).reshape(len(names), *u.shape)
+                   for yy, xx, _ in corners]  # fmt: skip
+            for i, n in enumerate(names):
+                at[n] = ([g[i] for g in got], [cw for _, _, cw in corners])
+        vals, weights = at["sdf"]
+        dist = sum(s * cw for s, cw in zip(vals, weights))
+        if not self.held:
+            return ok, z, dist, None, None, None, None  # type: ignore[return-value]
+        ui = u.floor().long().clamp_min(0).minimum(self.width - 1)
+        vi = v.floor().long().clamp_min(0).minimum(self.height - 1)
+        px: dict[str, Tensor] = {}
+        for stack, shape, names in self.held:
+            base = torch.arange(B, device=u.device)[:, None] * (shape[0] * shape[1])
+            px.update(zip(names, stack.index_select(1, (vi * shape[1] + ui + base).reshape(-1)).reshape(
+                len(names), *u.shape)))  # fmt: skip
+        d, a, sl, sp = px["depth"], px["alpha"], px.get("slack"), px.get("spread")
+        if self.bilinear:
+            depth, weights = at["depth"]
+            alpha = at["alpha"][0]
+            spread = at["spread"][0] if sp is not None else None
+            num = torch.zeros_like(u)
+            den = torch.zeros_like(u)
+            num2 = torch.zeros_like(u) if spread is not None else None
+            for k, cw in enumerate(weights):
+                good = alpha[k] >= 0.5
+                cw = torch.where(good, cw, 0.0)
+                num += cw * torch.where(good, depth[k], 0.0)
+                if num2 is not None:
+                    num2 += cw * torch.where(good, spread[k], 0.0)  # type: ignore[index]
+                den += cw
+            has = den > 0
+            d = torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
+            if num2 is not None:
+                sp = torch.where(has, num2 / den.clamp_min(1e-12), torch.zeros_like(num2))
+        return ok, z, dist, d, a, sl, sp
+
+class _Rule:
+    """The carving rule of several settings at once, as [G, n] comparisons against [G, 1] columns of the settings'
+    thresholds: row g is, value for value, what the rule of setting g alone computes (the same operations, the
+    thresholds rounded to the compared tensor's type as a Python number would be)."""
+
+    def __init__(self, cfgs: Sequence[CarveConfig], voxel_size: float) -> None:
+        self.values: dict[str, list] = {
+            "mask_margin": [c.mask_margin_px for c in cfgs],
+            "margin_abs": [c.depth_margin_voxels * voxel_size for c in cfgs],
+            "margin_rel": [c.depth_margin_rel for c in cfgs],
+            "slope": [c.depth_slope_margin for c in cfgs],
+            "min_alpha": [c.min_alpha for c in cfgs],
+            "front_spread": [c.front_spread for c in cfgs],
+            "max_spread": [c.max_spread_voxels * voxel_size for c in cfgs],
+            "use_depth": [c.use_depth for c in cfgs],
+            "has_slope": [c.depth_slope_margin > 0 for c in cfgs],
+            "has_max_spread": [c.max_spread_voxels < float("inf") for c in cfgs],
+        }
+        self._cols: dict[tuple, Tensor] = {}
+
+    def col(self, name: str, like: Tensor, dtype: torch.dtype | None = None) -> Tensor:
+        """[G, 1, ...]: the settings' values of ``name``, in ``like``'s type (or ``dtype``), to broadcast against
+        ``like``."""
+        dtype = dtype or like.dtype
+        key = (name, dtype, like.dim(), like.device)
+        if key not in self._cols:
+            self._cols[key] = torch.tensor(self.values[name], dtype=dtype, device=like.device).reshape(
+                -1, *([1] * like.dim()))  # fmt: skip
+        return self._cols[key]
+
+    def silhouette(self, ok: Tensor, dist: Tensor) -> Tensor:
+        """bool [G, n]: the mask votes."""
+        return ok & (dist > self.col("mask_margin", dist))
+
+    def votes(self, ok: Tensor, dist: Tensor, z: Tensor, d: Tensor, a: Tensor, sl: Tensor | None,
+              sp: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:  # fmt: skip
+        """bool [G, n] each: the empty votes, the depth votes among them, and whether the view sees the voxel
+        directly."""
+        margin = self.col("margin_abs", d) + self.col("margin_rel", d) * d
+        if sl is not None:
+            margin = torch.where(self.col("has_slope", sl, torch.bool), margin + self.col("slope", sl) * sl, margin)
+        inside = ok & (dist <= self.col("mask_margin", dist)) & (a >= self.col("min_alpha", a))
+        inside = inside & self.col("use_depth", ok, torch.bool)
+        front = d
+        if sp is not None:
+            front = d - self.col("front_spread", sp) * sp
+            inside = inside & ((sp <= self.col("max_spread", sp)) | ~self.col("has_max_spread", sp, torch.bool))
+        dvote = inside & (z < front - margin)
+        return self.silhouette(ok, dist) | dvote, dvote, inside & (z <= d + margin)
 
 def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
     """bool [X, Y, Z]: voxels not carved by the vote (module doc), without specks."""
@@ -388,8 +526,8 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
         return full
     # on the solid's bounding box with one empty voxel around it (the same components, and the same cavities: a
     # pocket open to the grid's outside is open to the box's border layer)
-    idx = np.argwhere(full)
-    crop = tuple(slice(max(a - 1, 0), b + 2) for a, b in zip(idx.min(0), idx.max(0)))
+    lo, hi = bounding_box(full)
+    crop = tuple(slice(max(a - 1, 0), b + 1) for a, b in zip(lo, hi))
     solid = full[crop]
     labels, n = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))
     if n > 1:
@@ -397,7 +535,35 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
         sizes[0] = 0
         solid = (sizes >= cfg.min_component * sizes.max())[labels] & (labels > 0)
     if cfg.fill_cavities:
-        solid = ndimage.binary_fill_holes(solid)
+        solid = fill_holes(solid)
     out = np.zeros_like(full)
     out[crop] = solid
     return out
+
+
+def fill_holes(solid: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.binary_fill_holes(solid)``: the empty voxels that no face-connected path of empty voxels joins
+    to the array's border become solid. One labelling of the empty voxels (6-connected, the fill's flood), instead of
+    the fill's dilation repeated until nothing changes (a few times faster on a carved solid)."""
+    from scipy import ndimage
+
+    labels, n = ndimage.label(~solid)
+    if n == 0:
+        return solid.copy()
+    outside = np.zeros(n + 1, bool)
+    for axis in range(solid.ndim):
+        for end in (0, -1):
+            outside[np.take(labels, end, axis=axis)] = True
+    outside[0] = False  # the solid itself
+    return ~outside[labels]
+
+
+def bounding_box(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index bounds [lo, hi) of the True voxels of a non-empty ``mask`` (``argwhere``'s min and max + 1, from the
+    mask's projections on its axes)."""
+    lo, hi = [], []
+    for axis in range(mask.ndim):
+        hit = np.flatnonzero(mask.any(axis=tuple(a for a in range(mask.ndim) if a != axis)))
+        lo.append(hit[0])
+        hi.append(hit[-1] + 1)
+    return np.asarray(lo), np.asarray(hi)

@@ -41,8 +41,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 from torch import Tensor
 
+from .carve import bounding_box
 from .grid import VoxelGrid
 
 __all__ = ["PartGeometry", "material_quantiles", "part_areas", "part_labels", "pooled_part_alpha", "voxel_mixture"]
@@ -54,17 +56,19 @@ def voxel_mixture(grid: VoxelGrid, solid: np.ndarray, means: Tensor, opacities: 
     Gaussian observed share in [0, 1] (None: every Gaussian counts as observed)."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     K = pi.shape[1]
-    idx = grid.index_of(means.float()).cpu().numpy()
-    shape = np.asarray(grid.shape)
-    ok = ((idx >= 0) & (idx < shape)).all(1)
-    acc = np.zeros((*grid.shape, K))
+    idx = grid.index_of(means.float())
+    ok = ((idx >= 0) & (idx < torch.as_tensor(grid.shape, device=idx.device))).all(1)
+    _, Y, Z = grid.shape
+    flat = ((idx[:, 0] * Y + idx[:, 1]) * Z + idx[:, 2])[ok].cpu().numpy()  # the voxels, flat (C order)
     conf = opacities.double().reshape(-1)
     if observed is not None:
         conf = conf * observed.double().reshape(-1).clamp(0.0, 1.0)
-    w = (conf[:, None] * pi.double()).cpu().numpy()
-    np.add.at(acc, tuple(idx[ok].T), w[ok])
-    strength = np.zeros(grid.shape)
-    np.add.at(strength, tuple(idx[ok].T), conf.cpu().numpy()[ok])
+    wk = (conf[:, None] * pi.double())[ok].cpu().numpy()
+    # sums per voxel in the Gaussians' order, as np.add.at adds them (bincount: the same sums, bit for bit)
+    # (float64 also when there is no Gaussian: bincount's empty sums are integers)
+    acc = np.stack([np.bincount(flat, wk[:, k], minlength=grid.num_voxels) for k in range(K)], -1).reshape(
+        *grid.shape, K).astype(np.float64, copy=False)  # fmt: skip
+    strength = np.bincount(flat, conf[ok].cpu().numpy(), minlength=grid.num_voxels).reshape(grid.shape)
     has = strength >= min_evidence
     if not has.any():  # nothing reached the bar: every voxel with any evidence counts
         has = acc.sum(-1) > 0
@@ -72,8 +76,13 @@ def voxel_mixture(grid: VoxelGrid, solid: np.ndarray, means: Tensor, opacities: 
     if not has.any():
         out[solid] = 1.0 / K
         return out
-    _, near = ndimage.distance_transform_edt(~has, return_indices=True)
-    src = tuple(n[solid] for n in near)
+    # the nearest voxel with evidence, found on the box of those voxels and the solid's: the features are all inside,
+    # so the transform gives there what it gives on the whole grid (tests/test_geometry_fast_paths.py)
+    lo, hi = bounding_box(has | solid)
+    box = tuple(slice(a, b) for a, b in zip(lo, hi))
+    near = ndimage.distance_transform_edt(~has[box], return_distances=False, return_indices=True)
+    inside = solid[box]
+    src = tuple(n[inside] + a for n, a in zip(near, lo))
     mix = acc[src]
     out[solid] = mix / mix.sum(-1, keepdims=True)
     return out
@@ -145,14 +154,11 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     from skimage.measure import marching_cubes
     h = grid.voxel_size
     vol = np.bincount(parts[solid], minlength=num_parts).astype(np.float64) * h**3
-    area = np.zeros(num_parts)
-    sheet_area = np.zeros(num_parts)
-    total_area = np.zeros(num_parts)
-    if solid.sum() == 0:
-        return PartGeometry(vol, area, sheet_area)
-    idx = np.argwhere(solid)
+    if not solid.any():
+        return PartGeometry(vol, np.zeros(num_parts), np.zeros(num_parts))
     m = int(np.floor(sheet_voxels)) + 2  # empty voxels kept around the solid: the sheet test's ball fits inside
-    lo, hi = np.maximum(idx.min(0) - m, 0), np.minimum(idx.max(0) + 1 + m, solid.shape)
+    lo, hi = bounding_box(solid)
+    lo, hi = np.maximum(lo - m, 0), np.minimum(hi + m, solid.shape)
     crop = tuple(slice(a, b) for a, b in zip(lo, hi))
     solid, parts = solid[crop], parts[crop]
     pad = 2
@@ -169,9 +175,9 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     sheet = _sheet_faces(solid, nv, sheet_voxels)
     factor = np.where(sheet, 0.5, 1.0)
     ok = pid >= 0
-    np.add.at(area, pid[ok], (fa * factor)[ok])
-    np.add.at(sheet_area, pid[ok], (fa * sheet)[ok])
-    np.add.at(total_area, pid[ok], fa[ok])
+    # per part, the faces' areas added in their order (np.add.at's sums, bit for bit)
+    area, sheet_area, total_area = (np.bincount(pid[ok], x[ok], minlength=num_parts).astype(np.float64, copy=False)
+                                    for x in (fa * factor, fa * sheet, fa))  # fmt: skip
     share = np.divide(sheet_area, total_area, out=np.zeros_like(area), where=total_area > 0)
     return PartGeometry(vol, area, share)
 
@@ -209,8 +215,8 @@ def _sheet_faces(solid: np.ndarray, nv: tuple[np.ndarray, ...], sheet_voxels: fl
     grid) within a cube of half-width ``ceil(sheet_voxels) + 1`` around the face's voxel ``nv`` is at most
     ``sheet_voxels``. Without a distance transform: a voxel's inscribed distance exceeds ``s`` exactly when every
     grid voxel within distance ``s`` of it is solid (the erosion by that ball, the grid's outside counted solid
-    as the transform does), and the cube's maximum exceeds ``s`` when an eroded voxel lies in the cube (a
-    summed-volume table, looked up per face)."""
+    as the transform does), and the cube's maximum exceeds ``s`` when an eroded voxel lies in the cube (the eroded
+    voxels dilated by the cube, three one-dimensional maximum filters, looked up per face)."""
     from scipy import ndimage
 
     s = float(sheet_voxels)
@@ -219,16 +225,10 @@ def _sheet_faces(solid: np.ndarray, nv: tuple[np.ndarray, ...], sheet_voxels: fl
     ball = (o[:, None, None] ** 2 + o[None, :, None] ** 2 + o[None, None, :] ** 2) <= s * s
     core = ndimage.binary_erosion(solid, ball, border_value=1) if k > 0 else solid.copy()
     r = int(np.ceil(s)) + 1
-    table = np.zeros(tuple(n + 1 for n in solid.shape), np.int64)
-    table[1:, 1:, 1:] = core.cumsum(0).cumsum(1).cumsum(2)
-    shape = np.asarray(solid.shape)
-    lo = [np.clip(c - r, 0, n) for c, n in zip(nv, shape)]
-    hi = [np.clip(c + r + 1, 0, n) for c, n in zip(nv, shape)]
-    x0, y0, z0 = lo
-    x1, y1, z1 = hi
-    count = (table[x1, y1, z1] - table[x0, y1, z1] - table[x1, y0, z1] - table[x1, y1, z0]
-             + table[x0, y0, z1] + table[x0, y1, z0] + table[x1, y0, z0] - table[x0, y0, z0])  # fmt: skip
-    return count == 0
+    near = core.view(np.uint8)
+    for axis in range(near.ndim):  # a window of [c - r, c + r], nothing beyond the grid
+        near = ndimage.maximum_filter1d(near, 2 * r + 1, axis=axis, mode="constant", cval=0)
+    return near[nv] == 0
 
 
 def material_quantiles(parts: np.ndarray, mixture: np.ndarray, num_parts: int, part_mixture: np.ndarray,
