@@ -140,8 +140,7 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
 
 def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
-    lo = np.quantile(means, 0.002, axis=0)
-    hi = np.quantile(means, 0.998, axis=0)
+    lo, hi = np.quantile(means, [0.002, 0.998], axis=0)  # (one partition for both)
     from scipy.spatial import cKDTree
 
     sub = means[:: max(1, len(means) // 100_000)]
