@@ -469,3 +469,42 @@ def test_outside_mask_hull_equals_one_view_at_a_time(monkeypatch):
     for points in (1, 3 * len(means), 1 << 23):
         monkeypatch.setattr(carve, "default_batch_points", lambda _dev, p=points: p)
         assert torch.equal(outside_mask_hull(means, views, cfg, chunk=3000), want)
+
+
+def _part_labels_before(solid, mixture, min_part_fraction=2e-3):
+    """part_labels at 95953ad (components labelled on the whole grid): the oracle."""
+    dom = np.where(solid, np.argmax(mixture, -1), -1)
+    out = np.full(solid.shape, -1, np.int64)
+    offset = 0
+    for k in np.unique(dom[solid]):
+        lab, n = ndimage.label(dom == k, structure=np.ones((3, 3, 3), bool))
+        out[lab > 0] = lab[lab > 0] - 1 + offset
+        offset += n
+    if offset == 0:
+        return out
+    sizes = np.bincount(out[solid], minlength=offset)
+    small = sizes < min_part_fraction * sizes.sum()
+    if small.any() and (~small).any():
+        remap = np.cumsum(~small) - 1
+        remap[small] = int((~small).sum())
+        out[solid] = remap[out[solid]]
+    elif small.all():
+        out[solid] = 0
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_part_labels_on_the_box_equal_the_whole_grid(seed):
+    """Parts labelled on the solid's bounding box are those of the whole grid, with the same ids (the oracle)."""
+    from physgs_nerfstudio.geometry.parts import part_labels
+
+    rng = np.random.default_rng(seed)
+    for frac in (2e-3, 0.05):
+        solid = np.zeros((34, 30, 28), bool)
+        solid[3 + seed : 25, 2:27, 5:20 + seed] = ndimage.gaussian_filter(rng.random((22 - seed, 25, 15 + seed)), 1.5) > 0.47
+        solid[30:34, 0:3, 0:2] = True  # a speck at the grid's corner
+        mixture = ndimage.gaussian_filter(rng.random((*solid.shape, 3)), (2, 2, 2, 0))
+        got = part_labels(solid, mixture, frac)
+        np.testing.assert_array_equal(got, _part_labels_before(solid, mixture, frac))
+        assert got.max() >= 2
+    assert (part_labels(np.zeros((4, 4, 4), bool), np.ones((4, 4, 4, 2))) == -1).all()
