@@ -501,13 +501,19 @@ class _Rule:
 
     def col(self, name: str, like: Tensor, dtype: torch.dtype | None = None) -> Tensor:
         """[G, 1, ...]: the settings' values of ``name``, in ``like``'s type (or ``dtype``), to broadcast against
-        ``like``."""
+        ``like``; [1, 1, ...] when every setting has the same value (the operation then runs once, not G times)."""
         dtype = dtype or like.dtype
         key = (name, dtype, like.dim(), like.device)
         if key not in self._cols:
-            self._cols[key] = torch.tensor(self.values[name], dtype=dtype, device=like.device).reshape(
-                -1, *([1] * like.dim()))  # fmt: skip
+            vals = self.values[name]
+            vals = vals[:1] if all(v == vals[0] for v in vals) else vals
+            self._cols[key] = torch.tensor(vals, dtype=dtype, device=like.device).reshape(-1, *([1] * like.dim()))
         return self._cols[key]
+
+    def every(self, name: str) -> bool | None:
+        """True (False) when the flag ``name`` is set (unset) for every setting, None when it differs."""
+        vals = self.values[name]
+        return bool(vals[0]) if all(v == vals[0] for v in vals) else None
 
     def silhouette(self, ok: Tensor, dist: Tensor) -> Tensor:
         """bool [G, n]: the mask votes."""
@@ -515,19 +521,27 @@ class _Rule:
 
     def votes(self, ok: Tensor, dist: Tensor, z: Tensor, d: Tensor, a: Tensor, sl: Tensor | None,
               sp: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:  # fmt: skip
-        """bool [G, n] each: the empty votes, the depth votes among them, and whether the view sees the voxel
-        directly."""
+        """bool [G, n] each (or [1, n] where every setting gives the same): the empty votes, the depth votes among
+        them, and whether the view sees the voxel directly."""
         margin = self.col("margin_abs", d) + self.col("margin_rel", d) * d
-        if sl is not None:
-            margin = torch.where(self.col("has_slope", sl, torch.bool), margin + self.col("slope", sl) * sl, margin)
+        slope = self.every("has_slope")
+        if sl is not None and slope is not False:
+            sloped = margin + self.col("slope", sl) * sl
+            margin = sloped if slope else torch.where(self.col("has_slope", sl, torch.bool), sloped, margin)
         inside = ok & (dist <= self.col("mask_margin", dist)) & (a >= self.col("min_alpha", a))
-        inside = inside & self.col("use_depth", ok, torch.bool)
+        if not self.every("use_depth"):
+            inside = inside & self.col("use_depth", ok, torch.bool)
         front = d
         if sp is not None:
             front = d - self.col("front_spread", sp) * sp
-            inside = inside & ((sp <= self.col("max_spread", sp)) | ~self.col("has_max_spread", sp, torch.bool))
+            capped = self.every("has_max_spread")
+            if capped:
+                inside = inside & (sp <= self.col("max_spread", sp))
+            elif capped is None:
+                inside = inside & ((sp <= self.col("max_spread", sp)) | ~self.col("has_max_spread", sp, torch.bool))
         dvote = inside & (z < front - margin)
         return self.silhouette(ok, dist) | dvote, dvote, inside & (z <= d + margin)
+
 
 def default_batch_points(device: torch.device | str) -> int:
     """(point, view) pairs looked up at once: many on a GPU (fewer kernel launches), one view at a time on the CPU
