@@ -350,8 +350,8 @@ class _ViewBatch:
                  around: dict[str, list[Tensor]], held: dict[str, list[Tensor]], bilinear: bool) -> None:  # fmt: skip
         self.views, self.cams, self.bilinear = views, cams, bilinear
         self._around, self._held = around, held
-        self.around = self._stacks(around)
-        self.held = self._stacks(held)
+        self._stacked: tuple[list, list] | None = None  # stacked when first looked up
+        self._parts: dict[tuple[int, int], _ViewBatch] = {}
         dev = cams[0][0].device
         K = torch.stack([c[2] for c in cams])
         self.fx, self.cx, self.fy, self.cy = (K[:, i, j][:, None] for i, j in ((0, 0), (0, 2), (1, 1), (1, 2)))
@@ -400,8 +400,25 @@ class _ViewBatch:
     def part(self, b0: int, b1: int) -> _ViewBatch:
         if b0 == 0 and b1 >= len(self):
             return self
+        if (b0, b1) in self._parts:  # (the next chunk of voxels)
+            return self._parts[(b0, b1)]
         sub = lambda d: {k: v[b0:b1] for k, v in d.items()}
-        return _ViewBatch(self.views[b0:b1], self.cams[b0:b1], sub(self._around), sub(self._held), self.bilinear)
+        part = _ViewBatch(self.views[b0:b1], self.cams[b0:b1], sub(self._around), sub(self._held), self.bilinear)
+        self._parts[(b0, b1)] = part
+        return part
+
+    @property
+    def around(self) -> list[tuple[Tensor, tuple[int, ...], list[str]]]:
+        """The stacks of the images read at the four pixels around a point."""
+        if self._stacked is None:
+            self._stacked = (self._stacks(self._around), self._stacks(self._held))
+        return self._stacked[0]
+
+    @property
+    def held(self) -> list[tuple[Tensor, tuple[int, ...], list[str]]]:
+        """The stacks of the images read at the pixel that holds a point."""
+        self.around  # noqa: B018  (stacks both)
+        return self._stacked[1]  # type: ignore[index]
 
     @staticmethod
     def _stacks(images: dict[str, list[Tensor]]) -> list[tuple[Tensor, tuple[int, ...], list[str]]]:
@@ -415,6 +432,8 @@ class _ViewBatch:
 
     def _gather(self, stack: Tensor, shape: tuple[int, ...], rows: Tensor, cols: Tensor) -> Tensor:
         """[C, B, n]: the C images of each view at pixels (``rows``, ``cols``) [B, n] (one gather)."""
+        if stack.shape[1] == 1 and len(self) == 1:  # one image: indexed as such (no flat index to compute)
+            return stack.view(shape)[rows, cols][None]
         flat = rows * shape[1] + cols
         if len(self) > 1:  # view b's images start at b * H * W
             flat = flat + torch.arange(len(self), device=flat.device)[:, None] * (shape[0] * shape[1])
