@@ -163,32 +163,10 @@ def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndar
     return lab, lo, cell, np.arange(1, n + 1)
 
 
-def _import_scipy_early() -> None:
-    """Start importing SciPy's ndimage and k-d tree in a background thread, the first time in a process: the
-    clusters need them (and the carving and the parts ndimage) after the masks are lifted, and the import (about
-    0.5 s of an export on the GPU machine) then overlaps the lifting, whose waits for the GPU let it run."""
-    import contextlib
-    import importlib
-    import sys
-    import threading
-
-    if "scipy.spatial" in sys.modules or getattr(_import_scipy_early, "started", False):
-        return
-    _import_scipy_early.started = True  # type: ignore[attr-defined]
-
-    def work() -> None:
-        for name in ("scipy.ndimage", "scipy.spatial"):
-            with contextlib.suppress(Exception):  # a failure shows where the module is used
-                importlib.import_module(name)
-
-    threading.Thread(target=work, name="physgs-import-scipy", daemon=True).start()
-
-
 @torch.no_grad()
 def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None = None, *,
                   backend: str = "auto") -> ObjectSelection:  # fmt: skip
     """The object's Gaussians (module doc)."""
-    _import_scipy_early()
     cfg = cfg or SelectConfig()
     inside, outside = lift_masks(g, views, backend=backend)
     a0, b0 = cfg.prior
