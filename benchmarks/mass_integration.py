@@ -3,6 +3,7 @@ structure: ``geometry.reconstruct_object``) and the Monte Carlo (``mass.integrat
 
     python benchmarks/mass_integration.py --gaussians 1000000 --views 54 --size 512   # GPU (issue 13: <= 2 s)
     python benchmarks/mass_integration.py --gaussians 20000 --views 12 --size 96      # CPU smoke run
+    python benchmarks/mass_integration.py --gaussians 1000000 --views 24 --size 256 --reuse-rasterization  # CPU
 
 The scene is generated here, so the figures need no trained run: a table (an oak top on four steel legs, flat
 Gaussians on their surfaces, the way 3DGS places them) standing on a floor of other Gaussians (the background
@@ -10,7 +11,9 @@ that the selection must leave out), seen by rings of cameras; each view's object
 silhouette. N counts every Gaussian, floor included (a third of them). One untimed run first (CUDA context,
 kernels, thread pools), then ``--repeats`` timed runs; the stages' times are medians, with the device synchronised
 at each stage boundary. The mass itself is printed beside the table's true mass as a sanity check, not as an
-accuracy figure (benchmarks/mass_suite.py measures accuracy).
+accuracy figure (benchmarks/mass_suite.py measures accuracy). ``--reuse-rasterization``: the timed runs take the
+untimed run's lifted masks and depth renders, so that on a CPU the stages time the work that a GPU run does on its
+CPU and in small kernels, not the pure-torch rasterizer.
 """
 
 from __future__ import annotations
@@ -144,6 +147,34 @@ def run_once(pf, views, device: str, cfg: GeometryConfig | None = None) -> tuple
     return times, float(report.mean_kg)
 
 
+_RASTER: dict[str, object] = {}
+
+
+def _record_rasterization() -> None:
+    """Keep the outputs of the geometry's two rasterizing steps (lifting the masks, rendering the object's depth)."""
+    from physgs_nerfstudio.geometry import reconstruct, select
+
+    lift, render = select.lift_masks, reconstruct.render_depth
+
+    def lift_kept(*a, **k):
+        _RASTER["lift"] = lift(*a, **k)
+        return _RASTER["lift"]
+
+    def render_kept(*a, **k):
+        _RASTER["render"] = render(*a, **k)
+        return _RASTER["render"]
+
+    select.lift_masks, reconstruct.render_depth = lift_kept, render_kept
+
+
+def _replay_rasterization() -> None:
+    """Answer those two steps with the kept outputs (--reuse-rasterization)."""
+    from physgs_nerfstudio.geometry import reconstruct, select
+
+    select.lift_masks = lambda *a, **k: tuple(t.clone() for t in _RASTER["lift"])  # type: ignore[attr-defined]
+    reconstruct.render_depth = lambda *a, **k: _RASTER["render"]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--gaussians", type=int, default=1_000_000)
@@ -153,6 +184,10 @@ def main() -> None:
     ap.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
     ap.add_argument("--depth-render", default="expected", choices=["expected", "median", "first"],
                     help="the carving's depth (--mass.geometry.carve.depth-render)")
+    ap.add_argument("--reuse-rasterization", action="store_true",
+                    help="the timed runs reuse the untimed run's lifted masks and depth renders (the same inputs "
+                         "give the same outputs): the stages then time the rest, which a GPU run pays on its CPU; "
+                         "for CPU comparisons, where the pure-torch rasterizer would hide it")  # fmt: skip
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     device = ("cuda" if torch.cuda.is_available() else "cpu") if args.device == "auto" else args.device
@@ -161,7 +196,11 @@ def main() -> None:
     print(f"scene: {pf.num_gaussians} Gaussians, {len(views)} views at {args.size} px on {device} "
           f"({time.perf_counter() - t:.1f} s to make)")  # fmt: skip
     cfg = GeometryConfig(carve=CarveConfig(depth_render=args.depth_render))
+    if args.reuse_rasterization:
+        _record_rasterization()
     run_once(pf, views, device, cfg)  # untimed: CUDA context, kernels, thread pools
+    if args.reuse_rasterization:
+        _replay_rasterization()
     runs = [run_once(pf, views, device, cfg) for _ in range(args.repeats)]
     med = {k: statistics.median(r[0][k] for r in runs) for k in runs[0][0]}
     print(f"{'stage':<24}{'median s':>10}")
@@ -170,7 +209,8 @@ def main() -> None:
     print(f"mass {runs[-1][1]:.2f} kg (the table's true mass {true_kg:.2f} kg; a sanity check, not an accuracy figure)")
     if args.out:
         args.out.write_text(json.dumps({"gaussians": pf.num_gaussians, "views": len(views), "size": args.size,
-                                        "device": device, "depth_render": args.depth_render, "gpu": torch.cuda.get_device_name() if device == "cuda"
+                                        "device": device, "depth_render": args.depth_render,
+                                        "reuse_rasterization": args.reuse_rasterization, "gpu": torch.cuda.get_device_name() if device == "cuda"
                                         else None, "repeats": args.repeats, "median_s": med,
                                         "runs_s": [r[0] for r in runs], "mass_kg": runs[-1][1],
                                         "true_kg": true_kg}, indent=2))  # fmt: skip

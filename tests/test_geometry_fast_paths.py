@@ -438,3 +438,73 @@ def test_dominance_of_repeated_rows_unchanged(monkeypatch):
             m.setattr(dirichlet, "_unique_rows", direct)
             want = dirichlet.dominance_probability(alpha, chunk_elements=1 << 14)
         assert torch.equal(got, want)
+
+
+def test_outside_mask_hull_equals_one_view_at_a_time(monkeypatch):
+    """The hull test with the carving's batched lookup equals the per-view loop it replaces (select.py at 95953ad,
+    the oracle), for points framed by some views and not others, on a GPU's batch size and one view at a time."""
+    from physgs_nerfstudio.geometry import carve
+    from physgs_nerfstudio.geometry.carve import _sample, signed_mask_distances
+    from physgs_nerfstudio.geometry.select import SelectConfig, outside_mask_hull
+
+    _, views, _ = _carving_scene(3)
+    g = torch.Generator().manual_seed(3)
+    means = (torch.rand(5000, 3, generator=g) - 0.5) * torch.tensor([2.4, 2.0, 1.6])
+    cfg = SelectConfig()
+    sdf = signed_mask_distances([v.mask for v in views])
+    framed = torch.zeros(len(means), dtype=torch.int32)
+    outside = torch.zeros_like(framed)
+    for v, sd in zip(views, sdf):
+        pc = means @ v.viewmat[:3, :3].T + v.viewmat[:3, 3]
+        z = pc[:, 2]
+        u = v.K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + v.K[0, 2]
+        w = v.K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + v.K[1, 2]
+        ok = (z > 1e-6) & (u >= 0) & (u < v.width) & (w >= 0) & (w < v.height)
+        d = _sample(sd, u.clamp(0, v.width), w.clamp(0, v.height))
+        framed += ok.int()
+        outside += (ok & (d > cfg.hull_margin_px)).int()
+    want = ((outside >= cfg.hull_min_votes) & (outside >= cfg.hull_vote_fraction * framed)) | (
+        framed < cfg.hull_min_framed_fraction * len(views))
+    assert 0 < int(want.sum()) < len(means) and 0 < int((framed < len(views)).sum())
+    for points in (1, 3 * len(means), 1 << 23):
+        monkeypatch.setattr(carve, "default_batch_points", lambda _dev, p=points: p)
+        assert torch.equal(outside_mask_hull(means, views, cfg, chunk=3000), want)
+
+
+def _part_labels_before(solid, mixture, min_part_fraction=2e-3):
+    """part_labels at 95953ad (components labelled on the whole grid): the oracle."""
+    dom = np.where(solid, np.argmax(mixture, -1), -1)
+    out = np.full(solid.shape, -1, np.int64)
+    offset = 0
+    for k in np.unique(dom[solid]):
+        lab, n = ndimage.label(dom == k, structure=np.ones((3, 3, 3), bool))
+        out[lab > 0] = lab[lab > 0] - 1 + offset
+        offset += n
+    if offset == 0:
+        return out
+    sizes = np.bincount(out[solid], minlength=offset)
+    small = sizes < min_part_fraction * sizes.sum()
+    if small.any() and (~small).any():
+        remap = np.cumsum(~small) - 1
+        remap[small] = int((~small).sum())
+        out[solid] = remap[out[solid]]
+    elif small.all():
+        out[solid] = 0
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_part_labels_on_the_box_equal_the_whole_grid(seed):
+    """Parts labelled on the solid's bounding box are those of the whole grid, with the same ids (the oracle)."""
+    from physgs_nerfstudio.geometry.parts import part_labels
+
+    rng = np.random.default_rng(seed)
+    for frac in (2e-3, 0.05):
+        solid = np.zeros((34, 30, 28), bool)
+        solid[3 + seed : 25, 2:27, 5:20 + seed] = ndimage.gaussian_filter(rng.random((22 - seed, 25, 15 + seed)), 1.5) > 0.47
+        solid[30:34, 0:3, 0:2] = True  # a speck at the grid's corner
+        mixture = ndimage.gaussian_filter(rng.random((*solid.shape, 3)), (2, 2, 2, 0))
+        got = part_labels(solid, mixture, frac)
+        np.testing.assert_array_equal(got, _part_labels_before(solid, mixture, frac))
+        assert got.max() >= 2
+    assert (part_labels(np.zeros((4, 4, 4), bool), np.ones((4, 4, 4, 2))) == -1).all()

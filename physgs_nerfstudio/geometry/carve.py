@@ -62,7 +62,7 @@ evidence (a depth rendered too deep through a semi-transparent wall), never seen
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -282,7 +282,7 @@ def carve_votes_many(
     are voted on together, ``batch_points`` (voxel, view) pairs at a time (default: 2^23 on a GPU, where it saves
     kernel launches; one view at a time on the CPU): the same operations on every pair, so the same votes."""
     if batch_points is None:
-        batch_points = 1 << 23 if torch.device(device).type == "cuda" else chunk
+        batch_points = default_batch_points(device)
     M = grid.num_voxels
     G = len(cfgs)
     empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32, device=device) for _ in cfgs] for _ in range(3))
@@ -316,19 +316,16 @@ def carve_votes_many(
         n_seen = torch.zeros(len(flat), dtype=torch.int32, device=device)
         # [G, n]: one row per setting
         n_empty, n_depth, n_direct = (torch.zeros(G, len(flat), dtype=torch.int32, device=device) for _ in range(3))
-        per = max(1, batch_points // max(len(flat), 1))
-        for batch in batches:  # views of one image size, several at once: [B, n] per quantity
-            for b0 in range(0, len(batch), per):
-                part = batch.part(b0, b0 + per)
-                ok, z, dist, d, a, sl, sp = part.lookup(x)
-                if d is None:
-                    vote = rule.silhouette(ok, dist)
-                else:
-                    vote, dvote, seen_directly = rule.votes(ok, dist, z, d, a, sl, sp)
-                    _add_views(n_depth, dvote)
-                    _add_views(n_direct, seen_directly)
-                _add_views(n_empty, vote)
-                _add_views(n_seen, ok)
+        for part in _ViewBatch.parts(batches, len(flat), batch_points):  # [B, n] per quantity
+            ok, z, dist, d, a, sl, sp = part.lookup(x)
+            if d is None:
+                vote = rule.silhouette(ok, dist)
+            else:
+                vote, dvote, seen_directly = rule.votes(ok, dist, z, d, a, sl, sp)
+                _add_views(n_depth, dvote)
+                _add_views(n_direct, seen_directly)
+            _add_views(n_empty, vote)
+            _add_views(n_seen, ok)
         sl = slice(s0, s0 + len(flat))
         seen[sl] = n_seen
         for g in range(G):
@@ -353,8 +350,8 @@ class _ViewBatch:
                  around: dict[str, list[Tensor]], held: dict[str, list[Tensor]], bilinear: bool) -> None:  # fmt: skip
         self.views, self.cams, self.bilinear = views, cams, bilinear
         self._around, self._held = around, held
-        self.around = self._stacks(around)
-        self.held = self._stacks(held)
+        self._stacked: tuple[list, list] | None = None  # stacked when first looked up
+        self._parts: dict[tuple[int, int], _ViewBatch] = {}
         dev = cams[0][0].device
         K = torch.stack([c[2] for c in cams])
         self.fx, self.cx, self.fy, self.cy = (K[:, i, j][:, None] for i, j in ((0, 0), (0, 2), (1, 1), (1, 2)))
@@ -392,20 +389,55 @@ class _ViewBatch:
             out.append(cls([views[i] for i in idx], [cams[i] for i in idx], around, held, bilinear))
         return out
 
+    @staticmethod
+    def parts(batches: list[_ViewBatch], n: int, batch_points: int) -> Iterator[_ViewBatch]:
+        """The batches cut to at most ``batch_points`` (point, view) pairs for ``n`` points (one view at least)."""
+        per = max(1, batch_points // max(n, 1))
+        for batch in batches:
+            for b0 in range(0, len(batch), per):
+                yield batch.part(b0, b0 + per)
+
     def part(self, b0: int, b1: int) -> _ViewBatch:
         if b0 == 0 and b1 >= len(self):
             return self
+        if (b0, b1) in self._parts:  # (the next chunk of voxels)
+            return self._parts[(b0, b1)]
         sub = lambda d: {k: v[b0:b1] for k, v in d.items()}
-        return _ViewBatch(self.views[b0:b1], self.cams[b0:b1], sub(self._around), sub(self._held), self.bilinear)
+        part = _ViewBatch(self.views[b0:b1], self.cams[b0:b1], sub(self._around), sub(self._held), self.bilinear)
+        self._parts[(b0, b1)] = part
+        return part
+
+    @property
+    def around(self) -> list[tuple[Tensor, tuple[int, ...], list[str]]]:
+        """The stacks of the images read at the four pixels around a point."""
+        if self._stacked is None:
+            self._stacked = (self._stacks(self._around), self._stacks(self._held))
+        return self._stacked[0]
+
+    @property
+    def held(self) -> list[tuple[Tensor, tuple[int, ...], list[str]]]:
+        """The stacks of the images read at the pixel that holds a point."""
+        self.around  # noqa: B018  (stacks both)
+        return self._stacked[1]  # type: ignore[index]
 
     @staticmethod
     def _stacks(images: dict[str, list[Tensor]]) -> list[tuple[Tensor, tuple[int, ...], list[str]]]:
-        """[C, B * H * W] per size and type of image, with the names of its C images."""
+        """[B * H * W, C] per size and type of image (a pixel's C values side by side), with the names of its C
+        images."""
         groups: dict[tuple, list[str]] = {}
         for name, ims in images.items():
             groups.setdefault((tuple(ims[0].shape), ims[0].dtype), []).append(name)
-        return [(torch.stack([torch.stack(images[n]) for n in names]).reshape(len(names), -1), key[0], names)
+        return [(torch.stack([torch.stack(images[n]).reshape(-1) for n in names], -1), key[0], names)
                 for key, names in groups.items()]  # fmt: skip
+
+    def _gather(self, stack: Tensor, shape: tuple[int, ...], rows: Tensor, cols: Tensor) -> Tensor:
+        """[C, B, n]: the C images of each view at pixels (``rows``, ``cols``) [B, n] (one gather)."""
+        if stack.shape[1] == 1 and len(self) == 1:  # one image: indexed as such (no flat index to compute)
+            return stack.view(shape)[rows, cols][None]
+        flat = rows * shape[1] + cols
+        if len(self) > 1:  # view b's images start at b * H * W
+            flat = flat + torch.arange(len(self), device=flat.device)[:, None] * (shape[0] * shape[1])
+        return stack.index_select(0, flat.reshape(-1)).T.reshape(stack.shape[1], *rows.shape)
 
     def lookup(self, x: Tensor) -> tuple[Tensor, ...]:
         """[B, n] each, for voxel centres ``x`` [n, 3]: whether the view frames the centre, its camera depth, the mask
@@ -418,29 +450,33 @@ class _ViewBatch:
         z = pc[..., 2]
         u = self.fx * pc[..., 0] / z.clamp_min(1e-9) + self.cx
         v = self.fy * pc[..., 1] / z.clamp_min(1e-9) + self.cy
-        W, H = self.width.to(u.dtype), self.height.to(u.dtype)
-        ok = (z > 1e-6) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
-        uc, vc = u.clamp_min(0).minimum(W), v.clamp_min(0).minimum(H)
-        B = len(self)
+        if len(self) == 1:  # the view's numbers as such (one clamp where a column takes two)
+            W, H = self.views[0].width, self.views[0].height
+            ok = (z > 1e-6) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+            uc, vc = u.clamp(0, W), v.clamp(0, H)
+        else:
+            W, H = self.width.to(u.dtype), self.height.to(u.dtype)
+            ok = (z > 1e-6) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+            uc, vc = u.clamp_min(0).minimum(W), v.clamp_min(0).minimum(H)
         at: dict[str, tuple[list[Tensor], list[Tensor]]] = {}  # name: (values at the four corners, their weights)
         for stack, shape, names in self.around:
             corners = _corners(shape, uc, vc)  # type: ignore[arg-type]
-            base = torch.arange(B, device=u.device)[:, None] * (shape[0] * shape[1])
-            got = [stack.index_select(1, (yy * shape[1] + xx + base).reshape(-1)).reshape(len(names), *u.shape)
-                   for yy, xx, _ in corners]  # fmt: skip
+            got = [self._gather(stack, shape, yy, xx) for yy, xx, _ in corners]
             for i, n in enumerate(names):
                 at[n] = ([g[i] for g in got], [cw for _, _, cw in corners])
         vals, weights = at["sdf"]
         dist = sum(s * cw for s, cw in zip(vals, weights))
         if not self.held:
             return ok, z, dist, None, None, None, None  # type: ignore[return-value]
-        ui = u.floor().long().clamp_min(0).minimum(self.width - 1)
-        vi = v.floor().long().clamp_min(0).minimum(self.height - 1)
+        if len(self) == 1:
+            ui = u.floor().long().clamp(0, self.views[0].width - 1)
+            vi = v.floor().long().clamp(0, self.views[0].height - 1)
+        else:
+            ui = u.floor().long().clamp_min(0).minimum(self.width - 1)
+            vi = v.floor().long().clamp_min(0).minimum(self.height - 1)
         px: dict[str, Tensor] = {}
         for stack, shape, names in self.held:
-            base = torch.arange(B, device=u.device)[:, None] * (shape[0] * shape[1])
-            px.update(zip(names, stack.index_select(1, (vi * shape[1] + ui + base).reshape(-1)).reshape(
-                len(names), *u.shape)))  # fmt: skip
+            px.update(zip(names, self._gather(stack, shape, vi, ui)))
         d, a, sl, sp = px["depth"], px["alpha"], px.get("slack"), px.get("spread")
         if self.bilinear:
             depth, weights = at["depth"]
@@ -484,13 +520,19 @@ class _Rule:
 
     def col(self, name: str, like: Tensor, dtype: torch.dtype | None = None) -> Tensor:
         """[G, 1, ...]: the settings' values of ``name``, in ``like``'s type (or ``dtype``), to broadcast against
-        ``like``."""
+        ``like``; [1, 1, ...] when every setting has the same value (the operation then runs once, not G times)."""
         dtype = dtype or like.dtype
         key = (name, dtype, like.dim(), like.device)
         if key not in self._cols:
-            self._cols[key] = torch.tensor(self.values[name], dtype=dtype, device=like.device).reshape(
-                -1, *([1] * like.dim()))  # fmt: skip
+            vals = self.values[name]
+            vals = vals[:1] if all(v == vals[0] for v in vals) else vals
+            self._cols[key] = torch.tensor(vals, dtype=dtype, device=like.device).reshape(-1, *([1] * like.dim()))
         return self._cols[key]
+
+    def every(self, name: str) -> bool | None:
+        """True (False) when the flag ``name`` is set (unset) for every setting, None when it differs."""
+        vals = self.values[name]
+        return bool(vals[0]) if all(v == vals[0] for v in vals) else None
 
     def silhouette(self, ok: Tensor, dist: Tensor) -> Tensor:
         """bool [G, n]: the mask votes."""
@@ -498,19 +540,53 @@ class _Rule:
 
     def votes(self, ok: Tensor, dist: Tensor, z: Tensor, d: Tensor, a: Tensor, sl: Tensor | None,
               sp: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:  # fmt: skip
-        """bool [G, n] each: the empty votes, the depth votes among them, and whether the view sees the voxel
-        directly."""
+        """bool [G, n] each (or [1, n] where every setting gives the same): the empty votes, the depth votes among
+        them, and whether the view sees the voxel directly."""
         margin = self.col("margin_abs", d) + self.col("margin_rel", d) * d
-        if sl is not None:
-            margin = torch.where(self.col("has_slope", sl, torch.bool), margin + self.col("slope", sl) * sl, margin)
+        slope = self.every("has_slope")
+        if sl is not None and slope is not False:
+            sloped = margin + self.col("slope", sl) * sl
+            margin = sloped if slope else torch.where(self.col("has_slope", sl, torch.bool), sloped, margin)
         inside = ok & (dist <= self.col("mask_margin", dist)) & (a >= self.col("min_alpha", a))
-        inside = inside & self.col("use_depth", ok, torch.bool)
+        if not self.every("use_depth"):
+            inside = inside & self.col("use_depth", ok, torch.bool)
         front = d
         if sp is not None:
             front = d - self.col("front_spread", sp) * sp
-            inside = inside & ((sp <= self.col("max_spread", sp)) | ~self.col("has_max_spread", sp, torch.bool))
+            capped = self.every("has_max_spread")
+            if capped:
+                inside = inside & (sp <= self.col("max_spread", sp))
+            elif capped is None:
+                inside = inside & ((sp <= self.col("max_spread", sp)) | ~self.col("has_max_spread", sp, torch.bool))
         dvote = inside & (z < front - margin)
         return self.silhouette(ok, dist) | dvote, dvote, inside & (z <= d + margin)
+
+
+def default_batch_points(device: torch.device | str) -> int:
+    """(point, view) pairs looked up at once: many on a GPU (fewer kernel launches), one view at a time on the CPU
+    (no faster batched there)."""
+    return 1 << 23 if torch.device(device).type == "cuda" else 1
+
+
+def mask_votes(x: Tensor, views: Sequence[CaptureView], sdf: Sequence[Tensor], margin_px: float,
+               batch_points: int | None = None) -> tuple[Tensor, Tensor]:  # fmt: skip
+    """int32 [n] each, for points ``x`` [n, 3] (float32, on the views' device): the views that frame each point (in
+    front of the camera, inside the image) and those among them in which it lies outside the mask by more than
+    ``margin_px`` (``sdf``: the masks' signed distances, :func:`signed_mask_distances`, on that device); the
+    carving's projection and mask lookup (:func:`carve_votes_many`), views of one image size together."""
+    dev = x.device
+    cams = [(v.viewmat[:3, :3].to(dev), v.viewmat[:3, 3].to(dev), v.K.to(dev)) for v in views]
+    none = [None] * len(views)
+    batches = _ViewBatch.group(views, cams, list(sdf), none, none, False)
+    framed = torch.zeros(len(x), dtype=torch.int32, device=dev)
+    outside = torch.zeros_like(framed)
+    points = batch_points if batch_points is not None else default_batch_points(dev)
+    for part in _ViewBatch.parts(batches, len(x), points):
+        ok, _, dist, *_ = part.lookup(x)
+        _add_views(framed, ok)
+        _add_views(outside, ok & (dist > margin_px))
+    return framed, outside
+
 
 def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
     """bool [X, Y, Z]: voxels not carved by the vote (module doc), without specks."""

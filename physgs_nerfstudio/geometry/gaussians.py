@@ -72,11 +72,13 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
     if depth not in ("expected", "median", "both"):
         raise ValueError(f"render_depth: depth must be 'expected', 'median' or 'both', got {depth!r}")
     out = []
-    dev = g.means.device
+    # each attribute read once (on a subset view of a field, every read gathers its rows again)
+    means, quats, scales, opacities = g.means, g.quats, g.scales, g.opacities
+    dev = means.device
     for v in views:
         vm, K = v.viewmat.to(dev), v.K.to(dev)
         if spread:
-            pc = g.means @ vm[:3, :3].T + vm[:3, 3]
+            pc = means @ vm[:3, :3].T + vm[:3, 3]
             z = pc[:, 2]
             zc = z.clamp_min(1e-6)
             # centred (depth about the Gaussians' median, pixels about the principal point) so float32 keeps the
@@ -85,8 +87,8 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
             du, dv = K[0, 0] * pc[:, 0] / zc, K[1, 1] * pc[:, 1] / zc
             colors = torch.stack([dz, du, dv, dz * dz, du * du, dv * dv, dz * du, dz * dv, du * dv], -1)
         else:
-            colors = torch.zeros(g.means.shape[0], 1, device=dev)
-        rgbd, alpha, _ = rasterize(g.means, g.quats, g.scales, g.opacities, colors, vm[None], K[None], v.width,
+            colors = torch.zeros(means.shape[0], 1, device=dev)
+        rgbd, alpha, _ = rasterize(means, quats, scales, opacities, colors, vm[None], K[None], v.width,
                                    v.height, render_mode="RGB+ED", packed=False, backend=backend)  # fmt: skip
         a = alpha[0, ..., 0]
         d = rgbd[0, ..., -1]
@@ -96,7 +98,7 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
             sp = torch.where(a > 1e-3, depth_spread(m), torch.zeros_like(d))
         med = None
         if depth != "expected":
-            med = reference_median_depth(g.means, g.quats, g.scales, g.opacities, vm, K, v.width, v.height)
+            med = reference_median_depth(means, quats, scales, opacities, vm, K, v.width, v.height)
             med = torch.where(a > 1e-3, torch.where(torch.isfinite(med), med.to(d.dtype), d), float("inf"))
             if depth == "median":
                 d, med = med, None
@@ -110,13 +112,14 @@ def lift_masks(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
     """Per Gaussian (inside, outside) evidence: over the views that see it, the share of its blending weight
     on foreground-mask pixels, summed, so each view that sees a Gaussian is one observation (docs/architecture.md,
     "evidence per view"). Returns two float [N] tensors."""
-    dev = g.means.device
-    n = g.means.shape[0]
+    means, quats, scales, opacities = g.means, g.quats, g.scales, g.opacities
+    dev = means.device
+    n = means.shape[0]
     inside = torch.zeros(n, dtype=torch.float64, device=dev)
     outside = torch.zeros_like(inside)
     for v in views:
         m = v.mask.to(dev).float()[None, ..., None]
-        res = lift_evidence(g.means, g.quats, g.scales, g.opacities, v.viewmat[None].to(dev), v.K[None].to(dev),
+        res = lift_evidence(means, quats, scales, opacities, v.viewmat[None].to(dev), v.K[None].to(dev),
                             v.width, v.height, m, backend=backend)  # fmt: skip
         w = res.visibility.double()
         seen = w > min_view_weight

@@ -114,17 +114,23 @@ def pooled_part_alpha(grid: VoxelGrid, parts: np.ndarray, num_parts: int, means:
 def part_labels(solid: np.ndarray, mixture: np.ndarray, min_part_fraction: float = 2e-3) -> np.ndarray:
     """int [X, Y, Z]: part id (0..P-1) per solid voxel, -1 elsewhere (module doc)."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
-    dom = np.where(solid, np.argmax(mixture, -1), -1)
     out = np.full(solid.shape, -1, np.int64)
+    if not solid.any():
+        return out
+    # on the solid's bounding box: the same components, numbered in the same (raster) order as on the whole grid
+    lo, hi = bounding_box(solid)
+    box = tuple(slice(a, b) for a, b in zip(lo, hi))
+    inner = solid[box]
+    dom = np.where(inner, np.argmax(mixture[box], -1), -1)
+    part = np.full(inner.shape, -1, np.int64)
     offset = 0
     st = np.ones((3, 3, 3), bool)
-    for k in np.unique(dom[solid]):  # materials present, not voxels
+    for k in np.unique(dom[inner]):  # materials present, not voxels
         lab, n = ndimage.label(dom == k, structure=st)
         sel = lab > 0
-        out[sel] = lab[sel] - 1 + offset
+        part[sel] = lab[sel] - 1 + offset
         offset += n
-    if offset == 0:
-        return out
+    out[box] = part
     sizes = np.bincount(out[solid], minlength=offset)
     small = sizes < min_part_fraction * sizes.sum()
     if small.any() and (~small).any():

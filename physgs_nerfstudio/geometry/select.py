@@ -38,7 +38,7 @@ import torch
 from torch import Tensor
 
 from .capture import CaptureView
-from .carve import _sample, signed_mask_distances
+from .carve import mask_votes, signed_mask_distances
 from .errors import GeometryError
 from .gaussians import lift_masks
 
@@ -132,19 +132,7 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
     out = torch.zeros(n, dtype=torch.bool, device=dev)
     sdf = [d.to(dev) for d in signed_mask_distances([v.mask for v in views])]
     for s0 in range(0, n, chunk):
-        x = means[s0 : s0 + chunk].float()
-        framed = torch.zeros(len(x), dtype=torch.int32, device=dev)
-        outside = torch.zeros_like(framed)
-        for v, sd in zip(views, sdf):
-            pc = x @ v.viewmat[:3, :3].to(dev).T + v.viewmat[:3, 3].to(dev)
-            z = pc[:, 2]
-            K = v.K.to(dev)
-            u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
-            w = K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]
-            ok = (z > 1e-6) & (u >= 0) & (u < v.width) & (w >= 0) & (w < v.height)
-            d = _sample(sd, u.clamp(0, v.width), w.clamp(0, v.height))
-            framed += ok.int()
-            outside += (ok & (d > cfg.hull_margin_px)).int()
+        framed, outside = mask_votes(means[s0 : s0 + chunk].float(), views, sdf, cfg.hull_margin_px)
         out[s0 : s0 + chunk] = ((outside >= cfg.hull_min_votes) & (outside >= cfg.hull_vote_fraction * framed)) | (
             framed < cfg.hull_min_framed_fraction * len(views))
     return out
@@ -152,8 +140,7 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
 
 def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
-    lo = np.quantile(means, 0.002, axis=0)
-    hi = np.quantile(means, 0.998, axis=0)
+    lo, hi = np.quantile(means, [0.002, 0.998], axis=0)  # (one partition for both)
     from scipy.spatial import cKDTree
 
     sub = means[:: max(1, len(means) // 100_000)]
