@@ -107,3 +107,47 @@ def test_a_part_no_view_answers_keeps_its_gaussians_posterior(two_boxes, geos):
     xs = [float(np.argwhere(geo.parts == p)[:, 0].mean()) for p in range(2)]
     right = 1 if xs[0] < xs[1] else 0
     np.testing.assert_allclose(geo.part_mixture[right], pooled.part_mixture[right])
+
+
+def _brute_absorb(parts, observed):
+    """Oracle for absorb_unobserved: per unobserved voxel, a loop over every observed voxel of the solid, giving the
+    set of old part ids at the nearest (Euclidean) distance, or None where the voxel's 26-connected piece holds no
+    observed voxel (it keeps its part)."""
+    from scipy import ndimage
+
+    piece, _ = ndimage.label(parts >= 0, structure=np.ones((3, 3, 3), bool))
+    seen = np.argwhere((parts >= 0) & observed[np.maximum(parts, 0)])
+    reached = set(piece[tuple(seen.T)].tolist())
+    out = {}
+    for ijk in np.argwhere((parts >= 0) & ~observed[np.maximum(parts, 0)]):
+        if piece[tuple(ijk)] in reached:
+            d = ((seen - ijk) ** 2).sum(1)
+            out[tuple(ijk)] = set(parts[tuple(seen[d == d.min()].T)].tolist())
+        else:
+            out[tuple(ijk)] = None
+    return out
+
+
+def test_unobserved_parts_join_the_nearest_observed_part():
+    """A closed box (observed wall, part 0) whose filled inside split into two unobserved parts (1, 2) and a lid of
+    another observed material (3); a separate unobserved speck (4) is kept. Checked against a brute-force nearest
+    search (any of the parts tied at the nearest distance); the speck keeps its own part, renumbered."""
+    from physgs_nerfstudio.geometry.part_evidence import absorb_unobserved
+
+    parts = np.full((14, 12, 12), -1, np.int64)
+    parts[1:11, 1:11, 1:11] = 0
+    parts[3:6, 2:10, 2:10] = 1
+    parts[6:9, 2:10, 2:10] = 2
+    parts[1:11, 1:11, 10] = 3
+    parts[12:14, 0:2, 0:2] = 4
+    observed = np.array([True, False, False, True, False])
+    out = absorb_unobserved(parts, observed)
+    old_of_new = {0: 0, 1: 3, 2: 4}  # kept parts in their old order
+    assert set(np.unique(out[out >= 0]).tolist()) == set(old_of_new)
+    for ijk, near in _brute_absorb(parts, observed).items():
+        assert old_of_new[int(out[ijk])] in (near if near is not None else {int(parts[ijk])}), ijk
+    keep = observed[np.maximum(parts, 0)] & (parts >= 0)
+    assert np.array_equal(np.vectorize(old_of_new.get)(out[keep]), parts[keep])  # observed voxels stay
+    assert (out[3:9, 2:10, 2:5] == 0).all() and (out[4:8, 4:8, 9] == 1).all()  # walls below, the lid above
+    assert np.array_equal(out >= 0, parts >= 0)  # no voxel gained or lost
+    assert absorb_unobserved(parts, np.ones(5, bool)) is parts  # nothing to absorb: the same grid

@@ -18,8 +18,19 @@ the evidence of about one view, not of the 10-16 views that saw the part. With K
 weights spread about half the part's mass over materials that no view named, and the part's density is pulled
 towards the mean density of the whole candidate list (the dumbbell's cast iron came out at 0.45 cast iron,
 0.6x its density). The views' answers, counted once per view and part, are the evidence the fusion is
-defined on. A part that no observation reaches (hidden in every view, or only in a geometry variant) keeps
-the pooled posterior of its Gaussians.
+defined on.
+
+**A part that no observation reaches** (summed weight below ``min_part_observation``: hidden in every view, or only
+in a geometry variant) has no evidence of its own, neither for its material nor for being hollow or solid. It is
+a piece of the carved solid that the material split cut off: the filled inside of a closed box whose nearest
+labelled surface named another material, a seam between two labelled regions, a sliver that only a looser
+carving keeps. :func:`absorb_unobserved` gives its voxels to the observed part nearest each of them (the nearest
+observed surface decides, as it does for a voxel's material), within the same connected piece of the solid.
+Before, such a part fused its Gaussians' weak evidence and the structure prior (hollow with probability about
+0.6): on the generated crate, a closed 4 mm cardboard box, the filled inside split into fragments that the
+prior made solid 40% of the time, and the box came out 1.6-1.9x its mass (GPU suite at seed 1515, CPU seed
+1414) while its observed walls alone were within 7%. A part with no observed part in its piece of the solid
+(a separate fragment) is kept, with the pooled posterior of its Gaussians.
 """
 
 from __future__ import annotations
@@ -34,7 +45,7 @@ from torch import Tensor
 from .capture import CaptureView, MaskObservation
 from .grid import VoxelGrid
 
-__all__ = ["fuse_part_materials", "observation_shares", "part_maps"]
+__all__ = ["absorb_unobserved", "fuse_part_materials", "observation_shares", "part_maps"]
 
 
 @dataclass
@@ -121,3 +132,35 @@ def fuse_part_materials(shares: Sequence[tuple[int, np.ndarray]], observations: 
         if k is not None:
             ev[:, k] += max(float(ob.weight), 0.0) * float(ob.confidence) * share
     return alpha0 + lam * ev, ev.sum(1)
+
+
+def absorb_unobserved(parts: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """int [X, Y, Z] part grid in which every voxel of a part with ``observed[s]`` False, in a 26-connected piece of the
+    solid that holds an observed part, takes the part of the nearest observed voxel (module doc; Euclidean, on the
+    solid's box); parts numbered 0..P'-1 again in their old order, -1 outside the solid. ``parts``: int part id per voxel, -1 outside; ``observed``: bool [P]."""
+    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
+
+    from .carve import bounding_box
+
+    solid = parts >= 0
+    if not solid.any() or observed.all() or not observed.any():
+        return parts
+    lo, hi = bounding_box(solid)
+    box = tuple(slice(a, b) for a, b in zip(lo, hi))
+    sub = parts[box]
+    inside = sub >= 0
+    seen = inside & observed[np.maximum(sub, 0)]
+    piece, _ = ndimage.label(inside, structure=np.ones((3, 3, 3), bool))
+    reached = np.zeros(int(piece.max()) + 1, bool)
+    reached[piece[seen]] = True
+    move = inside & ~seen & reached[piece]
+    out = sub.copy()
+    if move.any():
+        near = ndimage.distance_transform_edt(~seen, return_distances=False, return_indices=True)
+        out[move] = sub[tuple(n[move] for n in near)]
+    kept = np.unique(out[out >= 0])
+    remap = np.full(int(parts.max()) + 1, -1, np.int64)
+    remap[kept] = np.arange(len(kept))
+    full = np.full_like(parts, -1)
+    full[box] = np.where(out >= 0, remap[np.maximum(out, 0)], -1)
+    return full

@@ -24,7 +24,7 @@ from .carve import CarveConfig, carve_votes_many, signed_mask_distances, solid_f
 from .errors import GeometryError
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
-from .part_evidence import fuse_part_materials, observation_shares
+from .part_evidence import absorb_unobserved, fuse_part_materials, observation_shares
 from .parts import PartGeometry, material_quantiles, part_areas, part_labels, pooled_part_alpha, voxel_mixture
 from .select import ObjectSelection, SelectConfig, outside_mask_hull, select_object
 from .structure import PartStructure, StructureConfig, fuse_structure
@@ -69,6 +69,10 @@ class GeometryConfig:
     """``part_materials="observations"``: a part takes its material from the observations when their summed weight
     (level weight x confidence x share of the mask, over views and candidates) reaches this, about half a view's
     answer; else from its Gaussians (``"pooled"``)"""
+    absorb_unobserved: bool = True
+    """``part_materials="observations"``: a part below ``min_part_observation`` joins the observed part nearest each of
+    its voxels (:func:`physgs_nerfstudio.geometry.part_evidence.absorb_unobserved`); False: it keeps its own
+    material (pooled from its Gaussians) and structure (the prior)"""
     min_voxel_evidence: float = 0.5
     """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
     (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
@@ -324,8 +328,22 @@ def reconstruct_object(
     mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi_sel,
                             labelled[sel] if labelled is not None else None, min_evidence=cfg.min_voxel_evidence)
     parts = part_labels(union, mixture, cfg.min_part_fraction)
-    P = int(parts.max()) + 1
     K = pi_sel.shape[1]
+    mat_names = material_names if material_names is not None else [str(k) for k in range(K)]
+    a0, lam = dirichlet_prior if dirichlet_prior is not None else (1.0, 4.0)
+    by_views = cfg.part_materials == "observations" and alpha is not None and bool(observations)
+    shares: list[tuple[int, np.ndarray]] = []
+    if by_views:
+        P = int(parts.max()) + 1
+        shares = observation_shares(grid, np.where(solids[0], parts, -1), P, views, observations)
+        if shares and cfg.absorb_unobserved:
+            seen = fuse_part_materials(shares, observations, mat_names, P, a0, lam)[1]
+            merged = absorb_unobserved(parts, seen >= cfg.min_part_observation)
+            if merged is not parts:
+                parts = merged
+                shares = observation_shares(grid, np.where(solids[0], parts, -1), int(parts.max()) + 1, views,
+                                            observations)  # fmt: skip
+    P = int(parts.max()) + 1
     nominal_parts = np.where(solids[0], parts, -1)
     pm = np.zeros((P, K))
     np.add.at(pm, nominal_parts[solids[0]], mixture[solids[0]])
@@ -334,16 +352,15 @@ def reconstruct_object(
         np.add.at(pm, parts[union], mixture[union] * empty[parts[union]][:, None])
     pm /= pm.sum(1, keepdims=True)
     levels: np.ndarray | None = None  # one material per part and sample, from its pooled mixture
-    mat_names = material_names if material_names is not None else [str(k) for k in range(K)]
-    shares = observation_shares(grid, nominal_parts, P, views, observations) if observations else []
+    if observations and not by_views:  # the structure's evidence
+        shares = observation_shares(grid, nominal_parts, P, views, observations)
     if cfg.part_materials == "voxels" or alpha is None:
         levels = material_quantiles(parts, mixture, P, pm)
     else:
         pooled, support = pooled_part_alpha(grid, parts, P, g.means[sel], g.opacities[sel], alpha[sel],
                                             labelled[sel] if labelled is not None else None)
         has = support > 0
-        if cfg.part_materials == "observations" and shares:
-            a0, lam = dirichlet_prior if dirichlet_prior is not None else (1.0, 4.0)
+        if by_views and shares:
             fused, seen = fuse_part_materials(shares, observations, mat_names, P, a0, lam)
             obs = seen >= cfg.min_part_observation
             pooled[obs] = fused[obs]
