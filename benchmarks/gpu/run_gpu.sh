@@ -353,7 +353,8 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     object on the CPUs); beside them, with CPU_SEEDS, the CPU suite (`physgs demo` settings, CUDA hidden) at
     #     those seeds and its re-export with ALT_ARGS (ALT_NAME)
     #   PHASE=train: `ns-train physgs` (STEPS, 7000) of OBJECTS, CONC at a time on the one GPU, then
-    #     `mass_suite.py --trained` (`physgs export --outputs mass` with its defaults, 4 at a time) -> gpu_mass_suite*.json
+    #     `mass_suite.py --trained` (`physgs export --outputs mass` with its defaults, 4 at a time) -> mass_suite_gpu.json,
+    #     and with ALT_ARGS the same runs exported with those flags too -> mass_suite_gpu_ALT_NAME.json
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
     OBJECTS=${OBJECTS:-"mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase"}
     case "${PHASE:?PHASE=scenes|train}" in
@@ -388,8 +389,14 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         done
         wait
         python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
-          --alt-name "gpu${ALT_ARGS:+_$ALT_NAME}" ${ALT_ARGS:+--export-args "$ALT_ARGS"} > "$OUT/gpu_mass_suite.log" 2>&1
-        cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
+          --alt-name gpu > "$OUT/gpu_mass_suite.log" 2>&1
+        cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14
+        if [ -n "${ALT_ARGS:-}" ]; then  # the same runs exported with ALT_ARGS as well
+          python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
+            --alt-name "gpu_${ALT_NAME:-alt}" --export-args "$ALT_ARGS" > "$OUT/gpu_mass_suite_${ALT_NAME:-alt}.log" 2>&1
+          tail -1 "$OUT/gpu_mass_suite_${ALT_NAME:-alt}.log"
+        fi
+        cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
         echo "[$(elapsed) s] done"
         ;;
     esac

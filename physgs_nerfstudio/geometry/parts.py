@@ -153,7 +153,7 @@ class PartGeometry:
 
 
 def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts: int, *,
-               sheet_voxels: float = 1.5, area_sigma: float = 0.5) -> PartGeometry:  # fmt: skip
+               sheet_voxels: float = 1.5, area_sigma: float = 0.5, min_plate: float = 0.0) -> PartGeometry:  # fmt: skip
     """Per-part volume and wall area of ``solid`` (module doc). Computed on the solid's bounding box (with a margin
     for the smoothing and the sheet window): the same faces, nearest voxels and sheet test as on the whole grid."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
@@ -163,6 +163,8 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     if not solid.any():
         return PartGeometry(vol, np.zeros(num_parts), np.zeros(num_parts))
     m = int(np.floor(sheet_voxels)) + 2  # empty voxels kept around the solid: the sheet test's ball fits inside
+    if min_plate > 0:
+        m = max(m, _plate_window(sheet_voxels))
     lo, hi = bounding_box(solid)
     lo, hi = np.maximum(lo - m, 0), np.minimum(hi + m, solid.shape)
     crop = tuple(slice(a, b) for a, b in zip(lo, hi))
@@ -179,6 +181,9 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     nv = _nearest_solid(solid, fv)
     pid = parts[nv]
     sheet = _sheet_faces(solid, nv, sheet_voxels)
+    if min_plate > 0 and sheet.any():
+        idx = np.flatnonzero(sheet)
+        sheet[idx] = _plate_like(solid, tuple(a[idx] for a in nv), _plate_window(sheet_voxels), min_plate)
     factor = np.where(sheet, 0.5, 1.0)
     ok = pid >= 0
     # per part, the faces' areas added in their order (np.add.at's sums, bit for bit)
@@ -235,6 +240,45 @@ def _sheet_faces(solid: np.ndarray, nv: tuple[np.ndarray, ...], sheet_voxels: fl
     for axis in range(near.ndim):  # a window of [c - r, c + r], nothing beyond the grid
         near = ndimage.maximum_filter1d(near, 2 * r + 1, axis=axis, mode="constant", cval=0)
     return near[nv] == 0
+
+
+def _plate_window(sheet_voxels: float) -> int:
+    """Half-width of the window in which a thin solid's extent is measured: twice the widest sheet's thickness."""
+    return 2 * int(np.ceil(2 * sheet_voxels)) + 1
+
+
+def _plate_like(solid: np.ndarray, at: tuple[np.ndarray, ...], half: int, min_plate: float) -> np.ndarray:
+    """bool per voxel ``at``: the solid in the cube of half-width ``half`` around it spreads in two directions (a
+    plate: the second-largest eigenvalue of its voxels' covariance is at least ``min_plate`` x the largest), not in
+    one (a rod, whose cross-section is as thin as a sheet is thick, but whose faces are its one outer side). Window
+    sums of the voxel count and the coordinates' first and second moments come from summed-area tables."""
+    X, Y, Z = solid.shape
+    ii, jj, kk = np.meshgrid(np.arange(X, dtype=np.float64), np.arange(Y, dtype=np.float64),
+                             np.arange(Z, dtype=np.float64), indexing="ij")  # fmt: skip
+    w = solid.astype(np.float64)
+    chans = [w, w * ii, w * jj, w * kk, w * ii * ii, w * jj * jj, w * kk * kk, w * ii * jj, w * ii * kk, w * jj * kk]
+    c = np.asarray(at).T  # [F, 3]
+    lo = np.maximum(c - half, 0)
+    hi = np.minimum(c + half + 1, solid.shape)
+    sums = []
+    for ch in chans:
+        sat = np.zeros((X + 1, Y + 1, Z + 1))
+        sat[1:, 1:, 1:] = ch.cumsum(0).cumsum(1).cumsum(2)
+        box = np.zeros(len(c))
+        for sx in (0, 1):
+            for sy in (0, 1):
+                for sz in (0, 1):
+                    sign = (-1) ** (3 - sx - sy - sz)
+                    box += sign * sat[np.where(sx, hi[:, 0], lo[:, 0]), np.where(sy, hi[:, 1], lo[:, 1]),
+                                      np.where(sz, hi[:, 2], lo[:, 2])]  # fmt: skip
+        sums.append(box)
+    n = np.maximum(sums[0], 1.0)
+    mu = np.stack(sums[1:4], -1) / n[:, None]
+    m2 = np.empty((len(c), 3, 3))
+    for (a, b), k in zip(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)), range(4, 10)):
+        m2[:, a, b] = m2[:, b, a] = sums[k] / n - mu[:, a] * mu[:, b]
+    ev = np.linalg.eigvalsh(m2)  # ascending
+    return ev[:, 1] >= min_plate * np.maximum(ev[:, 2], 1e-12)
 
 
 def material_quantiles(parts: np.ndarray, mixture: np.ndarray, num_parts: int, part_mixture: np.ndarray,

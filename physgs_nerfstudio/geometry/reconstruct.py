@@ -58,6 +58,10 @@ class GeometryConfig:
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1"""
+    min_plate: float = 0.0
+    """a sheet face counts half only where the thin solid around it is a plate, not a rod: the second-largest
+    spread of its voxels within twice the widest sheet's thickness is at least this times the largest
+    (:func:`physgs_nerfstudio.geometry.parts.part_areas`); 0 = every sheet face counts half"""
     min_part_fraction: float = 2e-3
     part_materials: Literal["observations", "pooled", "voxels"] = "observations"
     """a part's material mixture: "observations", the Dirichlet fusion of the views' answers about the part, each
@@ -369,7 +373,8 @@ def reconstruct_object(
             w = material_mixture_weights(torch.from_numpy(pooled[has]), material_weights)  # type: ignore[arg-type]
             pm[has] = w.double().numpy()
     sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else cfg.carve.depth_margin_voxels + 1.0
-    geos: list[PartGeometry] = [part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet) for s in solids]
+    geos: list[PartGeometry] = [part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet,
+                                           min_plate=cfg.min_plate) for s in solids]
     step("structure")
     dom = np.argmax(pm, 1)
     lib = library_thickness if library_thickness is not None else [None] * K
