@@ -151,3 +151,21 @@ def test_unobserved_parts_join_the_nearest_observed_part():
     assert (out[3:9, 2:10, 2:5] == 0).all() and (out[4:8, 4:8, 9] == 1).all()  # walls below, the lid above
     assert np.array_equal(out >= 0, parts >= 0)  # no voxel gained or lost
     assert absorb_unobserved(parts, np.ones(5, bool)) is parts  # nothing to absorb: the same grid
+
+
+def test_touching_parts_of_one_material_merge():
+    """Two cardboard parts that touch merge (numbered by their first old part); a third cardboard part separated from
+    them by an oak part does not; negative materials (parts that must stay alone) never merge."""
+    from physgs_nerfstudio.geometry.part_evidence import merge_same_material
+
+    parts = np.full((12, 6, 6), -1, np.int64)
+    parts[0:3, 1:4, 1:4] = 0
+    parts[3:5, 1:4, 1:4] = 1  # oak between
+    parts[5:7, 1:4, 1:4] = 2
+    parts[7:9, 1:4, 1:4] = 3  # touches 2
+    parts[9:11, 1:4, 1:4] = 4  # touches 3, must stay alone
+    out, old_to_new = merge_same_material(parts, np.array([0, 1, 0, 0, -5]))
+    assert old_to_new.tolist() == [0, 1, 2, 2, 3]
+    assert np.array_equal(out, np.where(parts >= 0, old_to_new[np.maximum(parts, 0)], -1))
+    same, ident = merge_same_material(parts, np.array([0, 1, 2, 3, 4]))
+    assert same is parts and ident.tolist() == [0, 1, 2, 3, 4]

@@ -75,8 +75,8 @@ from .capture import CaptureView
 from .gaussians import ViewRender
 from .grid import VoxelGrid
 
-__all__ = ["CarveConfig", "CarveVotes", "carve_votes", "carve_votes_many", "signed_mask_distance",
-           "signed_mask_distances", "solid_from_votes"]
+__all__ = ["CarveConfig", "CarveVotes", "carve_votes", "carve_votes_many", "resolve_depth_render",
+           "signed_mask_distance", "signed_mask_distances", "solid_from_votes"]
 
 
 @dataclass
@@ -100,11 +100,12 @@ class CarveConfig:
     bilinear lookup; half a pixel's depth change with the nearest); 0 = off"""
     min_alpha: float = 0.5
     """pixels less opaque than this do not carve by depth"""
-    depth_render: Literal["expected", "median", "first"] = "expected"
+    depth_render: Literal["auto", "expected", "median", "first"] = "auto"
     """the rendered depth that carves (module doc, "First surface"): "expected", the blending-weighted mean of the
     Gaussians' depths; "median", the depth where the transmittance crosses 1/2; "first", the expected depth
     except where it lies more than ``mixed_depth_voxels`` behind the median (the pixel mixes surfaces), the
-    median there"""
+    median there; "auto" (:func:`resolve_depth_render`): the median where the depth is rendered by the reference
+    rasterizer (CPU), the expected depth with gsplat (CUDA)"""
     mixed_depth_voxels: float = 1.0
     """"first": a pixel mixes surfaces when its expected depth lies this many voxels behind its median depth"""
     front_spread: float = 0.0
@@ -219,10 +220,27 @@ def _sample(img: Tensor, u: Tensor, v: Tensor) -> Tensor:
     return sum(img[yy, xx] * w for yy, xx, w in _corners(img.shape, u, v))
 
 
+def resolve_depth_render(kind: str, backend: str) -> str:
+    """``depth_render`` with "auto" resolved for the rasterizer ``backend`` ("gsplat" or "reference") that renders
+    the depth. Why it depends on it (benchmarks/README.md, round 7): the demo's and CI's short CPU trainings
+    (16 views at 96 px, reference rasterizer) leave semi-transparent surface layers whose expected depth lies
+    behind the first surface, so carving by it erodes compact solids, and the median fixed that at every CPU seed
+    measured (suite median APE 0.297 -> 0.254 at seeds 1111/1212, 0.250 -> 0.236 at 1717/1818); the GPU runs (60
+    views at 512 px, 7,000 steps) have sharp surfaces, gained nothing from it (4 objects at seed 1919), and the median
+    depth has no gsplat kernel (the reference compositor on CUDA costs about 2.6 s more per export at 1M
+    Gaussians)."""
+    if kind != "auto":
+        return kind
+    return "median" if backend == "reference" else "expected"
+
+
 def carve_depth(render: ViewRender, kind: str, mixed: float = 0.0) -> Tensor:
     """float [H, W]: the depth image that carves (:class:`CarveConfig` ``depth_render``; ``mixed``: the
     "first" rule's threshold in depth units). "median" and "first" need a render with its median depth, unless
-    the render's ``depth`` already is the median."""
+    the render's ``depth`` already is the median; "auto" (not resolved by :func:`resolve_depth_render`): the
+    render's median where it has one, else its depth."""
+    if kind == "auto":
+        kind = "median"
     if kind == "expected" or (kind == "median" and render.median is None):
         return render.depth
     if render.median is None:

@@ -19,12 +19,13 @@ import numpy as np
 import torch
 
 from ..bayes.mixture import material_mixture_weights
+from ..render.backend import resolve_backend
 from .capture import CaptureView, MaskObservation
-from .carve import CarveConfig, carve_votes_many, signed_mask_distances, solid_from_votes
+from .carve import CarveConfig, carve_votes_many, resolve_depth_render, signed_mask_distances, solid_from_votes
 from .errors import GeometryError
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
-from .part_evidence import absorb_unobserved, fuse_part_materials, observation_shares
+from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .parts import PartGeometry, material_quantiles, part_areas, part_labels, pooled_part_alpha, voxel_mixture
 from .select import ObjectSelection, SelectConfig, outside_mask_hull, select_object
 from .structure import PartStructure, StructureConfig, fuse_structure
@@ -57,11 +58,14 @@ class GeometryConfig:
     """domain padding around the object's Gaussians, as a fraction of their extent"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
-    None = the nominal depth margin + 1"""
-    min_plate: float = 0.0
+    None = the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall,
+    which comes out about a voxel thicker than with the expected depth)"""
+    min_plate: float = 0.25
     """a sheet face counts half only where the thin solid around it is a plate, not a rod: the second-largest
     spread of its voxels within twice the widest sheet's thickness is at least this times the largest
-    (:func:`physgs_nerfstudio.geometry.parts.part_areas`); 0 = every sheet face counts half"""
+    (:func:`physgs_nerfstudio.geometry.parts.part_areas`): a rod of a shell's material (a closed tube leg, filled
+    because no view sees its inside) is as thin as a two-sided wall but its faces are its one outer side;
+    0 = every sheet face counts half"""
     min_part_fraction: float = 2e-3
     part_materials: Literal["observations", "pooled", "voxels"] = "observations"
     """a part's material mixture: "observations", the Dirichlet fusion of the views' answers about the part, each
@@ -289,6 +293,9 @@ def reconstruct_object(
     ``dirichlet_prior``: the model's (alpha0, lambda) for ``part_materials="observations"`` (None: (1, 4), the
     fusion's defaults). ``progress(stage: str)`` is called as stages start."""
     cfg = cfg or GeometryConfig()
+    if cfg.carve.depth_render == "auto":
+        kind = resolve_depth_render("auto", resolve_backend(cfg.backend, g.means.device))  # type: ignore[arg-type]
+        cfg = replace(cfg, carve=replace(cfg.carve, depth_render=kind))
     step = progress or (lambda _s: None)
     views = list(views)
     if cfg.max_views is not None and len(views) > cfg.max_views:
@@ -347,6 +354,14 @@ def reconstruct_object(
                 parts = merged
                 shares = observation_shares(grid, np.where(solids[0], parts, -1), int(parts.max()) + 1, views,
                                             observations)  # fmt: skip
+            # touching parts whose views name the same material are one piece of it (the absorbed voxels that
+            # separated them now join them)
+            P = int(parts.max()) + 1
+            fused, seen = fuse_part_materials(shares, observations, mat_names, P, a0, lam)
+            dom = np.where(seen >= cfg.min_part_observation, np.argmax(fused, 1), -1 - np.arange(P))
+            parts, old_to_new = merge_same_material(parts, dom)
+            if int(parts.max()) + 1 < P:
+                shares = [(i, np.bincount(old_to_new, sh, minlength=int(parts.max()) + 1)) for i, sh in shares]
     P = int(parts.max()) + 1
     nominal_parts = np.where(solids[0], parts, -1)
     pm = np.zeros((P, K))
@@ -372,7 +387,8 @@ def reconstruct_object(
         if has.any():
             w = material_mixture_weights(torch.from_numpy(pooled[has]), material_weights)  # type: ignore[arg-type]
             pm[has] = w.double().numpy()
-    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else cfg.carve.depth_margin_voxels + 1.0
+    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else (
+        cfg.carve.depth_margin_voxels + (2.0 if cfg.carve.depth_render == "median" else 1.0))
     geos: list[PartGeometry] = [part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet,
                                            min_plate=cfg.min_plate) for s in solids]
     step("structure")

@@ -9,11 +9,11 @@ from torch import Tensor
 
 from .reference import reference_rasterization
 
-Backend = Literal["auto", "gsplat", " reference"]
+Backend = Literal["auto", "gsplat", "reference"]
 BACKENDS = ("auto", "gsplat", "reference")
 
 
-def resolve_backend(backend: Backend, device: torch.device) -> Literal["gsplat", " reference"]:
+def resolve_backend(backend: Backend, device: torch.device) -> Literal["gsplat", "reference"]:
     """The backend that `rasterize` will use for tensors on `device`."""
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
