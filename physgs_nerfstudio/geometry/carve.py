@@ -47,10 +47,12 @@ thickens thin walls. Two rules from the moments of the
 contributing Gaussians' depths (:func:`.gaussians.depth_spread`, the spread about a plane through them:
 ``front_spread``, carve only in front of depth - k x spread; ``max_spread_voxels``, no depth vote where the spread
 is large) are kept as options: the variance is dominated by a few per cent of weight on the far surface (the
-spread of an opaque box's faces was 2-9 cm on a 40 cm box), so they withhold carving that was right. The default
-stays the expected depth: at the development seed 101 the median raised the compact solids' volume (hammer 0.62x
--> 0.74x, dumbbell 0.80x -> 0.96x) and moved slabs by less than 0.1, but thin walls came out thicker and the suite's
-median APE rose (docs/architecture.md, "Mass geometry"; benchmarks/README.md, round 5).
+spread of an opaque box's faces was 2-9 cm on a 40 cm box), so they withhold carving that was right. The default,
+"auto", carves with the median where the reference rasterizer renders the depth (the CPU's short, low-resolution
+trainings, where it raised the compact solids' volume: hammer 0.62x -> 0.74x, dumbbell 0.80x -> 0.96x at seed 101,
+and lowered the held-out suite's median APE) and with the expected depth on gsplat, where the 512 px trainings'
+surfaces are sharp and the median gained nothing (:func:`resolve_depth_render`; docs/architecture.md, "Mass
+geometry"; benchmarks/README.md, rounds 5 and 7).
 
 The centre test makes the recovered volume unbiased to first order in the voxel size (a boundary voxel is
 counted when its centre is inside). The solid's small disconnected specks (below ``min_component`` of the
