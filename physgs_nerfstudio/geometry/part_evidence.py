@@ -173,9 +173,8 @@ def merge_same_material(parts: np.ndarray, material: np.ndarray) -> tuple[np.nda
     """``(parts', old_to_new)``: parts that touch (26-connected) and have the same ``material[s]`` (int [P]; give each
     part that must stay alone a distinct negative value) become one part, numbered in the order of their first old
     part; ``old_to_new`` int [P]. The grid is returned as is when nothing merges."""
-    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
-
     from .carve import bounding_box
+    from .parts import label_by_value
 
     P = int(parts.max()) + 1
     ident = np.arange(max(P, 0))
@@ -184,15 +183,8 @@ def merge_same_material(parts: np.ndarray, material: np.ndarray) -> tuple[np.nda
     lo, hi = bounding_box(parts >= 0)
     box = tuple(slice(a, b) for a, b in zip(lo, hi))
     sub = parts[box]
-    mat = np.where(sub >= 0, material[np.maximum(sub, 0)], np.iinfo(np.int64).min)
-    st = np.ones((3, 3, 3), bool)
-    comp = np.zeros(sub.shape, np.int64)
-    offset = 0
-    for m in np.unique(material):
-        lab, n = ndimage.label(mat == m, structure=st)
-        comp[lab > 0] = lab[lab > 0] + offset
-        offset += n
     at = sub >= 0
+    comp, _ = label_by_value(material[np.maximum(sub, 0)], at)
     old_comp = np.zeros(P, np.int64)  # the component of each old part (a part is connected: one component)
     old_comp[sub[at]] = comp[at]
     if len(np.unique(old_comp)) == P:

@@ -111,9 +111,24 @@ def pooled_part_alpha(grid: VoxelGrid, parts: np.ndarray, num_parts: int, means:
     return pooled, tot
 
 
+def label_by_value(values: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, int]:
+    """``(labels, n)``: the 26-connected components of the voxels ``inside`` that share one value of ``values``,
+    numbered 0..n-1 (value by value in ascending order, each value's components in raster order), -1 outside."""
+    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
+
+    out = np.full(inside.shape, -1, np.int64)
+    offset = 0
+    st = np.ones((3, 3, 3), bool)
+    for k in np.unique(values[inside]):  # values present, not voxels
+        lab, n = ndimage.label(inside & (values == k), structure=st)
+        sel = lab > 0
+        out[sel] = lab[sel] - 1 + offset
+        offset += n
+    return out, offset
+
+
 def part_labels(solid: np.ndarray, mixture: np.ndarray, min_part_fraction: float = 2e-3) -> np.ndarray:
     """int [X, Y, Z]: part id (0..P-1) per solid voxel, -1 elsewhere (module doc)."""
-    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     out = np.full(solid.shape, -1, np.int64)
     if not solid.any():
         return out
@@ -121,15 +136,7 @@ def part_labels(solid: np.ndarray, mixture: np.ndarray, min_part_fraction: float
     lo, hi = bounding_box(solid)
     box = tuple(slice(a, b) for a, b in zip(lo, hi))
     inner = solid[box]
-    dom = np.where(inner, np.argmax(mixture[box], -1), -1)
-    part = np.full(inner.shape, -1, np.int64)
-    offset = 0
-    st = np.ones((3, 3, 3), bool)
-    for k in np.unique(dom[inner]):  # materials present, not voxels
-        lab, n = ndimage.label(dom == k, structure=st)
-        sel = lab > 0
-        part[sel] = lab[sel] - 1 + offset
-        offset += n
+    part, offset = label_by_value(np.argmax(mixture[box], -1), inner)
     out[box] = part
     sizes = np.bincount(out[solid], minlength=offset)
     small = sizes < min_part_fraction * sizes.sum()

@@ -21,7 +21,13 @@ import torch
 from ..bayes.mixture import material_mixture_weights
 from ..render.backend import resolve_backend
 from .capture import CaptureView, MaskObservation
-from .carve import CarveConfig, carve_votes_many, resolve_depth_render, signed_mask_distances, solid_from_votes
+from .carve import (
+    CarveConfig,
+    carve_votes_many,
+    resolve_depth_render,
+    signed_mask_distances,
+    solid_from_votes,
+)
 from .errors import GeometryError
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
