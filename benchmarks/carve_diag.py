@@ -80,12 +80,12 @@ def carve(d: dict, rule: dict) -> dict:
     sdf = [signed_mask_distance(v.mask) for v in d["views"]]
     grid = d["grid"]
     cfg = rc.GeometryConfig()
-    solid = rc._carve_variants(grid, d["views"], renders, [("nominal", cc)], sdf, "cpu")[0]
+    solid = rc._carve_variants(grid, d["views"], renders, [("nominal", cc)], sdf, "cpu")[0][0]
     lo, hi = rc._solid_bounds(grid, solid)
     if lo is not None and float((hi - lo).max()) < cfg.refit_fraction * float(np.max(grid.shape)) * grid.voxel_size:
         pad = float((hi - lo).max()) * (cfg.pad_fraction + 2.0 / cfg.resolution)
         grid = rc.VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad), cfg.resolution)
-        solid = rc._carve_variants(grid, d["views"], renders, [("nominal", cc)], sdf, "cpu")[0]
+        solid = rc._carve_variants(grid, d["views"], renders, [("nominal", cc)], sdf, "cpu")[0][0]
     ijk = np.argwhere(np.ones(grid.shape, bool))
     centres = grid.centres(torch.from_numpy(ijk)).double().numpy()
     gt = _part_of(d["parts"], _to_world(centres, d["T"], d["s"]), 0.0).reshape(grid.shape)

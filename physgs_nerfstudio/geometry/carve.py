@@ -78,7 +78,7 @@ from .gaussians import ViewRender
 from .grid import VoxelGrid
 
 __all__ = ["CarveConfig", "CarveVotes", "carve_votes", "carve_votes_many", "resolve_depth_render",
-           "signed_mask_distance", "signed_mask_distances", "solid_from_votes"]
+           "hull_from_votes", "signed_mask_distance", "signed_mask_distances", "solid_from_votes"]
 
 
 @dataclass
@@ -635,6 +635,18 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
     out = np.zeros_like(full)
     out[crop] = solid
     return out
+
+
+def hull_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
+    """bool [X, Y, Z]: the *visual hull* of the vote, the voxels that the silhouette votes alone leave (the depth
+    votes withheld). Its empty voxels outside the solid are the object's concavities, which only depth carves (a
+    cup's inside): :func:`physgs_nerfstudio.geometry.parts.part_areas` does not count the walls that face them
+    twice."""
+    e = votes.empty if votes.depth_empty is None else votes.empty - votes.depth_empty
+    e = e.float()
+    carved = (e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * votes.seen.float())
+    carved |= votes.seen.float() < cfg.min_seen_fraction * votes.num_views
+    return (~carved).reshape(grid.shape).cpu().numpy()
 
 
 def fill_holes(solid: np.ndarray) -> np.ndarray:

@@ -33,7 +33,11 @@
   wider kernel erases it). Each face belongs to the part of the solid
   voxel nearest to it. A face counts fully where the solid under it is bulky (a closed hollow part, filled
   because no view sees its inside) and half where the solid is a sheet at most ``2 * sheet_voxels`` voxels
-  thick (an open wall whose two sides were both reconstructed: each side is one copy of the wall).
+  thick (an open wall whose two sides were both reconstructed: each side is one copy of the wall). A face that
+  is no sheet face and borders a *concavity* (empty space more than ``concavity_voxels`` inside the visual hull,
+  :func:`concavities`) but not the ordinary outside counts 0: it is the inner face of a wall carved thicker than
+  a sheet, whose outer face is counted (a pan's inside, a vase's at low resolution: both faces counted in full
+  doubled the wall), or the top of the fill that no view saw past (inside a cup below its rim), which is no wall.
 """
 
 from __future__ import annotations
@@ -47,7 +51,7 @@ from torch import Tensor
 from .carve import bounding_box
 from .grid import VoxelGrid
 
-__all__ = ["PartGeometry", "material_quantiles", "part_areas", "part_labels", "pooled_part_alpha", "voxel_mixture"]
+__all__ = ["PartGeometry", "concavities", "material_quantiles", "part_areas", "part_labels", "pooled_part_alpha", "voxel_mixture"]
 
 
 def voxel_mixture(grid: VoxelGrid, solid: np.ndarray, means: Tensor, opacities: Tensor, pi: Tensor,
@@ -159,10 +163,37 @@ class PartGeometry:
     """[P] share of each part's faces that lie on a sheet"""
 
 
+def concavities(hull: np.ndarray, solid: np.ndarray, depth_voxels: float = 2.0) -> np.ndarray:
+    """bool [X, Y, Z]: the object's concavities (a cup's inside): the empty voxels of ``solid`` that lie more than
+    ``depth_voxels`` inside the visual ``hull`` (:func:`physgs_nerfstudio.geometry.carve.hull_from_votes`: space
+    that no silhouette carves, only depth) and that the solid surrounds, with solid on both sides of them along
+    some grid axis. The depth keeps out the layer between the hull and the solid that the masks' blur leaves around
+    any object; the surrounding keeps out a layer that depth carved off a flat face (a closed box's top), which
+    lies against the solid on one side only."""
+    from scipy import ndimage
+
+    r = int(np.floor(depth_voxels))
+    o = np.arange(-r, r + 1)
+    ball = (o[:, None, None] ** 2 + o[None, :, None] ** 2 + o[None, None, :] ** 2) <= depth_voxels**2
+    deep = ndimage.binary_erosion(hull, structure=ball, border_value=0) & ~solid
+    if not deep.any():
+        return deep
+    enclosed = np.zeros_like(deep)
+    for axis in range(solid.ndim):
+        before = np.maximum.accumulate(solid, axis=axis)
+        after = np.flip(np.maximum.accumulate(np.flip(solid, axis), axis=axis), axis)
+        enclosed |= before & after
+    return deep & enclosed
+
+
 def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts: int, *,
-               sheet_voxels: float = 1.5, area_sigma: float = 0.5, min_plate: float = 0.0) -> PartGeometry:  # fmt: skip
+               sheet_voxels: float = 1.5, area_sigma: float = 0.5, min_plate: float = 0.0,
+               concave: np.ndarray | None = None) -> PartGeometry:  # fmt: skip
     """Per-part volume and wall area of ``solid`` (module doc). Computed on the solid's bounding box (with a margin
-    for the smoothing and the sheet window): the same faces, nearest voxels and sheet test as on the whole grid."""
+    for the smoothing and the sheet window): the same faces, nearest voxels and sheet test as on the whole grid.
+    ``concave`` (:func:`concavities`): a face that is no sheet face and whose voxel borders a concavity but not the
+    ordinary outside is the inner face of a wall whose outer face is counted (a cup carved with a thick wall, a
+    pan's inside) or the top of an unseen fill (under a cup's rim): it counts 0."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     from skimage.measure import marching_cubes
     h = grid.voxel_size
@@ -176,6 +207,7 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     lo, hi = np.maximum(lo - m, 0), np.minimum(hi + m, solid.shape)
     crop = tuple(slice(a, b) for a, b in zip(lo, hi))
     solid, parts = solid[crop], parts[crop]
+    concave = concave[crop] if concave is not None else None
     pad = 2
     padded = np.pad(solid, pad).astype(np.float32)
     if area_sigma > 0:
@@ -192,6 +224,13 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
         idx = np.flatnonzero(sheet)
         sheet[idx] = _plate_like(solid, tuple(a[idx] for a in nv), _plate_window(sheet_voxels), min_plate)
     factor = np.where(sheet, 0.5, 1.0)
+    if concave is not None and concave.any():
+        from scipy import ndimage
+
+        cross = ndimage.generate_binary_structure(3, 1)
+        inner = solid & ndimage.binary_dilation(concave, cross)
+        outer = solid & ndimage.binary_dilation(~solid & ~concave, cross)
+        factor[~sheet & inner[nv] & ~outer[nv]] = 0.0
     ok = pid >= 0
     # per part, the faces' areas added in their order (np.add.at's sums, bit for bit)
     area, sheet_area, total_area = (np.bincount(pid[ok], x[ok], minlength=num_parts).astype(np.float64, copy=False)

@@ -25,14 +25,16 @@ from .carve import (
     CarveConfig,
     carve_votes_many,
     resolve_depth_render,
+    hull_from_votes,
     signed_mask_distances,
     solid_from_votes,
 )
 from .errors import GeometryError
+from .extent import within_support
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
-from .parts import PartGeometry, material_quantiles, part_areas, part_labels, pooled_part_alpha, voxel_mixture
+from .parts import PartGeometry, concavities, material_quantiles, part_areas, part_labels, pooled_part_alpha, voxel_mixture
 from .select import ObjectSelection, SelectConfig, outside_mask_hull, select_object
 from .structure import PartStructure, StructureConfig, fuse_structure
 
@@ -58,10 +60,14 @@ class GeometryConfig:
     depth_margin_variants: tuple[float, ...] = (-0.5, 1.0)
     """depth margins in voxels (negative: also carve up to that much behind the rendered surface)"""
     pad_fraction: float = 0.1
+    """domain padding around the object's Gaussians, as a fraction of their extent"""
     refit_fraction: float = 0.5
     """when the carved solid's longest side is below this fraction of the domain's, carve again on a grid fitted to
     the solid (outliers of the selection stretched the domain and coarsened the voxels)"""
-    """domain padding around the object's Gaussians, as a fraction of their extent"""
+    extent_pad_voxels: float | None = 1.0
+    """the solid is cut to the support polytope of the object's Gaussians grown by this many voxels
+    (:mod:`physgs_nerfstudio.geometry.extent`: the space under an object that no view sees past is not the
+    object); None = no cut"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall,
@@ -72,6 +78,12 @@ class GeometryConfig:
     (:func:`physgs_nerfstudio.geometry.parts.part_areas`): a rod of a shell's material (a closed tube leg, filled
     because no view sees its inside) is as thin as a two-sided wall but its faces are its one outer side;
     0 = every sheet face counts half"""
+    concavity_px: float | None = 3.0
+    """a wall face that is no sheet and faces a concavity (empty space that only depth carved, this many pixels of
+    the views, and at least 2 voxels, inside the visual hull: a cup's or a pan's inside, the unseen fill's top
+    under a cup's rim) is not counted in a hollow part's area: its wall's outer face is
+    (:func:`physgs_nerfstudio.geometry.parts.part_areas`). In pixels because the hull is wider than the solid by
+    the masks' blur, a few pixels (at 96 px on 2 cores, 5 voxels around the mug); None = every face counts"""
     min_part_fraction: float = 2e-3
     part_materials: Literal["observations", "pooled", "voxels"] = "observations"
     """a part's material mixture: "observations", the Dirichlet fusion of the views' answers about the part, each
@@ -245,14 +257,24 @@ class _Subset:
 
 
 def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[ViewRender],
-                    variants: list[tuple[str, CarveConfig]], sdf: list[torch.Tensor], device: Any) -> list[np.ndarray]:
-    """The solid of every variant, from one voting pass per distinct (mask margin, depth margin)."""
+                    variants: list[tuple[str, CarveConfig]], sdf: list[torch.Tensor], device: Any,
+                    means: torch.Tensor | None = None, extent_pad_voxels: float | None = None
+                    ) -> tuple[list[np.ndarray], np.ndarray]:  # fmt: skip
+    """The solid of every variant, from one voting pass per distinct (mask margin, depth margin), cut to the
+    support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None; and the first variant's
+    visual hull (:func:`.carve.hull_from_votes`)."""
     by_key: dict[tuple[float, float], CarveConfig] = {}  # the votes depend on these two settings only
     for _, cc in variants:
         by_key.setdefault((cc.mask_margin_px, cc.depth_margin_voxels), cc)
     votes = carve_votes_many(grid, views, renders, list(by_key.values()), sdf=sdf, device=device)
     cache = dict(zip(by_key, votes))
-    return [solid_from_votes(cache[(cc.mask_margin_px, cc.depth_margin_voxels)], grid, cc) for _, cc in variants]
+    key0 = (variants[0][1].mask_margin_px, variants[0][1].depth_margin_voxels)
+    hull = hull_from_votes(cache[key0], grid, variants[0][1])
+    solids = [solid_from_votes(cache[(cc.mask_margin_px, cc.depth_margin_voxels)], grid, cc) for _, cc in variants]
+    if means is None or extent_pad_voxels is None:
+        return solids, hull
+    inside = within_support(grid, means, np.logical_or.reduce(solids) | hull, extent_pad_voxels)
+    return [s & inside for s in solids], hull & inside
 
 
 def _solid_bounds(grid: VoxelGrid, solid: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -262,6 +284,13 @@ def _solid_bounds(grid: VoxelGrid, solid: np.ndarray) -> tuple[np.ndarray | None
     idx = np.argwhere(solid)
     origin = np.asarray(grid.origin, dtype=np.float64)
     return origin + idx.min(0) * grid.voxel_size, origin + (idx.max(0) + 1) * grid.voxel_size
+
+
+def _pixel_voxels(views: Sequence[CaptureView], grid: VoxelGrid) -> float:
+    """The median over views of a pixel's footprint at the grid's centre, in voxels."""
+    centre = torch.as_tensor(grid.origin, dtype=torch.float64) + 0.5 * grid.voxel_size * torch.tensor(grid.shape)
+    fp = [float((v.centre.double().cpu() - centre).norm()) / float(v.K[0, 0]) for v in views]
+    return float(np.median(fp)) / grid.voxel_size
 
 
 def _variants(cfg: GeometryConfig) -> list[tuple[str, CarveConfig]]:
@@ -322,7 +351,8 @@ def reconstruct_object(
     device = g.means.device
     step("carving")
     variants = _variants(cfg)
-    solids = _carve_variants(grid, obj_views, renders, variants, sdf, device)
+    solids, hull = _carve_variants(grid, obj_views, renders, variants, sdf, device, g.means[selection.selected],
+                                   cfg.extent_pad_voxels)
     lo, hi = _solid_bounds(grid, np.logical_or.reduce(solids))
     if lo is not None and float((hi - lo).max()) < cfg.refit_fraction * float(np.max(grid.shape)) * grid.voxel_size:
         # the solid fills a small part of a domain that outliers of the selection stretched: carve again on a grid
@@ -332,7 +362,8 @@ def reconstruct_object(
         grid = VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad), cfg.resolution)
         logger.info("the carved object spans %.0f%% of the selection's box: carved again on a grid fitted to it",
                     100 * share)
-        solids = _carve_variants(grid, obj_views, renders, variants, sdf, device)
+        solids, hull = _carve_variants(grid, obj_views, renders, variants, sdf, device, g.means[selection.selected],
+                                   cfg.extent_pad_voxels)
     names = [n for n, _ in variants]
     union = np.logical_or.reduce(solids)
     if not solids[0].any():
@@ -395,8 +426,11 @@ def reconstruct_object(
             pm[has] = w.double().numpy()
     sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else (
         cfg.carve.depth_margin_voxels + (2.0 if cfg.carve.depth_render == "median" else 1.0))
+    concave = None
+    if cfg.concavity_px is not None:
+        concave = concavities(hull, solids[0], max(2.0, cfg.concavity_px * _pixel_voxels(obj_views, grid)))
     geos: list[PartGeometry] = [part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet,
-                                           min_plate=cfg.min_plate) for s in solids]
+                                           min_plate=cfg.min_plate, concave=concave) for s in solids]
     step("structure")
     dom = np.argmax(pm, 1)
     lib = library_thickness if library_thickness is not None else [None] * K

@@ -1,0 +1,62 @@
+"""The object's extent from its Gaussians: a voxel beyond every Gaussian of the object is not the object.
+
+Carving keeps the space that no view sees past (the inside of a closed object, module doc of :mod:`.carve`). Under
+an object shot from above, that also keeps a slab of the domain's padding: every view but the few lowest has that
+space hidden behind the object, so no vote carves it, and it was counted as solid (the generated lamp's 2 cm steel
+base came out 1.75x its volume on the GPU at seed 1919, a slab of the padding under it). The Gaussians are the
+splat's only evidence of surface: the object ends at its outermost Gaussians. So the solid is cut to the Gaussians'
+*support polytope*: for a fixed set of directions ``u`` (the 26 lattice directions and a Fibonacci set), a voxel centre
+``x`` is kept when ``u . x <= max_i u . mu_i + pad`` for every ``u``. It contains the convex hull of the means
+(it never cuts into the object's convex hull), tends to it as directions are added, and costs one
+[N, D] product; with the lattice directions the flat bottom of an object standing upright in an oriented
+capture is cut exactly. It does not cut concavities (the space under a table top between its legs): those are
+left to the views, which see them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from torch import Tensor
+
+from .grid import VoxelGrid
+
+__all__ = ["support_directions", "within_support"]
+
+
+def support_directions(n_fibonacci: int = 100) -> Float[Tensor, "D 3"]:
+    """Unit directions: the 26 of the 3x3x3 lattice (faces, edges, corners) and ``n_fibonacci`` spread evenly over
+    the sphere (a Fibonacci lattice)."""
+    lat = torch.tensor([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)],
+                       dtype=torch.float64)  # fmt: skip
+    i = torch.arange(n_fibonacci, dtype=torch.float64) + 0.5
+    z = 1 - 2 * i / n_fibonacci
+    phi = i * math.pi * (3 - math.sqrt(5))
+    r = torch.sqrt(1 - z * z)
+    fib = torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], 1)
+    d = torch.cat([lat, fib])
+    return d / d.norm(dim=1, keepdim=True)
+
+
+@torch.no_grad()
+def within_support(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.ndarray, pad_voxels: float = 1.0,
+                   n_fibonacci: int = 100) -> np.ndarray:  # fmt: skip
+    """bool [X, Y, Z]: the ``candidates`` voxels whose centres lie inside the support polytope of ``means`` grown
+    by ``pad_voxels`` voxels (module doc); ``candidates`` itself when there are no means."""
+    if len(means) == 0 or not candidates.any():
+        return candidates.copy()
+    d = support_directions(n_fibonacci).to(means.device)
+    h = torch.stack([(c.double() @ d.T).amax(0) for c in means.split(1 << 18)]).amax(0)
+    h = (h + pad_voxels * grid.voxel_size).cpu()
+    idx = np.argwhere(candidates)
+    out = np.zeros_like(candidates)
+    keep = []
+    for c in torch.from_numpy(idx).split(1 << 18):
+        x = grid.centres(c).double().cpu()
+        keep.append(((x @ d.cpu().T) <= h).all(1))
+    k = torch.cat(keep).numpy()
+    out[tuple(idx[k].T)] = True
+    return out

@@ -1,0 +1,130 @@
+"""The solid cut to its Gaussians' support polytope (geometry.extent) and the concavity rule of the wall area
+(geometry.parts.concavities / part_areas(concave=...)), against independent oracles: scipy's Delaunay point
+location for the convex hull, and the analytic areas of a cup."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial import Delaunay
+
+from physgs_nerfstudio.geometry.extent import support_directions, within_support
+from physgs_nerfstudio.geometry.grid import VoxelGrid
+from physgs_nerfstudio.geometry.parts import concavities, part_areas
+
+
+def test_support_directions_are_unit_and_include_the_axes():
+    d = support_directions(50)
+    assert d.shape == (76, 3)
+    assert torch.allclose(d.norm(dim=1), torch.ones(76, dtype=torch.float64))
+    for axis in torch.eye(3, dtype=torch.float64):
+        assert bool(((d - axis).norm(dim=1) < 1e-12).any()) and bool(((d + axis).norm(dim=1) < 1e-12).any())
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), pad=st.sampled_from([0.0, 0.5, 1.0]))
+def test_within_support_keeps_the_convex_hull_and_cuts_beyond_the_extreme_points(seed, pad):
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(size=(200, 3)) * rng.uniform(0.2, 1.0, size=3)
+    grid = VoxelGrid.from_bounds(torch.tensor([-3.0] * 3), torch.tensor([3.0] * 3), 24)
+    cand = np.ones(grid.shape, bool)
+    kept = within_support(grid, torch.from_numpy(pts).float(), cand, pad_voxels=pad)
+    ijk = np.argwhere(cand)
+    x = grid.centres(torch.from_numpy(ijk)).double().numpy()
+    in_hull = Delaunay(pts).find_simplex(x) >= 0
+    assert kept[tuple(ijk[in_hull].T)].all()  # never cuts into the convex hull
+    # beyond the points' extreme along any axis by more than the pad: cut
+    beyond = ((x > pts.max(0) + pad * grid.voxel_size + 1e-6) | (x < pts.min(0) - pad * grid.voxel_size - 1e-6)).any(1)
+    assert not kept[tuple(ijk[beyond].T)].any()
+    # only candidates are ever kept
+    part = np.zeros(grid.shape, bool)
+    part[:12] = True
+    assert not (within_support(grid, torch.from_numpy(pts).float(), part, pad) & ~part).any()
+
+
+def test_within_support_cuts_the_unseen_slab_under_an_object():
+    """The case it is for: a box of surface points standing on z = 0, carved solid down to z = -0.3 (space under
+    it that no view saw past): the slab is cut, the box kept."""
+    rng = np.random.default_rng(0)
+    u = rng.uniform(size=(4000, 2))
+    faces = []
+    for axis in range(3):
+        for v in (0.0, 1.0):
+            p = np.insert(u, axis, v, axis=1)
+            faces.append(p)
+    pts = np.concatenate(faces)
+    grid = VoxelGrid.from_bounds(torch.tensor([-0.3, -0.3, -0.3]), torch.tensor([1.3, 1.3, 1.3]), 32)
+    ijk = np.argwhere(np.ones(grid.shape, bool))
+    x = grid.centres(torch.from_numpy(ijk)).double().numpy().reshape(*grid.shape, 3)
+    carved = ((x[..., 0] > 0) & (x[..., 0] < 1) & (x[..., 1] > 0) & (x[..., 1] < 1) & (x[..., 2] < 1))
+    kept = within_support(grid, torch.from_numpy(pts).float(), carved, pad_voxels=0.5)
+    box = carved & (x[..., 2] > 0)
+    assert kept[box].all()
+    assert not kept[carved & (x[..., 2] < -0.5 * grid.voxel_size - 1e-9)].any()
+
+
+def _cup(n: int, r_out: float, r_in: float, h: float, bottom: float) -> tuple[VoxelGrid, np.ndarray, np.ndarray]:
+    grid = VoxelGrid.from_bounds(torch.tensor([-1.0, -1.0, -0.2]), torch.tensor([1.0, 1.0, 1.8]), n)
+    ijk = np.argwhere(np.ones(grid.shape, bool))
+    x = grid.centres(torch.from_numpy(ijk)).double().numpy().reshape(*grid.shape, 3)
+    rho = np.hypot(x[..., 0], x[..., 1])
+    hull = (rho <= r_out) & (x[..., 2] >= 0) & (x[..., 2] <= h)  # the silhouettes cannot carve the inside
+    inside = (rho < r_in) & (x[..., 2] > bottom)
+    return grid, hull, hull & ~inside
+
+
+@pytest.mark.parametrize("wall", [0.1, 0.2])
+def test_concavity_rule_counts_a_thick_cup_wall_once(wall):
+    """A cup carved with a wall several voxels thick (a low-resolution carving of a thin wall): every face in
+    full counts the wall's inner and outer faces; with the concavity rule the inner faces drop and the area is
+    the outer side and the bottom, analytic."""
+    r, h = 0.8, 1.5
+    grid, hull, solid = _cup(64, r, r - wall, h, wall)
+    parts = np.where(solid, 0, -1)
+    outer = 2 * math.pi * r * h + math.pi * r**2
+    inner = 2 * math.pi * (r - wall) * (h - wall) + math.pi * (r - wall) ** 2
+    rim = math.pi * (r**2 - (r - wall) ** 2)
+    plain = part_areas(grid, solid, parts, 1, sheet_voxels=1.0).area[0]
+    assert plain == pytest.approx(outer + inner + rim, rel=0.06)
+    conc = concavities(hull, solid, 2.0)
+    assert conc.any() and not (conc & solid).any() and not (conc & ~hull).any()
+    ruled = part_areas(grid, solid, parts, 1, sheet_voxels=1.0, concave=conc).area[0]
+    # the inner faces within 2 voxels of the rim still count: allow that strip
+    strip = 2 * math.pi * (r - wall) * 3 * grid.voxel_size
+    assert outer + rim - 0.05 * outer <= ruled <= outer + rim + strip + 0.05 * outer
+
+
+def test_concavity_rule_leaves_a_closed_box_and_the_blur_layer_alone():
+    """A filled box whose hull is the box grown by 2 voxels (the masks' blur): no face is a concavity face, the
+    area is unchanged."""
+    grid = VoxelGrid.from_bounds(torch.tensor([0.0] * 3), torch.tensor([1.0] * 3), 40)
+    solid = np.zeros(grid.shape, bool)
+    solid[8:32, 8:32, 8:32] = True
+    hull = np.zeros(grid.shape, bool)
+    hull[6:34, 6:34, 6:34] = True
+    parts = np.where(solid, 0, -1)
+    conc = concavities(hull, solid, 2.0)
+    a0 = part_areas(grid, solid, parts, 1).area[0]
+    a1 = part_areas(grid, solid, parts, 1, concave=conc).area[0]
+    assert a1 == pytest.approx(a0)
+
+
+def test_concavity_rule_leaves_a_face_carved_below_the_hull_alone():
+    """A closed box whose top depth carved 4 voxels below the hull (the hull is the true box, the solid lower):
+    the empty layer over the top is deep in the hull but lies against the solid on one side only, so it is no
+    concavity and the top face counts."""
+    grid = VoxelGrid.from_bounds(torch.tensor([0.0] * 3), torch.tensor([1.0] * 3), 40)
+    solid = np.zeros(grid.shape, bool)
+    solid[8:32, 8:32, 8:28] = True
+    hull = np.zeros(grid.shape, bool)
+    hull[8:32, 8:32, 8:32] = True
+    parts = np.where(solid, 0, -1)
+    conc = concavities(hull, solid, 2.0)
+    assert not conc.any()
+    a0 = part_areas(grid, solid, parts, 1).area[0]
+    assert part_areas(grid, solid, parts, 1, concave=conc).area[0] == pytest.approx(a0)
