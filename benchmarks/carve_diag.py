@@ -45,6 +45,15 @@ RULES = {
     "first1": {"depth_render": "first", "mixed_depth_voxels": 1.0},
     "first2": {"depth_render": "first", "mixed_depth_voxels": 2.0},
     "nodepth": {"use_depth": False},
+    "expected": {"depth_render": "expected"},
+    "margin0.5": {"depth_margin_voxels": 0.5},
+    "consensus0.5": {"depth_consensus": 0.5},
+    "consensus0.34": {"depth_consensus": 0.34},
+    "consensus0.5_band2": {"depth_consensus": 0.5, "near_band_voxels": 2.0},
+    "expected_margin0.5": {"depth_render": "expected", "depth_margin_voxels": 0.5},
+    "expected_consensus0.5": {"depth_render": "expected", "depth_consensus": 0.5},
+    "expected_consensus0.34": {"depth_render": "expected", "depth_consensus": 0.34},
+    "expected_consensus0.5_band2": {"depth_render": "expected", "depth_consensus": 0.5, "near_band_voxels": 2.0},
 }
 
 
@@ -68,7 +77,7 @@ def prepare(run_dir: Path, cache: Path | None) -> dict:
     layout = build_layout(truth["layout"], int(truth.get("seed", 0)))
     parts = [p for p in layout.parts if p.role == "object"]
     out = {"views": obj_views, "ed": ed, "med": med, "grid": grid, "T": T, "s": s, "parts": parts,
-           "names": [p.name for p in parts], "truth": truth}
+           "names": [p.name for p in parts], "truth": truth, "means": pf.means[sel.selected].detach().cpu()}
     if f is not None:
         torch.save(out, f)
     return out
@@ -80,12 +89,17 @@ def carve(d: dict, rule: dict) -> dict:
     sdf = [signed_mask_distance(v.mask) for v in d["views"]]
     grid = d["grid"]
     cfg = rc.GeometryConfig()
-    solid = rc._carve_variants(grid, d["views"], renders, [("nominal", cc)], sdf, "cpu")[0][0]
+    means = d.get("means")  # (caches written before it was kept: no extent cut)
+    dev = "cuda" if torch.cuda.is_available() else "cpu"
+    views = [replace(v, mask=v.mask.to(dev)) for v in d["views"]] if dev == "cuda" else d["views"]
+    carve_on = lambda g: rc._carve_variants(g, views, renders, [("nominal", cc)], sdf, dev,
+                                            None if means is None else means.to(dev), cfg.extent_pad_voxels)[0][0]
+    solid = carve_on(grid)
     lo, hi = rc._solid_bounds(grid, solid)
     if lo is not None and float((hi - lo).max()) < cfg.refit_fraction * float(np.max(grid.shape)) * grid.voxel_size:
         pad = float((hi - lo).max()) * (cfg.pad_fraction + 2.0 / cfg.resolution)
         grid = rc.VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad), cfg.resolution)
-        solid = rc._carve_variants(grid, d["views"], renders, [("nominal", cc)], sdf, "cpu")[0][0]
+        solid = carve_on(grid)
     ijk = np.argwhere(np.ones(grid.shape, bool))
     centres = grid.centres(torch.from_numpy(ijk)).double().numpy()
     gt = _part_of(d["parts"], _to_world(centres, d["T"], d["s"]), 0.0).reshape(grid.shape)
@@ -97,12 +111,48 @@ def carve(d: dict, rule: dict) -> dict:
                        for i, n in enumerate(d["names"])}}
 
 
+def parts_report(run_dir: Path, resolution: int | None) -> dict:
+    """The export's whole geometry (``physgs export`` defaults; ``resolution``: the grid's, None = the export's)
+    against the true parts: per true part, the share of its voxels in the nominal solid and, of those, how many each
+    predicted part holds; per predicted part, its material, volume (m^3) and which true parts its voxels lie on.
+    Tells a part lost by the carving from one whose voxels went to a neighbour's material."""
+    from physgs_nerfstudio.export.command import object_geometry
+
+    cfg_path = next((run_dir / "runs").glob("**/config.yml"))
+    run = load_run(cfg_path, max_view_width=640)
+    gc = rc.GeometryConfig() if resolution is None else rc.GeometryConfig(resolution=resolution)
+    geo = object_geometry(run, gc)
+    T, s = _transform(cfg_path.parent)
+    truth = json.loads((run.data_dir / "ground_truth.json").read_text())
+    parts = [p for p in build_layout(truth["layout"], int(truth.get("seed", 0))).parts if p.role == "object"]
+    grid = geo.grid
+    ijk = np.argwhere(np.ones(grid.shape, bool))
+    gt = _part_of(parts, _to_world(grid.centres(torch.from_numpy(ijk)).double().numpy(), T, s), 0.0).reshape(grid.shape)
+    names = run.field.material_names
+    dom = np.argmax(geo.part_mixture, 1)
+    mpu3 = float(run.field.metres_per_unit) ** 3
+    true = {p.name: {"material": p.material, "kept": round(float((geo.solid & (gt == i)).sum() / max((gt == i).sum(), 1)), 3),
+                     "to_parts": {int(j): int(c) for j, c in enumerate(np.bincount(geo.parts[(gt == i) & geo.solid],
+                                                                                   minlength=geo.num_parts)) if c}}
+            for i, p in enumerate(parts)}  # fmt: skip
+    pred = []
+    for j in range(geo.num_parts):
+        on = gt[(geo.parts == j) & geo.solid]
+        pred.append({"material": names[dom[j]], "volume_m3": float(geo.volumes[0, j]) * mpu3,
+                     "on": {p.name: int((on == i).sum()) for i, p in enumerate(parts) if (on == i).any()},
+                     "off": int((on < 0).sum())})
+    return {"voxel_m": grid.voxel_size * float(run.field.metres_per_unit), "true": true, "predicted": pred,
+            "false_solid": int((geo.solid & (gt < 0)).sum()), "true_voxels": int((gt >= 0).sum())}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--rules", nargs="*", default=list(RULES))
     ap.add_argument("--cache", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--parts", action="store_true", help="also the export's whole geometry per part (parts_report)")
+    ap.add_argument("--resolution", type=int, default=None, help="--parts: the grid's resolution (export default)")
     a = ap.parse_args()
     if a.cache:
         a.cache.mkdir(parents=True, exist_ok=True)
@@ -115,6 +165,13 @@ def main() -> None:
             res[r.name][name] = m
             print(f"{r.name:14s} {name:18s} ratio {m['ratio']:.3f} iou {m['iou']:.3f} false {m['false']:.3f} "
                   f"recall {m['recall']}", flush=True)
+        if a.parts:
+            res[r.name]["parts"] = rep = parts_report(r, a.resolution)
+            print(f"{r.name:14s} parts: " + "; ".join(f"{n} kept {t['kept']} -> {t['to_parts']}" for n, t in rep["true"].items()))
+            print(f"{r.name:14s} predicted: " + "; ".join(f"{j} {p['material']} {p['volume_m3'] * 1e6:.0f} cm3 on {p['on']}"
+                                                          for j, p in enumerate(rep["predicted"])), flush=True)
+        if a.out:  # after each run: a stopped command keeps what finished
+            a.out.write_text(json.dumps(res, indent=1))
     if a.out:
         a.out.write_text(json.dumps(res, indent=1))
 

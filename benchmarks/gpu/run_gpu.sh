@@ -14,6 +14,7 @@
 #   bash benchmarks/gpu/run_gpu.sh mprofile  # issue 13: profile of `physgs export --outputs mass` on the chair
 #   PHASE=scenes CPU_SEEDS="1313 1414" bash benchmarks/gpu/run_gpu.sh msuite  # issue 12: GPU suite scenes (+ CPU suite)
 #   PHASE=train OBJECTS="mug chair" bash benchmarks/gpu/run_gpu.sh msuite     # ... then train and score them
+#   PHASE=diag RULES="expected median" bash benchmarks/gpu/run_gpu.sh msuite  # ... and carving rules vs the truth
 #   bash benchmarks/gpu/run_gpu.sh after     # issue 13, after `export` on the same machine: mass_integration.py,
 #                                            # the run's ns-eval, physgs vs splatfacto-big
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
@@ -397,6 +398,14 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
           tail -1 "$OUT/gpu_mass_suite_${ALT_NAME:-alt}.log"
         fi
         cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
+        echo "[$(elapsed) s] done"
+        ;;
+      diag)  # the trained runs of OBJECTS against the truth: carving RULES side by side and the export's parts
+        # (benchmarks/carve_diag.py --parts) -> carve_diag_gpu_s$GSEED.json
+        RUNS=$(for o in $OBJECTS; do [ -d /tmp/ms/${o}_s$GSEED/runs ] && echo /tmp/ms/${o}_s$GSEED; done)
+        PYTHONUNBUFFERED=1 timeout $((${LIMIT:-570} - $(elapsed))) python3 benchmarks/carve_diag.py $RUNS --parts \
+          --rules ${RULES:-expected expected_consensus0.5} --out "$OUT/carve_diag_gpu_s$GSEED.json" 2>&1 \
+          | grep -v -i warn | cut -c1-400
         echo "[$(elapsed) s] done"
         ;;
     esac

@@ -24,8 +24,8 @@ from .capture import CaptureView, MaskObservation
 from .carve import (
     CarveConfig,
     carve_votes_many,
-    resolve_depth_render,
     hull_from_votes,
+    resolve_depth_render,
     signed_mask_distances,
     solid_from_votes,
 )
@@ -34,7 +34,15 @@ from .extent import within_support
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
-from .parts import PartGeometry, concavities, material_quantiles, part_areas, part_labels, pooled_part_alpha, voxel_mixture
+from .parts import (
+    PartGeometry,
+    concavities,
+    material_quantiles,
+    part_areas,
+    part_labels,
+    pooled_part_alpha,
+    voxel_mixture,
+)
 from .select import ObjectSelection, SelectConfig, outside_mask_hull, select_object
 from .structure import PartStructure, StructureConfig, fuse_structure
 
@@ -188,13 +196,21 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     renders = render_depth(sub, views, backend=cfg.backend, spread=spread, depth=kind)  # type: ignore[arg-type]
     k = 2 * cfg.object_mask_dilate_px + 1
     kernel = np.ones((k, k), np.uint8)
+    ground: list[np.ndarray | None] = [None] * len(views)
+    if selection.support is not None and bool(selection.support.any()):
+        # the support plane took the masks with it (select.py, step 2): its pixels around the object are not the
+        # object's, though the dilated silhouette reaches them
+        plane = render_depth(_Subset(g, selection.support), views, backend=cfg.backend)
+        ground = [p.alpha.cpu().numpy() > 0.5 for p in plane]
     out = []
     replaced = 0
     cut: list[CaptureView] = []
-    for v, r in zip(views, renders):
+    for v, r, on_plane in zip(views, renders, ground):
         core = r.alpha.cpu().numpy() > 0.5
         sil = cv2.dilate(core.astype(np.uint8), kernel).astype(bool) if cfg.object_mask_dilate_px > 0 else core
         fg = v.mask.cpu().numpy() & sil
+        if on_plane is not None:
+            fg &= core | ~on_plane
         union = (fg | core).sum()
         iou = (fg & core).sum() / union if union else 1.0
         cut.append(replace(v, mask=torch.from_numpy(_complete(fg, core, kernel, cfg) if cfg.complete_masks else fg)))

@@ -4,7 +4,9 @@
    view that sees it (:func:`.gaussians.lift_masks`: per view, the share of its blending weight on mask pixels):
    ``P(object) = (a0 + inside) / (a0 + b0 + inside + outside)``. The floor, walls and background are outside
    the masks in the views that see them, so they come out near 0.
-2. Foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``) are grouped into 3-D clusters
+2. The *support plane* (a floor or table top that the masks took in with the objects standing on it, :mod:`.support`)
+   is found among the foreground Gaussians and its Gaussians are dropped, when there is one. The other
+   foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``) are grouped into 3-D clusters
    (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side but no finer than
    1.5 x the Gaussians' median nearest-neighbour spacing, cells dilated by ``bridge_cells`` so that an
    object's parts a few millimetres apart stay one cluster).
@@ -30,7 +32,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -41,6 +43,7 @@ from .capture import CaptureView
 from .carve import mask_votes, signed_mask_distances
 from .errors import GeometryError
 from .gaussians import lift_masks
+from .support import SupportConfig, find_support_plane, views_up
 
 logger = logging.getLogger(__name__)
 
@@ -74,6 +77,9 @@ class SelectConfig:
     """pick the cluster nearest this point (scene units) instead of the capture centre"""
     bbox: tuple[float, float, float, float, float, float] | None = None
     """only Gaussians inside (xmin ymin zmin xmax ymax zmax), scene units (the viewer's crop box)"""
+    support: SupportConfig = field(default_factory=SupportConfig)
+    """the floor or table the object stands on, dropped before the clusters (module doc, step 2;
+    :mod:`.support`)"""
 
     def __post_init__(self) -> None:
         if not 0 < self.min_prob < 1:
@@ -100,6 +106,10 @@ class ObjectSelection:
     num_clusters: int
     outside_hull: int = 0
     """selected Gaussians dropped by the hull test (module doc, step 4)"""
+    on_support: int = 0
+    """foreground Gaussians dropped as the support plane's (module doc, step 2)"""
+    support: Tensor | None = None
+    """bool [N]: the support plane's Gaussians (within its tolerance of it), None when there is none"""
 
     @property
     def num_selected(self) -> int:
@@ -138,9 +148,13 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
     return out
 
 
-def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+def _clusters(means: np.ndarray, cfg: SelectConfig, extent: float | None = None
+              ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:  # fmt: skip
+    """Cluster label of each point (0: none), the cell grid's origin and size, and the cluster ids. ``extent``: the
+    size the ``cluster_cells`` divide (default: the points' own, 0.2-99.8% quantiles)."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     lo, hi = np.quantile(means, [0.002, 0.998], axis=0)  # (one partition for both)
+    span = float((hi - lo).max()) if extent is None else extent
     from scipy.spatial import cKDTree
 
     sub = means[:: max(1, len(means) // 100_000)]
@@ -149,7 +163,7 @@ def _clusters(means: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, np.ndar
     probe = sub[:: max(1, len(sub) // 20_000)]
     nn = cKDTree(sub).query(probe, k=2)[0][:, 1] if len(sub) > 1 else np.zeros(1)
     # cells no finer than the Gaussians' own spacing, so a sparse splat stays one cluster
-    cell = max(float((hi - lo).max()) / cfg.cluster_cells, 1.5 * float(np.median(nn)), 1e-9)
+    cell = max(span / cfg.cluster_cells, 1.5 * float(np.median(nn)), 1e-9)
     lo = lo - 2 * cell
     idx = np.floor((means - lo) / cell).astype(np.int64)
     shape = np.maximum(idx.max(0) + 1, 1)
@@ -181,7 +195,23 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
                          f"{cfg.min_prob}): check that perception ran on this dataset, or give a bbox.")  # fmt: skip
     idx = torch.nonzero(cand).squeeze(1)
     means = g.means[idx].double().cpu().numpy()
-    lab, _, _, ids = _clusters(means, cfg)
+    on_support = 0
+    extent = None
+    support = None
+    plane = find_support_plane(means, np.stack([v.centre.double().cpu().numpy() for v in views]), views_up(views),
+                               cfg.support)  # fmt: skip
+    if plane is not None:
+        keep = ~plane.drops(means)
+        if keep.any():
+            on_support = int((~keep).sum())
+            logger.info("object: %d foreground Gaussians on or under the support plane (a floor or table holding "
+                        "%.0f%% of the foreground) dropped", on_support, 100 * plane.share)  # fmt: skip
+            flat = torch.from_numpy(np.abs(plane.height(means)) <= plane.tol).to(idx.device)
+            support = torch.zeros_like(cand)
+            support[idx[flat]] = True
+            idx, means = idx[torch.from_numpy(keep).to(idx.device)], means[keep]
+            extent = plane.size  # the scene the plane holds, not the floaters and background around it
+    lab, _, _, ids = _clusters(means, cfg, extent)
     d = np.linalg.norm(means - centre[None], axis=1)
     valid = lab > 0
     if not valid.any():
@@ -196,4 +226,4 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     selected[idx[torch.from_numpy(chosen).to(idx.device)]] = True
     logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
                 g.means.shape[0], len(ids))  # fmt: skip
-    return ObjectSelection(prob, selected, centre, len(ids))
+    return ObjectSelection(prob, selected, centre, len(ids), on_support=on_support, support=support)

@@ -1,0 +1,83 @@
+"""The support plane (geometry/support.py): found under objects standing on a floor, never an object's own face."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from physgs_nerfstudio.geometry.support import SupportConfig, find_support_plane
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _box_surface(rng: np.random.Generator, lo, hi, n: int) -> np.ndarray:
+    """Points on the surface of an axis-aligned box, about uniform by area."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    ext = hi - lo
+    areas = np.array([ext[1] * ext[2], ext[0] * ext[2], ext[0] * ext[1]])
+    axis = rng.choice(3, size=n, p=areas / areas.sum())
+    p = lo + rng.random((n, 3)) * ext
+    side = rng.random(n) < 0.5
+    p[np.arange(n), axis] = np.where(side, lo[axis], hi[axis])
+    return p
+
+
+def _floor(rng: np.random.Generator, half: float, n: int, z: float = 0.0, noise: float = 0.002) -> np.ndarray:
+    xy = rng.uniform(-half, half, size=(n, 2))
+    return np.column_stack([xy, z + rng.normal(0, noise, n)])
+
+
+def _ring(n: int, radius: float, lo_deg: float, hi_deg: float) -> np.ndarray:
+    """Camera centres on an orbit band between two elevations."""
+    el = np.deg2rad(np.linspace(lo_deg, hi_deg, n))
+    az = np.linspace(0, 2 * np.pi, n, endpoint=False) * 7.3
+    return radius * np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+def test_floor_under_objects_is_found_and_only_it_dropped() -> None:
+    rng = np.random.default_rng(0)
+    floor = _floor(rng, 1.6, 6000)
+    objects = np.concatenate([_box_surface(rng, (-0.5, -0.3, 0.0), (0.5, 0.3, 0.75), 3000),
+                              _box_surface(rng, (1.0, 0.5, 0.0), (1.3, 0.8, 0.25), 800)])  # fmt: skip
+    floaters = rng.uniform(-4, 4, size=(300, 3)) - np.array([0, 0, 4.5])  # far below: another cluster
+    pts = np.concatenate([floor, objects, floaters])
+    plane = find_support_plane(pts, _ring(40, 3.0, 15, 60), UP)
+    assert plane is not None
+    assert abs(plane.normal @ UP) > 0.999 and abs(plane.offset) < 0.01
+    assert plane.drops(floor).mean() > 0.98
+    above = objects[:, 2] > 0.03  # the objects' bottom faces lie on the floor: those go with it
+    assert not plane.drops(objects[above]).any()
+
+
+@pytest.mark.parametrize("case", ["crate", "table", "cameras_below"])
+def test_an_objects_own_face_is_no_support(case: str) -> None:
+    """A box's bottom face is its footprint, a table top has legs under it, and a floor seen from below (an orbit
+    down to -10 degrees) is not under the cameras."""
+    rng = np.random.default_rng(1)
+    cams = _ring(40, 3.0, 15, 60)
+    if case == "crate":
+        pts = _box_surface(rng, (-0.2, -0.15, 0.0), (0.2, 0.15, 0.25), 5000)
+    elif case == "table":
+        top = _box_surface(rng, (-0.5, -0.3, 0.72), (0.5, 0.3, 0.745), 5000)
+        legs = [_box_surface(rng, (sx * 0.45 - 0.02, sy * 0.25 - 0.02, 0.0), (sx * 0.45 + 0.02, sy * 0.25 + 0.02, 0.72),
+                             500) for sx in (-1, 1) for sy in (-1, 1)]  # fmt: skip
+        pts = np.concatenate([top, *legs])
+    else:
+        pts = np.concatenate([_floor(rng, 1.6, 6000), _box_surface(rng, (-0.5, -0.3, 0.0), (0.5, 0.3, 0.75), 3000)])
+        cams = _ring(40, 3.0, -10, 60)
+    assert find_support_plane(pts, cams, UP) is None
+
+
+@settings(max_examples=25, deadline=None)
+@given(tilt=st.floats(0, 20), seed=st.integers(0, 10_000))
+def test_a_tilted_floor_is_found_along_its_own_normal(tilt: float, seed: int) -> None:
+    """The plane's normal comes from its points (least squares on the inliers), not from the cameras' up."""
+    rng = np.random.default_rng(seed)
+    t = np.deg2rad(tilt)
+    R = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
+    pts = np.concatenate([_floor(rng, 1.6, 5000), _box_surface(rng, (-0.4, -0.3, 0.0), (0.4, 0.3, 0.6), 2000)]) @ R.T
+    plane = find_support_plane(pts, _ring(30, 3.0, 20, 60) @ R.T, UP, SupportConfig())
+    assert plane is not None
+    assert plane.normal @ (R @ UP) > np.cos(np.deg2rad(1.0))
