@@ -339,8 +339,9 @@ def carve_votes_many(
         batch_points = default_batch_points(device)
     M = grid.num_voxels
     G = len(cfgs)
-    empty, depth_empty, direct, near = ([torch.zeros(M, dtype=torch.int32, device=device) for _ in cfgs]
-                                        for _ in range(4))
+    empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32, device=device) for _ in cfgs] for _ in range(3))
+    counts_near = renders is not None and any(c.depth_consensus > 0 and c.use_depth for c in cfgs)
+    near = [torch.zeros(M, dtype=torch.int32, device=device) if c.depth_consensus > 0 else None for c in cfgs]
     seen = torch.zeros(M, dtype=torch.int32, device=device)
     sdf = [t.to(device) for t in (sdf if sdf is not None else signed_mask_distances([v.mask for v in views]))]
     cams = [(v.viewmat[:3, :3].to(device), v.viewmat[:3, 3].to(device), v.K.to(device)) for v in views]
@@ -370,8 +371,8 @@ def carve_votes_many(
         x = grid.centres(ijk)
         n_seen = torch.zeros(len(flat), dtype=torch.int32, device=device)
         # [G, n]: one row per setting
-        n_empty, n_depth, n_direct, n_near = (torch.zeros(G, len(flat), dtype=torch.int32, device=device)
-                                              for _ in range(4))
+        n_empty, n_depth, n_direct = (torch.zeros(G, len(flat), dtype=torch.int32, device=device) for _ in range(3))
+        n_near = torch.zeros(G, len(flat), dtype=torch.int32, device=device) if counts_near else None
         for part in _ViewBatch.parts(batches, len(flat), batch_points):  # [B, n] per quantity
             ok, z, dist, d, a, sl, sp = part.lookup(x)
             if d is None:
@@ -380,7 +381,7 @@ def carve_votes_many(
                 vote, dvote, seen_directly, seen_near = rule.votes(ok, dist, z, d, a, sl, sp)
                 _add_views(n_depth, dvote)
                 _add_views(n_direct, seen_directly)
-                if seen_near is not None:
+                if seen_near is not None and n_near is not None:
                     _add_views(n_near, seen_near)
             _add_views(n_empty, vote)
             _add_views(n_seen, ok)
@@ -388,9 +389,10 @@ def carve_votes_many(
         seen[sl] = n_seen
         for g in range(G):
             empty[g][sl], depth_empty[g][sl], direct[g][sl] = n_empty[g], n_depth[g], n_direct[g]
-            near[g][sl] = n_near[g]
-    return [CarveVotes(empty[g], seen, depth_empty[g], direct[g], len(views),
-                       near[g] if any_depth and cfgs[g].depth_consensus > 0 else None) for g in range(G)]
+            if n_near is not None and near[g] is not None:
+                near[g][sl] = n_near[g]
+    return [CarveVotes(empty[g], seen, depth_empty[g], direct[g], len(views), near[g] if any_depth else None)
+            for g in range(G)]
 
 
 def _add_views(total: Tensor, votes: Tensor) -> None:

@@ -201,12 +201,13 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     plane = find_support_plane(means, np.stack([v.centre.double().cpu().numpy() for v in views]), views_up(views),
                                cfg.support)  # fmt: skip
     if plane is not None:
-        keep = ~plane.drops(means)
+        height = plane.height(means)
+        keep = height > plane.tol  # (SupportPlane.drops)
         if keep.any():
             on_support = int((~keep).sum())
             logger.info("object: %d foreground Gaussians on or under the support plane (a floor or table holding "
                         "%.0f%% of the foreground) dropped", on_support, 100 * plane.share)  # fmt: skip
-            flat = torch.from_numpy(np.abs(plane.height(means)) <= plane.tol).to(idx.device)
+            flat = torch.from_numpy(np.abs(height) <= plane.tol).to(idx.device)
             support = torch.zeros_like(cand)
             support[idx[flat]] = True
             idx, means = idx[torch.from_numpy(keep).to(idx.device)], means[keep]

@@ -45,12 +45,19 @@ class SupportConfig:
     """How the support plane is found and accepted (module doc)."""
 
     enabled: bool = True
+    """look for a support plane at all"""
     max_tilt_deg: float = 25.0
+    """largest angle between its normal and the views' mean up direction"""
     max_below: float = 0.02
+    """largest share of the foreground near it that may lie below it"""
     min_cameras_above: float = 0.9
+    """smallest share of the cameras that must lie above it"""
     margin: float = 0.05
+    """its inliers reach beyond the footprint of what stands on it by this fraction of that footprint, every side"""
     min_share: float = 0.1
+    """smallest share of the foreground near it that it holds"""
     tol_sigmas: float = 3.0
+    """inlier tolerance in robust standard deviations of the inliers' distances"""
     min_tol: float = 0.002
     """the tolerance's floor, as a fraction of the foreground's extent (5-95% quantiles)"""
     iterations: int = 200
