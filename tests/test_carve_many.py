@@ -106,7 +106,9 @@ def _oracle(grid, views, renders, cfg):
             inside = cfg.use_depth and dist <= cfg.mask_margin_px and a >= cfg.min_alpha
             by_depth[flat] += int(inside and pc[2] < d - margin)
             direct[flat] += int(inside and pc[2] <= d + margin)
-            near[flat] += int(inside and pc[2] <= d + margin + cfg.near_band_voxels * grid.voxel_size)
+            band = cfg.near_band_voxels * grid.voxel_size
+            near[flat] += int(inside and dist <= cfg.mask_margin_px - cfg.near_inset_px and pc[2] <= d + margin + band
+                              and margin <= band)
             empty[flat] += int(dist > cfg.mask_margin_px or (inside and pc[2] < d - margin))
     return empty, seen, by_depth, direct, near
 
@@ -116,7 +118,8 @@ def test_many_settings_in_one_pass_match_the_rule_and_single_calls() -> None:
     cfgs = [CarveConfig(), CarveConfig(mask_margin_px=-0.5), CarveConfig(mask_margin_px=0.5),
             CarveConfig(depth_margin_voxels=2.0), CarveConfig(use_depth=False, min_alpha=0.2),
             CarveConfig(depth_slope_margin=0.0), CarveConfig(depth_margin_voxels=-0.5),
-            CarveConfig(near_band_voxels=2.5, depth_consensus=0.5), CarveConfig(depth_consensus=0.5)]  # fmt: skip
+            CarveConfig(near_band_voxels=2.5, depth_consensus=0.5), CarveConfig(depth_consensus=0.5),
+            CarveConfig(depth_consensus=0.5, near_inset_px=0.0), CarveConfig(depth_consensus=0.0)]  # fmt: skip
     many = carve_votes_many(grid, views, renders, cfgs, chunk=300)
     for cfg, got in zip(cfgs, many):
         # float32 vs float64 projection: a voxel exactly on a threshold may flip; none does in this scene
@@ -130,6 +133,7 @@ def test_many_settings_in_one_pass_match_the_rule_and_single_calls() -> None:
             assert torch.equal(getattr(one, name), getattr(got, name)), name
     assert len({tuple(v.empty.tolist()) for v in many[:7]}) == 7  # the settings really differ here
     assert not torch.equal(many[8].near, many[7].near)  # (the band: only what counts as near)
+    assert not torch.equal(many[8].near, many[9].near)  # (the inset: views with the voxel on their mask's edge)
     nearest = [CarveConfig(depth_lookup="nearest"), CarveConfig(depth_lookup="nearest", depth_margin_voxels=1.0)]
     for cfg, got in zip(nearest, carve_votes_many(grid, views, renders, nearest, chunk=300)):
         for name, want in zip(("empty", "seen", "depth_empty", "direct"), _oracle(grid, views, renders, cfg)):

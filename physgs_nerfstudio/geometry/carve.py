@@ -64,10 +64,12 @@ near their rendered surface (no more than ``near_band_voxels`` behind it) or in 
 evidence about it. A cup's inside passes (the views that look into it see past it; the views that have it hidden
 behind the wall have no say); a face that most views render where it is keeps its layer. Measured at fresh
 seeds on the same trained runs (benchmarks/README.md, round 9) with 0.5: GPU median volume error 0.139 -> 0.096
-and median APE 0.158 -> 0.118; CPU demo settings 0.151 -> 0.134 and 0.106 -> 0.098. It is **off by default**
-(0) for now: on an exact synthetic box (tests/test_geometry.py) it keeps voxels along the edges, where a view that
-sees the adjacent face has the voxel just behind its surface and counts as "near" (the box came out 1.10x, above the
-test's bound, with ``near_band_voxels`` 1 and 0.5 alike).
+and median APE 0.158 -> 0.118; CPU demo settings 0.151 -> 0.134 and 0.106 -> 0.098. A view has a say ("near") only
+where it could have voted: the voxel projects at least ``near_inset_px`` inside its mask (not onto the silhouette's
+edge pixels, whose depth is the edge's) and the lookup's slack there is within the band. Without that, an exact
+box (tests/test_geometry.py) kept a rim of voxels along its edges (1.104x; with it 1.099x, as the vote alone). The
+default since round 10 (benchmarks/README.md): GPU seed 2727 median APE 0.119 against 0.118 without, volume 0.129
+against 0.136; CPU seed 2828 0.125 and 10 of 12 covered against 0.147 and 9 of 12.
 
 The centre test makes the recovered volume unbiased to first order in the voxel size (a boundary voxel is
 counted when its centre is inside). The solid's small disconnected specks (below ``min_component`` of the
@@ -146,13 +148,17 @@ class CarveConfig:
     under objects but also thin bottoms that only a few poorly reconstructed low views see (median APE 0.307
     with 0.5 against 0.273 without; benchmarks/README.md). 0.5 is the setting to try for a capture with views
     from below"""
-    depth_consensus: float = 0.0
+    depth_consensus: float = 0.5
     """a voxel that the silhouette votes alone do not carve is carved only when its depth votes are at least this
     fraction of the views that see it near or in front of their rendered surface (within ``near_band_voxels``
     behind it: module doc, "Depth consensus"); 0 = off (the vote alone decides)"""
     near_band_voxels: float = 1.0
     """... a view sees a voxel *near* its surface when the voxel lies at most this many voxels (plus the depth
-    margin) behind the rendered depth"""
+    margin) behind the rendered depth, where that depth is sharp (the lookup's slack, :func:`depth_slack`, no wider
+    than the band) ..."""
+    near_inset_px: float = 1.0
+    """... and the voxel projects at least this many pixels inside the view's mask: a view that has the voxel on its
+    silhouette's edge pixels, whose depth is the edge's, has no say"""
     use_depth: bool = True
     min_seen_fraction: float = 0.5
     """a voxel that fewer than this fraction of the views have in their image is empty: an object-centric capture
@@ -579,6 +585,7 @@ class _Rule:
             "has_max_spread": [c.max_spread_voxels < float("inf") for c in cfgs],
             "near_band": [c.near_band_voxels * voxel_size for c in cfgs],
             "consensus": [c.depth_consensus > 0 for c in cfgs],
+            "near_inset": [c.near_inset_px for c in cfgs],
         }
         self._cols: dict[tuple, Tensor] = {}
 
@@ -626,7 +633,12 @@ class _Rule:
         dvote = inside & (z < front - margin)
         near = None
         if self.every("consensus") is not False:
-            near = inside & (z <= d + margin + self.col("near_band", d))
+            # a view has a say about the voxel only where it could have voted: the voxel falls clearly inside its
+            # mask (not on the silhouette's edge pixels, whose depth is the edge's) and its depth is sharp there
+            # (the lookup's slack no wider than the band)
+            band = self.col("near_band", d)
+            deep = dist <= self.col("mask_margin", dist) - self.col("near_inset", dist)
+            near = inside & deep & (z <= d + margin + band) & (margin <= band)
         return self.silhouette(ok, dist) | dvote, dvote, inside & (z <= d + margin), near
 
 

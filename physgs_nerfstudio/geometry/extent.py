@@ -41,15 +41,40 @@ def support_directions(n_fibonacci: int = 100) -> Float[Tensor, "D 3"]:
     return d / d.norm(dim=1, keepdim=True)
 
 
+def _quat_to_rotmat(q: Float[Tensor, "n 4"]) -> Float[Tensor, "n 3 3"]:
+    """Rotation matrices of quaternions (w, x, y, z), normalised here."""
+    w, x, y, z = (q / q.norm(dim=1, keepdim=True).clamp_min(1e-12)).unbind(1)
+    return torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1).reshape(-1, 3, 3)  # fmt: skip
+
+
+def support_heights(means: Float[Tensor, "N 3"], d: Float[Tensor, "D 3"], scales: Tensor | None = None,
+                    quats: Tensor | None = None, chunk: int = 1 << 16) -> Float[Tensor, "D"]:  # fmt: skip
+    """h(u) = max_i u . mu_i (+ sigma_i(u), the Gaussian's standard deviation along u, when ``scales`` [N, 3] and
+    ``quats`` [N, 4] are given: the support function of the Gaussians' one-sigma ellipsoids), float64."""
+    d = d.double()
+    h = torch.full((len(d),), -torch.inf, dtype=torch.float64, device=means.device)
+    for i in range(0, len(means), chunk):
+        hi = means[i:i + chunk].double() @ d.T
+        if scales is not None and quats is not None:
+            R = _quat_to_rotmat(quats[i:i + chunk].double())  # columns: the Gaussian's axes
+            along = torch.einsum("nji,dj->nid", R, d)  # [n, 3, D]: u on each axis
+            hi = hi + (along * scales[i:i + chunk].double()[:, :, None]).norm(dim=1)
+        h = torch.maximum(h, hi.amax(0))
+    return h
+
+
 @torch.no_grad()
 def within_support(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.ndarray, pad_voxels: float = 1.0,
-                   n_fibonacci: int = 100) -> np.ndarray:  # fmt: skip
-    """bool [X, Y, Z]: the ``candidates`` voxels whose centres lie inside the support polytope of ``means`` grown
-    by ``pad_voxels`` voxels (module doc); ``candidates`` itself when there are no means."""
+                   n_fibonacci: int = 100, scales: Tensor | None = None, quats: Tensor | None = None) -> np.ndarray:  # fmt: skip
+    """bool [X, Y, Z]: the ``candidates`` voxels whose centres lie inside the support polytope of ``means`` (of the
+    Gaussians' one-sigma ellipsoids with ``scales`` and ``quats``) grown by ``pad_voxels`` voxels (module doc);
+    ``candidates`` itself when there are no means."""
     if len(means) == 0 or not candidates.any():
         return candidates.copy()
     d = support_directions(n_fibonacci).to(means.device)
-    h = torch.stack([(c.double() @ d.T).amax(0) for c in means.split(1 << 18)]).amax(0)
+    h = support_heights(means, d, scales, quats)
     h = (h + pad_voxels * grid.voxel_size).cpu()
     idx = np.argwhere(candidates)
     out = np.zeros_like(candidates)
