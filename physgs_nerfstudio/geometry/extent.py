@@ -22,6 +22,7 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
+from ..render.projection import quat_to_rotmat
 from .grid import VoxelGrid
 
 __all__ = ["support_directions", "within_support"]
@@ -41,14 +42,6 @@ def support_directions(n_fibonacci: int = 100) -> Float[Tensor, "D 3"]:
     return d / d.norm(dim=1, keepdim=True)
 
 
-def _quat_to_rotmat(q: Float[Tensor, "n 4"]) -> Float[Tensor, "n 3 3"]:
-    """Rotation matrices of quaternions (w, x, y, z), normalised here."""
-    w, x, y, z = (q / q.norm(dim=1, keepdim=True).clamp_min(1e-12)).unbind(1)
-    return torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1).reshape(-1, 3, 3)  # fmt: skip
-
-
 def support_heights(means: Float[Tensor, "N 3"], d: Float[Tensor, "D 3"], scales: Tensor | None = None,
                     quats: Tensor | None = None, chunk: int = 1 << 16) -> Float[Tensor, "D"]:  # fmt: skip
     """h(u) = max_i u . mu_i (+ sigma_i(u), the Gaussian's standard deviation along u, when ``scales`` [N, 3] and
@@ -58,7 +51,7 @@ def support_heights(means: Float[Tensor, "N 3"], d: Float[Tensor, "D 3"], scales
     for i in range(0, len(means), chunk):
         hi = means[i:i + chunk].double() @ d.T
         if scales is not None and quats is not None:
-            R = _quat_to_rotmat(quats[i:i + chunk].double())  # columns: the Gaussian's axes
+            R = quat_to_rotmat(quats[i:i + chunk].double())  # columns: the Gaussian's axes
             along = torch.einsum("nji,dj->nid", R, d)  # [n, 3, D]: u on each axis
             hi = hi + (along * scales[i:i + chunk].double()[:, :, None]).norm(dim=1)
         h = torch.maximum(h, hi.amax(0))
