@@ -36,6 +36,9 @@ SETTINGS: dict[str, list[str]] = {
     "hull_vote_fraction=0.65": ["--mass.geometry.select.hull-vote-fraction", "0.65"],
     "complete_min_share=0.01": ["--mass.geometry.complete-min-share", "0.01"],
     "complete_min_share=0.05": ["--mass.geometry.complete-min-share", "0.05"],
+    "depth_consensus=0.35": ["--mass.geometry.carve.depth-consensus", "0.35"],
+    "depth_consensus=0.65": ["--mass.geometry.carve.depth-consensus", "0.65"],
+    "extent_pad_voxels=1": ["--mass.geometry.extent-pad-voxels", "1"],
     "no_variants": ["--mass.geometry.no-variants"],
 }
 

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
-from physgs_nerfstudio.geometry.extent import support_directions, within_support
+from physgs_nerfstudio.geometry.extent import support_directions, support_excess, within_support
 from physgs_nerfstudio.geometry.grid import VoxelGrid
 from physgs_nerfstudio.geometry.parts import concavities, part_areas
 
@@ -45,6 +45,40 @@ def test_within_support_keeps_the_convex_hull_and_cuts_beyond_the_extreme_points
     part = np.zeros(grid.shape, bool)
     part[:12] = True
     assert not (within_support(grid, torch.from_numpy(pts).float(), part, pad) & ~part).any()
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_support_excess_of_ellipsoids_against_their_covariances(seed):
+    """The excess beyond the ellipsoids' support polytope against an oracle written with covariances: a
+    one-sigma ellipsoid's support along u is u . mu + sqrt(u^T Sigma u), Sigma = R diag(s^2) R^T (R from the
+    unit quaternion (w, x, y, z)); every pad's kept set is the excess's threshold."""
+    rng = np.random.default_rng(seed)
+    n = 40
+    mu = rng.uniform(0.2, 0.8, (n, 3))
+    s = rng.uniform(0.005, 0.05, (n, 3))
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    R = np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                  np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                  np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)  # fmt: skip
+    sigma = R @ (s[:, :, None] ** 2 * np.swapaxes(R, 1, 2))
+    grid = VoxelGrid((0.0, 0.0, 0.0), 0.05, (20, 20, 20))
+    cand = rng.random(grid.shape) < 0.3
+    d = support_directions(30).numpy()
+    h = (mu @ d.T + np.sqrt(np.einsum("di,nij,dj->nd", d, sigma, d))).max(0)
+    x_c = (np.argwhere(cand) + 0.5) * grid.voxel_size
+    oracle = (x_c @ d.T - h).max(1) / grid.voxel_size
+    got = support_excess(grid, torch.from_numpy(mu).float(), cand, 30, torch.from_numpy(s).float(),
+                         torch.from_numpy(q).float())  # fmt: skip
+    assert np.allclose(got, oracle, atol=1e-4)
+    for pad in (0.0, 1.0):
+        kept = within_support(grid, torch.from_numpy(mu).float(), cand, pad, 30, torch.from_numpy(s).float(),
+                              torch.from_numpy(q).float())  # fmt: skip
+        sure = np.abs(oracle - pad) > 1e-3  # voxels not on the threshold itself
+        assert (kept[tuple(np.argwhere(cand)[sure].T)] == (oracle <= pad)[sure]).all()
+        assert not (kept & ~cand).any()
 
 
 def test_within_support_cuts_the_unseen_slab_under_an_object():

@@ -15,7 +15,8 @@
 #   PHASE=scenes CPU_SEEDS="1313 1414" bash benchmarks/gpu/run_gpu.sh msuite  # issue 12: GPU suite scenes (+ CPU suite)
 #   PHASE=train OBJECTS="mug chair" bash benchmarks/gpu/run_gpu.sh msuite     # ... then train and score them
 #   PHASE=diag RULES="expected median" bash benchmarks/gpu/run_gpu.sh msuite  # ... and carving rules vs the truth
-#   bash benchmarks/gpu/run_gpu.sh after     # issue 13, after `export` on the same machine: mass_integration.py,
+#   [BASE=DIR] bash benchmarks/gpu/run_gpu.sh after  # issue 13, after `export` on the same machine: mass_integration.py
+#                                            # (and BASE's beside it),
 #                                            # the run's ns-eval, physgs vs splatfacto-big
 # Results go to $OUT (or ./gpu_results). Needs .whl/ (benchmarks/gpu/prepare_wheels.sh) on a machine
 # without nerfstudio; optional .gsplat_build/ (a carried gsplat JIT build).
@@ -332,6 +333,12 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     # physgs vs splatfacto-big (bench_training.py, each in its own process) on the same scene
     python3 benchmarks/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
       --out "$OUT/mass_integration.json" 2>&1 | tee "$OUT/mass_integration.log" | tail -12
+    if [ -n "${BASE:-}" ]; then  # BASE: the same benchmark of that tree, then this tree's again (side by side)
+      (cd "$BASE" && python3 benchmarks/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
+        --out "$OUT/mass_integration_base.json" 2>&1 | tail -9)
+      python3 benchmarks/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
+        --out "$OUT/mass_integration_again.json" 2>&1 | tail -9
+    fi
     CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml 2>/dev/null)
     if [ -n "$CFG" ]; then  # the maps cases of bench_export (this tree), then the mass export under cProfile
       python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "after=$PWD" --views 10 --cases maps1 mapsN \

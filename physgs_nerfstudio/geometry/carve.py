@@ -151,7 +151,7 @@ class CarveConfig:
     depth_consensus: float = 0.5
     """a voxel that the silhouette votes alone do not carve is carved only when its depth votes are at least this
     fraction of the views that see it near or in front of their rendered surface (within ``near_band_voxels``
-    behind it: module doc, "Depth consensus"); 0 = off (the vote alone decides)"""
+    behind it: module doc, "Depth consensus"); 0 = off (the vote alone decides); documented range 0.35-0.65"""
     near_band_voxels: float = 1.0
     """... a view sees a voxel *near* its surface when the voxel lies at most this many voxels (plus the depth
     margin) behind the rendered depth, where that depth is sharp (the lookup's slack, :func:`depth_slack`, no wider

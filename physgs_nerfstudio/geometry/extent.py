@@ -25,7 +25,7 @@ from torch import Tensor
 from ..render.projection import quat_to_rotmat
 from .grid import VoxelGrid
 
-__all__ = ["support_directions", "within_support"]
+__all__ = ["support_directions", "support_excess", "within_support"]
 
 
 def support_directions(n_fibonacci: int = 100) -> Float[Tensor, "D 3"]:
@@ -59,6 +59,22 @@ def support_heights(means: Float[Tensor, "N 3"], d: Float[Tensor, "D 3"], scales
 
 
 @torch.no_grad()
+def support_excess(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.ndarray, n_fibonacci: int = 100,
+                   scales: Tensor | None = None, quats: Tensor | None = None) -> np.ndarray:  # fmt: skip
+    """float64 [C]: for each of the ``candidates`` voxels (``np.argwhere`` order), how far its centre lies beyond
+    the support polytope of ``means`` (of the Gaussians' one-sigma ellipsoids with ``scales`` and ``quats``), in
+    voxels: ``max_u (u . x - h(u)) / voxel`` (<= 0 inside). A voxel lies within the polytope grown by ``pad``
+    voxels when its excess is at most ``pad``, so one call answers every pad. Computed on the means' device."""
+    idx = np.argwhere(candidates)
+    d = support_directions(n_fibonacci).to(means.device)
+    h = support_heights(means, d, scales, quats)
+    out = []
+    for c in torch.from_numpy(idx).to(means.device).split(1 << 18):
+        x = grid.centres(c).double().to(means.device)
+        out.append(((x @ d.T) - h).amax(1))
+    return (torch.cat(out) / grid.voxel_size).cpu().numpy() if out else np.zeros(0)
+
+
 def within_support(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.ndarray, pad_voxels: float = 1.0,
                    n_fibonacci: int = 100, scales: Tensor | None = None, quats: Tensor | None = None) -> np.ndarray:  # fmt: skip
     """bool [X, Y, Z]: the ``candidates`` voxels whose centres lie inside the support polytope of ``means`` (of the
@@ -66,15 +82,8 @@ def within_support(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.
     ``candidates`` itself when there are no means."""
     if len(means) == 0 or not candidates.any():
         return candidates.copy()
-    d = support_directions(n_fibonacci).to(means.device)
-    h = support_heights(means, d, scales, quats)
-    h = (h + pad_voxels * grid.voxel_size).cpu()
-    idx = np.argwhere(candidates)
     out = np.zeros_like(candidates)
-    keep = []
-    for c in torch.from_numpy(idx).split(1 << 18):
-        x = grid.centres(c).double().cpu()
-        keep.append(((x @ d.cpu().T) <= h).all(1))
-    k = torch.cat(keep).numpy()
+    idx = np.argwhere(candidates)
+    k = support_excess(grid, means, candidates, n_fibonacci, scales, quats) <= pad_voxels
     out[tuple(idx[k].T)] = True
     return out

@@ -30,7 +30,7 @@ from .carve import (
     solid_from_votes,
 )
 from .errors import GeometryError
-from .extent import within_support
+from .extent import support_excess
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
@@ -302,12 +302,18 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     solids = [solid_from_votes(cache[(cc.mask_margin_px, cc.depth_margin_voxels)], grid, cc) for _, cc in variants]
     if means is None or extent_pad_voxels is None:
         return solids, hull
-    inside = within_support(grid, means, np.logical_or.reduce(solids) | hull, extent_pad_voxels, scales=scales,
-                            quats=quats)
+    candidates = np.logical_or.reduce(solids) | hull
+    # how far beyond the polytope each candidate lies, once for both pads (no means: no cut)
+    idx = tuple(np.argwhere(candidates).T)
+    excess = (support_excess(grid, means, candidates, scales=scales, quats=quats) if len(means) and len(idx[0])
+              else np.full(len(idx[0]), -np.inf))  # fmt: skip
+    inside = np.zeros_like(candidates)
+    inside[idx] = excess <= extent_pad_voxels
     cut = [s & inside for s in solids]
     if extent_variant_voxels is not None:  # the nominal carving within a wider extent (GeometryConfig)
-        cut.append(solids[0] & within_support(grid, means, solids[0], extent_pad_voxels + extent_variant_voxels,
-                                              scales=scales, quats=quats))
+        wider = np.zeros_like(candidates)
+        wider[idx] = excess <= extent_pad_voxels + extent_variant_voxels
+        cut.append(solids[0] & wider)
     return cut, hull & inside
 
 
