@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from physgs_nerfstudio.lifting import LiftResult, label_evidence_maps, lift_evidence
+from physgs_nerfstudio.lifting import LiftResult, label_evidence_maps, lift_evidence, lift_views
 from physgs_nerfstudio.render import reference_rasterization
 
 DT = torch.float64
@@ -132,6 +132,32 @@ def test_channel_chunking_and_pixel_weights():
     assert (
         masked.visibility <= ref.visibility + 1e-12
     ).all() and masked.visibility.sum() < ref.visibility.sum()
+
+
+def test_views_per_call_keeps_the_views_apart():
+    """Several cameras in one rasterizer call, each with its own feature rows: every view's evidence is what the
+    call of that view alone gives, for any group size, with channel chunks and pixel weights."""
+    scene = _random_scene(6)
+    cams = [_camera(0.0), _camera(-0.2), _camera(0.25), _camera(0.1), _camera(-0.05)]
+    g = torch.Generator().manual_seed(7)
+    maps = torch.rand(5, S, S, 3, generator=g, dtype=DT)
+    weights = (torch.rand(5, S, S, generator=g) > 0.3).to(DT)
+    vms, Ks = torch.stack([c[0] for c in cams]), torch.stack([c[1] for c in cams])
+    args = (scene["means"], scene["quats"], scene["scales"], scene["opacities"], vms, Ks, S, S, maps)
+    alone = [_lift(scene, [cams[v]], maps[v : v + 1], pixel_weights=weights[v : v + 1], channel_chunk=2)
+             for v in range(5)]  # fmt: skip
+    for per_call in (1, 2, 3, 5, 8):
+        seen = []
+        for views, ev, vis in lift_views(*args, pixel_weights=weights, channel_chunk=2, views_per_call=per_call):
+            assert ev.shape == (len(views), 40, 3) and vis.shape == (len(views), 40)
+            for k, v in enumerate(views):
+                torch.testing.assert_close(ev[k], alone[v].evidence, rtol=1e-12, atol=1e-13)
+                torch.testing.assert_close(vis[k], alone[v].visibility, rtol=1e-12, atol=1e-13)
+                seen.append(v)
+        assert seen == list(range(5))
+    assert sum(float(r.visibility.sum()) for r in alone) > 1.0
+    with pytest.raises(ValueError, match="views_per_call"):
+        next(lift_views(*args, views_per_call=0))
 
 
 def test_no_gradient_into_geometry_and_errors():

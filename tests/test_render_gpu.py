@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from physgs_nerfstudio.lifting import lift_evidence
+from physgs_nerfstudio.lifting import lift_evidence, lift_views
 from physgs_nerfstudio.render import rasterize
 
 pytestmark = [
@@ -107,3 +107,17 @@ def test_lifting_both_backends():
           f"max visibility {float(res['gsplat'].visibility.max()):.2f}")  # fmt: skip
     assert e_diff < 1e-3 * float(res["gsplat"].evidence.abs().max())
     assert v_diff < 1e-3 * float(res["gsplat"].visibility.max())
+
+
+def test_lifting_views_in_one_call_match_the_reference_view_by_view():
+    """gsplat with both cameras in one call (per-camera feature rows) against the reference rasterizer's views
+    one at a time (lift_views)."""
+    scene = _scene(3, sh=False)
+    maps = torch.rand(2, H, W, 3, device="cuda")
+    args = [scene[k] for k in ("means", "quats", "scales", "opacities", "viewmats", "Ks")]
+    (_, ev, vis), = list(lift_views(*args, W, H, maps, backend="gsplat", views_per_call=2))
+    ref = list(lift_views(*args, W, H, maps, backend="reference", views_per_call=1))
+    for k, (_, ev_r, vis_r) in enumerate(ref):
+        assert _max_diff(ev[k], ev_r[0]) < 1e-3 * float(ev_r.abs().max())
+        assert _max_diff(vis[k], vis_r[0]) < 1e-3 * float(vis_r.max())
+    assert float(vis[0].sum()) > 1.0 and float(vis[1].sum()) > 1.0

@@ -15,8 +15,9 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-from ..lifting import lift_evidence
+from ..lifting import lift_views
 from ..render import rasterize, reference_median_depth
+from ..render.backend import resolve_backend
 from .capture import CaptureView
 
 __all__ = ["ViewRender", "depth_spread", "lift_masks", "render_depth"]
@@ -108,22 +109,42 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
 
 @torch.no_grad()
 def lift_masks(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
-               min_view_weight: float = 1e-3) -> tuple[Tensor, Tensor]:  # fmt: skip
+               min_view_weight: float = 1e-3, views_per_call: int | None = None) -> tuple[Tensor, Tensor]:  # fmt: skip
     """Per Gaussian (inside, outside) evidence: over the views that see it, the share of its blending weight
     on foreground-mask pixels, summed, so each view that sees a Gaussian is one observation (docs/architecture.md,
-    "evidence per view"). Returns two float [N] tensors."""
+    "evidence per view"). Returns two float [N] tensors. ``views_per_call``: views of one size rendered in one
+    rasterizer call (:func:`physgs_nerfstudio.lifting.lift_views`; None: up to 8 with gsplat, fewer above a million
+    Gaussians, and 1 with the reference rasterizer, which loops over cameras anyway); the views' evidence is added
+    in their order either way."""
     means, quats, scales, opacities = g.means, g.quats, g.scales, g.opacities
     dev = means.device
     n = means.shape[0]
+    if views_per_call is None:
+        gpu = resolve_backend(backend, dev) == "gsplat"  # type: ignore[arg-type]
+        views_per_call = max(1, min(8, _LIFT_GAUSSIAN_VIEWS // max(n, 1))) if gpu else 1
     inside = torch.zeros(n, dtype=torch.float64, device=dev)
     outside = torch.zeros_like(inside)
-    for v in views:
-        m = v.mask.to(dev).float()[None, ..., None]
-        res = lift_evidence(means, quats, scales, opacities, v.viewmat[None].to(dev), v.K[None].to(dev),
-                            v.width, v.height, m, backend=backend)  # fmt: skip
-        w = res.visibility.double()
-        seen = w > min_view_weight
-        frac = torch.where(seen, res.evidence[:, 0].double() / w.clamp_min(1e-12), torch.zeros_like(w)).clamp(0, 1)
-        inside += torch.where(seen, frac, torch.zeros_like(frac))
-        outside += torch.where(seen, 1 - frac, torch.zeros_like(frac))
+    i = 0
+    while i < len(views):
+        j = i + 1
+        size = (views[i].width, views[i].height)
+        while j < len(views) and j - i < views_per_call and (views[j].width, views[j].height) == size:
+            j += 1
+        group = views[i:j]
+        i = j
+        masks = torch.stack([v.mask.to(dev).float() for v in group])[..., None]
+        viewmats = torch.stack([v.viewmat.to(dev) for v in group])
+        Ks = torch.stack([v.K.to(dev) for v in group])
+        for _, ev, vis in lift_views(means, quats, scales, opacities, viewmats, Ks, size[0], size[1], masks,
+                                     backend=backend, views_per_call=len(group)):  # type: ignore[arg-type]  # fmt: skip
+            for k in range(vis.shape[0]):  # view by view, in order
+                w = vis[k].double()
+                seen = w > min_view_weight
+                frac = torch.where(seen, ev[k, :, 0].double() / w.clamp_min(1e-12), torch.zeros_like(w)).clamp(0, 1)
+                inside += torch.where(seen, frac, torch.zeros_like(frac))
+                outside += torch.where(seen, 1 - frac, torch.zeros_like(frac))
     return inside, outside
+
+
+_LIFT_GAUSSIAN_VIEWS = 8_000_000
+"""Gaussians x views in one lifting call on a GPU (:func:`lift_masks`): 8 views at a million Gaussians"""

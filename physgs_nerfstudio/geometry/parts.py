@@ -51,7 +51,17 @@ from torch import Tensor
 from .carve import bounding_box
 from .grid import VoxelGrid
 
-__all__ = ["PartGeometry", "concavities", "material_quantiles", "part_areas", "part_labels", "pooled_part_alpha", "voxel_mixture"]
+__all__ = ["PartGeometry", "concavities", "material_quantiles", "part_areas", "part_labels", "pooled_part_alpha", "sum_rows", "voxel_mixture"]
+
+
+def sum_rows(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """float64 [n, K]: the rows of ``values`` [M, K] summed per ``index`` [M] (in 0..n-1), added in their order, as
+    ``np.add.at`` adds them (bit for bit), by one ``np.bincount`` per column (``np.add.at`` is slow on many rows)."""
+    values = np.asarray(values, dtype=np.float64)
+    out = np.zeros((n, values.shape[1]))
+    for k in range(values.shape[1]):  # columns, not rows
+        out[:, k] = np.bincount(index, values[:, k], minlength=n)
+    return out
 
 
 def voxel_mixture(grid: VoxelGrid, solid: np.ndarray, means: Tensor, opacities: Tensor, pi: Tensor,
@@ -97,20 +107,20 @@ def pooled_part_alpha(grid: VoxelGrid, parts: np.ndarray, num_parts: int, means:
     """float64 [P, K] pooled Dirichlet per part (module doc, "A part's material") and float64 [P] the summed
     weight behind it (0: no Gaussian of the part carries evidence; its row is then undefined). A Gaussian
     belongs to the part of the voxel that holds its centre."""
-    K = alpha.shape[1]
-    idx = grid.index_of(means.float()).cpu().numpy()
-    shape = np.asarray(grid.shape)
-    ok = ((idx >= 0) & (idx < shape)).all(1)
-    pid = np.full(len(idx), -1, np.int64)
-    pid[ok] = parts[tuple(idx[ok].T)]
+    idx = grid.index_of(means.float())
+    _, Y, Z = grid.shape
     w = opacities.double().reshape(-1)
     if observed is not None:
         w = w * observed.double().reshape(-1).clamp(0.0, 1.0)
-    w = w.cpu().numpy()
-    keep = (pid >= 0) & (w > 0)
-    acc = np.zeros((num_parts, K))
-    np.add.at(acc, pid[keep], w[keep, None] * alpha.double().cpu().numpy()[keep])
-    tot = np.bincount(pid[keep], weights=w[keep], minlength=num_parts).astype(np.float64)
+    # the rows that can count, chosen where the Gaussians are (a GPU): only those cross to the host
+    rows = ((idx >= 0) & (idx < torch.as_tensor(grid.shape, device=idx.device))).all(1) & (w > 0)
+    at = idx[rows]
+    pid = parts.reshape(-1)[((at[:, 0] * Y + at[:, 1]) * Z + at[:, 2]).cpu().numpy()]
+    keep = pid >= 0
+    pid = pid[keep]
+    w_k = w[rows].cpu().numpy()[keep]
+    acc = sum_rows(pid, w_k[:, None] * alpha[rows].double().cpu().numpy()[keep], num_parts)
+    tot = np.bincount(pid, weights=w_k, minlength=num_parts).astype(np.float64)
     pooled = np.divide(acc, tot[:, None], out=np.ones_like(acc), where=tot[:, None] > 0)
     return pooled, tot
 
@@ -342,6 +352,6 @@ def material_quantiles(parts: np.ndarray, mixture: np.ndarray, num_parts: int, p
     for j in range(levels):  # quantile levels, not voxels
         rank = np.minimum((cum < (j + 0.5) / levels).sum(1), K - 1)
         mat = order[pid, rank]
-        np.add.at(out[:, j, :], (pid, mat), 1.0)
+        out[:, j, :] = np.bincount(pid * K + mat, minlength=num_parts * K).reshape(num_parts, K)
     tot = out.sum(-1, keepdims=True)
     return np.where(tot > 0, out / np.maximum(tot, 1e-300), part_mixture[:, None, :])

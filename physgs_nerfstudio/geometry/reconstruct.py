@@ -43,6 +43,7 @@ from .parts import (
     part_areas,
     part_labels,
     pooled_part_alpha,
+    sum_rows,
     voxel_mixture,
 )
 from .select import ObjectSelection, SelectConfig, outside_mask_hull, select_object
@@ -446,11 +447,10 @@ def reconstruct_object(
                 shares = [(i, np.bincount(old_to_new, sh, minlength=int(parts.max()) + 1)) for i, sh in shares]
     P = int(parts.max()) + 1
     nominal_parts = np.where(solids[0], parts, -1)
-    pm = np.zeros((P, K))
-    np.add.at(pm, nominal_parts[solids[0]], mixture[solids[0]])
+    pm = sum_rows(nominal_parts[solids[0]], mixture[solids[0]], P)
     empty = pm.sum(1) == 0  # a part only in other variants: its union mixture
     if empty.any():
-        np.add.at(pm, parts[union], mixture[union] * empty[parts[union]][:, None])
+        pm += sum_rows(parts[union], mixture[union] * empty[parts[union]][:, None], P)
     pm /= pm.sum(1, keepdims=True)
     levels: np.ndarray | None = None  # one material per part and sample, from its pooled mixture
     if observations and not by_views:  # the structure's evidence

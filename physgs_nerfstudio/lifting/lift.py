@@ -9,6 +9,7 @@ the evidence of every Gaussian at once. Geometry is detached; no gradient reache
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
 from typing import NamedTuple
 
 import torch
@@ -44,10 +45,49 @@ def lift_evidence(
     eps2d: float = 0.3,
     rasterize_mode: str = "classic",
 ) -> LiftResult:
-    """Per-Gaussian evidence and visibility from V views (activated scales/opacities, as for rendering).
+    """Per-Gaussian evidence and visibility from V views (activated scales/opacities, as for rendering), summed
+    over the views (:func:`lift_views` gives them view by view).
 
     `pixel_weights` (e.g. a validity mask) multiplies each pixel's evidence and its visibility count.
     Channels are rendered `channel_chunk` at a time (the visibility channel rides along with the first).
+    """
+    N = means.shape[0]
+    evidence = torch.zeros(N, evidence_maps.shape[-1] if evidence_maps.dim() == 4 else 0, dtype=means.dtype,
+                           device=means.device)  # fmt: skip
+    visibility = torch.zeros(N, dtype=means.dtype, device=means.device)
+    for _views, ev, vis in lift_views(means, quats, scales, opacities, viewmats, Ks, width, height, evidence_maps,
+                                      backend=backend, channel_chunk=channel_chunk, pixel_weights=pixel_weights,
+                                      near_plane=near_plane, far_plane=far_plane, eps2d=eps2d,
+                                      rasterize_mode=rasterize_mode):  # fmt: skip
+        evidence += ev[0]
+        visibility += vis[0]
+    return LiftResult(evidence=evidence, visibility=visibility)
+
+
+def lift_views(
+    means: Float[Tensor, "N 3"],
+    quats: Float[Tensor, "N 4"],
+    scales: Float[Tensor, "N 3"],
+    opacities: Float[Tensor, " N"],
+    viewmats: Float[Tensor, "V 4 4"],
+    Ks: Float[Tensor, "V 3 3"],
+    width: int,
+    height: int,
+    evidence_maps: Float[Tensor, "V H W C"],
+    *,
+    backend: Backend = "auto",
+    channel_chunk: int = 32,
+    pixel_weights: Float[Tensor, "V H W"] | None = None,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    eps2d: float = 0.3,
+    rasterize_mode: str = "classic",
+    views_per_call: int = 1,
+) -> Iterator[tuple[range, Float[Tensor, "c N C"], Float[Tensor, "c N"]]]:
+    """The lifted evidence view by view: yields ``(views, evidence [c, N, C], visibility [c, N])`` for consecutive
+    groups of ``views_per_call`` views, each rendered in one rasterizer call (one camera batch, each camera with
+    its own feature rows, so that the gradient keeps the views apart). Several views per call save the per-call
+    work (projection, tile sorting, kernel launches) on a GPU; the reference rasterizer loops over cameras anyway.
     """
     N, V = means.shape[0], viewmats.shape[0]
     if evidence_maps.dim() != 4 or evidence_maps.shape[:3] != (V, height, width):
@@ -64,42 +104,47 @@ def lift_evidence(
         )
     if channel_chunk < 1:
         raise ValueError(f"channel_chunk must be >= 1, got {channel_chunk}")
+    if views_per_call < 1:
+        raise ValueError(f"views_per_call must be >= 1, got {views_per_call}")
     geometry = [t.detach() for t in (means, quats, scales, opacities, viewmats, Ks)]
     means, quats, scales, opacities, viewmats, Ks = geometry
     C = evidence_maps.shape[-1]
-    dtype = means.dtype
-    evidence = torch.zeros(N, C, dtype=dtype, device=means.device)
-    visibility = torch.zeros(N, dtype=dtype, device=means.device)
+    dtype, dev = means.dtype, means.device
     bounds = list(range(0, C + 1, channel_chunk))
     if bounds[-1] != C + 1:
         bounds.append(C + 1)
 
-    for v in range(V):
+    for v0 in range(0, V, views_per_call):
+        vs = range(v0, min(v0 + views_per_call, V))
+        c = len(vs)
         # channels 0..C-1: evidence; channel C: ones (visibility)
         target = torch.cat(
-            [evidence_maps[v].to(dtype), torch.ones(height, width, 1, dtype=dtype, device=means.device)], -1
+            [evidence_maps[vs.start : vs.stop].to(dtype), torch.ones(c, height, width, 1, dtype=dtype, device=dev)], -1
         )
         if pixel_weights is not None:
-            target = target * pixel_weights[v, ..., None].to(dtype)
+            target = target * pixel_weights[vs.start : vs.stop, ..., None].to(dtype)
+        evidence = torch.zeros(c, N, C, dtype=dtype, device=dev)
+        visibility = torch.zeros(c, N, dtype=dtype, device=dev)
         for lo, hi in itertools.pairwise(bounds):
-            feats = torch.zeros(N, hi - lo, dtype=dtype, device=means.device, requires_grad=True)
+            # one feature row per camera and Gaussian ([N, ch] when one camera: the call of one view is unchanged)
+            shape = (N, hi - lo) if c == 1 else (c, N, hi - lo)
+            feats = torch.zeros(*shape, dtype=dtype, device=dev, requires_grad=True)
             with torch.enable_grad():
                 render, _, _ = rasterize(
-                    means, quats, scales, opacities, feats, viewmats[v : v + 1], Ks[v : v + 1], width, height,
-                    near_plane=near_plane, far_plane=far_plane, eps2d=eps2d, packed=False,
+                    means, quats, scales, opacities, feats, viewmats[vs.start : vs.stop], Ks[vs.start : vs.stop],
+                    width, height, near_plane=near_plane, far_plane=far_plane, eps2d=eps2d, packed=False,
                     rasterize_mode=rasterize_mode, backend=backend,
                 )  # fmt: skip
-                (grad,) = torch.autograd.grad(
-                    (render[0] * target[..., lo:hi]).sum(), feats, allow_unused=True
-                )
-            if grad is None:  # nothing visible in this view
+                (grad,) = torch.autograd.grad((render * target[..., lo:hi]).sum(), feats, allow_unused=True)
+            if grad is None:  # nothing visible in these views
                 continue
+            grad = grad.reshape(c, N, hi - lo)
             if hi == C + 1:
-                visibility += grad[:, -1]
+                visibility += grad[..., -1]
             top = min(hi, C)
             if top > lo:
-                evidence[:, lo:top] += grad[:, : top - lo]
-    return LiftResult(evidence=evidence, visibility=visibility)
+                evidence[..., lo:top] += grad[..., : top - lo]
+        yield vs, evidence, visibility
 
 
 def label_evidence_maps(
