@@ -150,6 +150,7 @@ def main() -> None:
     done("selection")
     cand = (prob >= cfg.select.min_prob) & real
     lab, _, cell, ids = _clusters(means[cand], cfg.select)
+    lab = lab.cpu().numpy()
     lab_all = np.zeros(len(means), np.int64)
     lab_all[cand] = lab
     obj_real = (on >= 0) & real

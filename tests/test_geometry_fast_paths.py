@@ -508,3 +508,47 @@ def test_part_labels_on_the_box_equal_the_whole_grid(seed):
         np.testing.assert_array_equal(got, _part_labels_before(solid, mixture, frac))
         assert got.max() >= 2
     assert (part_labels(np.zeros((4, 4, 4), bool), np.ones((4, 4, 4, 2))) == -1).all()
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000])
+def test_sorted_quantiles_are_numpys(n):
+    """The selection's column quantiles on a GPU (a sort) against NumPy's linear interpolation."""
+    from physgs_nerfstudio.geometry.select import _sorted_quantiles
+
+    x = torch.from_numpy(np.random.default_rng(n).normal(size=(n, 3)) * 10)
+    qs = (0.0, 0.002, 0.25, 0.5, 0.998, 1.0)
+    np.testing.assert_allclose(_sorted_quantiles(x, qs).numpy(), np.quantile(x.numpy(), qs, axis=0), rtol=1e-13,
+                               atol=1e-12)  # fmt: skip
+
+
+def test_sum_rows_is_add_at_bit_for_bit():
+    rng = np.random.default_rng(3)
+    index = rng.integers(0, 7, size=5000)
+    values = rng.normal(size=(5000, 4)) * 10 ** rng.uniform(-8, 8, size=(5000, 1))
+    expect = np.zeros((9, 4))
+    np.add.at(expect, index, values)
+    assert np.array_equal(parts_mod.sum_rows(index, values, 9), expect)
+
+
+@pytest.mark.parametrize("s", [1.0, 1.5, 2.0, 2.5])
+def test_erosion_by_shifts_is_scipys(s):
+    from physgs_nerfstudio.geometry.parts import _erode
+
+    rng = np.random.default_rng(int(10 * s))
+    solid = ndimage.binary_closing(rng.random((23, 17, 30)) > 0.35)
+    solid[0, :, :5] = True  # solid against the grid's border: the outside counts solid
+    k = int(np.floor(s))
+    o = np.arange(-k, k + 1)
+    ball = (o[:, None, None] ** 2 + o[None, :, None] ** 2 + o[None, None, :] ** 2) <= s * s
+    expect = ndimage.binary_erosion(solid, ball, border_value=1)
+    assert expect.any() and not expect.all()
+    assert np.array_equal(_erode(solid, ball), expect)
+
+
+def test_face_dilation_by_shifts_is_scipys():
+    from physgs_nerfstudio.geometry.parts import _dilate_faces
+
+    mask = np.random.default_rng(4).random((19, 24, 13)) > 0.93
+    mask[0, 0, 0] = mask[-1, -1, -1] = True  # at the corners: nothing wraps around
+    expect = ndimage.binary_dilation(mask, ndimage.generate_binary_structure(3, 1))
+    assert np.array_equal(_dilate_faces(mask), expect)

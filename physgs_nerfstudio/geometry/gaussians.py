@@ -76,35 +76,67 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
     # each attribute read once (on a subset view of a field, every read gathers its rows again)
     means, quats, scales, opacities = g.means, g.quats, g.scales, g.opacities
     dev = means.device
-    for v in views:
-        vm, K = v.viewmat.to(dev), v.K.to(dev)
+    for group in _view_groups(views, _views_per_call(backend, dev, means.shape[0])):
+        vm = torch.stack([v.viewmat.to(dev) for v in group])
+        K = torch.stack([v.K.to(dev) for v in group])
         if spread:
-            pc = means @ vm[:3, :3].T + vm[:3, 3]
-            z = pc[:, 2]
-            zc = z.clamp_min(1e-6)
-            # centred (depth about the Gaussians' median, pixels about the principal point) so float32 keeps the
-            # variances: the spread is a small difference of second moments
-            dz = z - z.median()
-            du, dv = K[0, 0] * pc[:, 0] / zc, K[1, 1] * pc[:, 1] / zc
-            colors = torch.stack([dz, du, dv, dz * dz, du * du, dv * dv, dz * du, dz * dv, du * dv], -1)
+            colors = torch.stack([_centre_moments(means, vm[i], K[i]) for i in range(len(group))])
+            colors = colors[0] if len(group) == 1 else colors
         else:
             colors = torch.zeros(means.shape[0], 1, device=dev)
-        rgbd, alpha, _ = rasterize(means, quats, scales, opacities, colors, vm[None], K[None], v.width,
-                                   v.height, render_mode="RGB+ED", packed=False, backend=backend)  # fmt: skip
-        a = alpha[0, ..., 0]
-        d = rgbd[0, ..., -1]
-        sp = None
-        if spread:
-            m = rgbd[0, ..., :-1] / a[..., None].clamp_min(1e-10)
-            sp = torch.where(a > 1e-3, depth_spread(m), torch.zeros_like(d))
-        med = None
-        if depth != "expected":
-            med = reference_median_depth(means, quats, scales, opacities, vm, K, v.width, v.height)
-            med = torch.where(a > 1e-3, torch.where(torch.isfinite(med), med.to(d.dtype), d), float("inf"))
-            if depth == "median":
-                d, med = med, None
-        out.append(ViewRender(torch.where(a > 1e-3, d, torch.full_like(d, float("inf"))), a, sp, med))
+        rgbd, alpha, _ = rasterize(means, quats, scales, opacities, colors, vm, K, group[0].width, group[0].height,
+                                   render_mode="RGB+ED", packed=False, backend=backend)  # fmt: skip
+        for i, v in enumerate(group):
+            a = alpha[i, ..., 0]
+            d = rgbd[i, ..., -1]
+            sp = None
+            if spread:
+                m = rgbd[i, ..., :-1] / a[..., None].clamp_min(1e-10)
+                sp = torch.where(a > 1e-3, depth_spread(m), torch.zeros_like(d))
+            med = None
+            if depth != "expected":
+                med = reference_median_depth(means, quats, scales, opacities, vm[i], K[i], v.width, v.height)
+                med = torch.where(a > 1e-3, torch.where(torch.isfinite(med), med.to(d.dtype), d), float("inf"))
+                if depth == "median":
+                    d, med = med, None
+            out.append(ViewRender(torch.where(a > 1e-3, d, torch.full_like(d, float("inf"))), a, sp, med))
     return out
+
+
+def _centre_moments(means: Tensor, vm: Tensor, K: Tensor) -> Tensor:
+    """float [N, 9]: the colours whose blend gives a pixel's moments of the Gaussians' centres (:func:`depth_spread`)
+    in the view ``vm``, ``K``: centred (depth about the Gaussians' median, pixels about the principal point) so
+    float32 keeps the variances: the spread is a small difference of second moments."""
+    pc = means @ vm[:3, :3].T + vm[:3, 3]
+    z = pc[:, 2]
+    zc = z.clamp_min(1e-6)
+    dz = z - z.median()
+    du, dv = K[0, 0] * pc[:, 0] / zc, K[1, 1] * pc[:, 1] / zc
+    return torch.stack([dz, du, dv, dz * dz, du * du, dv * dv, dz * du, dz * dv, du * dv], -1)
+
+
+_GAUSSIAN_VIEWS_PER_CALL = 8_000_000
+"""Gaussians x views in one rasterizer call on a GPU (:func:`lift_masks`, :func:`render_depth`): 8 views at a million
+Gaussians"""
+
+
+def _views_per_call(backend: str, device: torch.device, n: int) -> int:
+    """Views per rasterizer call: up to 8 with gsplat, fewer above a million Gaussians; 1 with the reference
+    rasterizer, which loops over cameras anyway."""
+    if resolve_backend(backend, device) != "gsplat":  # type: ignore[arg-type]
+        return 1
+    return max(1, min(8, _GAUSSIAN_VIEWS_PER_CALL // max(n, 1)))
+
+
+def _view_groups(views: Sequence[CaptureView], per_call: int) -> list[list[CaptureView]]:
+    """Consecutive runs of at most ``per_call`` views of one size, in order."""
+    groups: list[list[CaptureView]] = []
+    for v in views:
+        if groups and len(groups[-1]) < per_call and (groups[-1][0].width, groups[-1][0].height) == (v.width, v.height):
+            groups[-1].append(v)
+        else:
+            groups.append([v])
+    return groups
 
 
 @torch.no_grad()
@@ -113,25 +145,16 @@ def lift_masks(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
     """Per Gaussian (inside, outside) evidence: over the views that see it, the share of its blending weight
     on foreground-mask pixels, summed, so each view that sees a Gaussian is one observation (docs/architecture.md,
     "evidence per view"). Returns two float [N] tensors. ``views_per_call``: views of one size rendered in one
-    rasterizer call (:func:`physgs_nerfstudio.lifting.lift_views`; None: up to 8 with gsplat, fewer above a million
-    Gaussians, and 1 with the reference rasterizer, which loops over cameras anyway); the views' evidence is added
-    in their order either way."""
+    rasterizer call (:func:`physgs_nerfstudio.lifting.lift_views`; None: :func:`_views_per_call`); the views'
+    evidence is added in their order either way."""
     means, quats, scales, opacities = g.means, g.quats, g.scales, g.opacities
     dev = means.device
     n = means.shape[0]
-    if views_per_call is None:
-        gpu = resolve_backend(backend, dev) == "gsplat"  # type: ignore[arg-type]
-        views_per_call = max(1, min(8, _LIFT_GAUSSIAN_VIEWS // max(n, 1))) if gpu else 1
+    per_call = views_per_call if views_per_call is not None else _views_per_call(backend, dev, n)
     inside = torch.zeros(n, dtype=torch.float64, device=dev)
     outside = torch.zeros_like(inside)
-    i = 0
-    while i < len(views):
-        j = i + 1
-        size = (views[i].width, views[i].height)
-        while j < len(views) and j - i < views_per_call and (views[j].width, views[j].height) == size:
-            j += 1
-        group = views[i:j]
-        i = j
+    for group in _view_groups(views, per_call):
+        size = (group[0].width, group[0].height)
         masks = torch.stack([v.mask.to(dev).float() for v in group])[..., None]
         viewmats = torch.stack([v.viewmat.to(dev) for v in group])
         Ks = torch.stack([v.K.to(dev) for v in group])
@@ -145,6 +168,3 @@ def lift_masks(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
                 outside += torch.where(seen, 1 - frac, torch.zeros_like(frac))
     return inside, outside
 
-
-_LIFT_GAUSSIAN_VIEWS = 8_000_000
-"""Gaussians x views in one lifting call on a GPU (:func:`lift_masks`): 8 views at a million Gaussians"""

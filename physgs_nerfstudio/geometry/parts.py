@@ -235,11 +235,8 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
         sheet[idx] = _plate_like(solid, tuple(a[idx] for a in nv), _plate_window(sheet_voxels), min_plate)
     factor = np.where(sheet, 0.5, 1.0)
     if concave is not None and concave.any():
-        from scipy import ndimage
-
-        cross = ndimage.generate_binary_structure(3, 1)
-        inner = solid & ndimage.binary_dilation(concave, cross)
-        outer = solid & ndimage.binary_dilation(~solid & ~concave, cross)
+        inner = solid & _dilate_faces(concave)
+        outer = solid & _dilate_faces(~solid & ~concave)
         factor[~sheet & inner[nv] & ~outer[nv]] = 0.0
     ok = pid >= 0
     # per part, the faces' areas added in their order (np.add.at's sums, bit for bit)
@@ -290,12 +287,39 @@ def _sheet_faces(solid: np.ndarray, nv: tuple[np.ndarray, ...], sheet_voxels: fl
     k = int(np.floor(s))
     o = np.arange(-k, k + 1)
     ball = (o[:, None, None] ** 2 + o[None, :, None] ** 2 + o[None, None, :] ** 2) <= s * s
-    core = ndimage.binary_erosion(solid, ball, border_value=1) if k > 0 else solid.copy()
+    core = _erode(solid, ball) if k > 0 else solid.copy()
     r = int(np.ceil(s)) + 1
     near = core.view(np.uint8)
     for axis in range(near.ndim):  # a window of [c - r, c + r], nothing beyond the grid
         near = ndimage.maximum_filter1d(near, 2 * r + 1, axis=axis, mode="constant", cval=0)
     return near[nv] == 0
+
+
+def _erode(solid: np.ndarray, ball: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.binary_erosion(solid, ball, border_value=1)`` for a symmetric ``ball`` of odd side: the AND of
+    ``solid`` shifted by each of the ball's offsets, the grid's outside counted solid (a few times faster than
+    SciPy's voxel-by-voxel loop on a 19-voxel ball)."""
+    r = ball.shape[0] // 2
+    padded = np.pad(solid, r, constant_values=True)
+    X, Y, Z = solid.shape
+    out = solid.copy()
+    for dx, dy, dz in np.argwhere(ball):
+        if (dx, dy, dz) != (r, r, r):
+            out &= padded[dx : dx + X, dy : dy + Y, dz : dz + Z]
+    return out
+
+
+def _dilate_faces(mask: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.binary_dilation(mask, generate_binary_structure(3, 1))``: ``mask`` and its six face
+    neighbours' (nothing beyond the grid), by shifted ORs."""
+    out = mask.copy()
+    for axis in range(mask.ndim):
+        head = [slice(None)] * mask.ndim
+        tail = [slice(None)] * mask.ndim
+        head[axis], tail[axis] = slice(1, None), slice(None, -1)
+        out[tuple(head)] |= mask[tuple(tail)]
+        out[tuple(tail)] |= mask[tuple(head)]
+    return out
 
 
 def _plate_window(sheet_voxels: float) -> int:
@@ -309,17 +333,22 @@ def _plate_like(solid: np.ndarray, at: tuple[np.ndarray, ...], half: int, min_pl
     one (a rod, whose cross-section is as thin as a sheet is thick, but whose faces are its one outer side). Window
     sums of the voxel count and the coordinates' first and second moments come from summed-area tables."""
     X, Y, Z = solid.shape
-    ii, jj, kk = np.meshgrid(np.arange(X, dtype=np.float64), np.arange(Y, dtype=np.float64),
-                             np.arange(Z, dtype=np.float64), indexing="ij")  # fmt: skip
     w = solid.astype(np.float64)
-    chans = [w, w * ii, w * jj, w * kk, w * ii * ii, w * jj * jj, w * kk * kk, w * ii * jj, w * ii * kk, w * jj * kk]
+    i, j, k = (np.arange(n, dtype=np.float64) for n in (X, Y, Z))
+    # the tables of w i^a j^b k^c (a + b + c <= 2), one axis at a time: the cumulative sums along z of w k^c (3), then
+    # along y of j^b times those (6), then along x of i^a times those (10), 19 passes instead of 30. Every value is an
+    # integer far below 2^53, so the sums are exact in any order: the same tables as three passes per channel.
+    along_z = [np.cumsum(w * k**c, axis=2) for c in range(3)]
+    along_y = {(b, c): np.cumsum(along_z[c] * (j**b)[:, None], axis=1) for b in range(3) for c in range(3 - b)}
     c = np.asarray(at).T  # [F, 3]
     lo = np.maximum(c - half, 0)
     hi = np.minimum(c + half + 1, solid.shape)
     sums = []
-    for ch in chans:
-        sat = np.zeros((X + 1, Y + 1, Z + 1))
-        sat[1:, 1:, 1:] = ch.cumsum(0).cumsum(1).cumsum(2)
+    sat = np.zeros((X + 1, Y + 1, Z + 1))
+    # channels: w, w i, w j, w k, w i^2, w j^2, w k^2, w i j, w i k, w j k (the order of the moments below)
+    for a, b, cz in ((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (2, 0, 0), (0, 2, 0), (0, 0, 2), (1, 1, 0), (1, 0, 1),
+                     (0, 1, 1)):  # fmt: skip
+        np.cumsum(along_y[(b, cz)] * (i**a)[:, None, None], axis=0, out=sat[1:, 1:, 1:])
         box = np.zeros(len(c))
         for sx in (0, 1):
             for sy in (0, 1):

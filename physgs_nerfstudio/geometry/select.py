@@ -148,16 +148,20 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
     return out
 
 
-def _clusters(means: np.ndarray, cfg: SelectConfig, extent: float | None = None
-              ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:  # fmt: skip
-    """Cluster label of each point (0: none), the cell grid's origin and size, and the cluster ids. ``extent``: the
-    size the ``cluster_cells`` divide (default: the points' own, 0.2-99.8% quantiles)."""
+def _clusters(means: Tensor | np.ndarray, cfg: SelectConfig, extent: float | None = None
+              ) -> tuple[Tensor, np.ndarray, float, np.ndarray]:  # fmt: skip
+    """Cluster label of each point (0: none; a tensor on the points' device), the cell grid's origin and size, and
+    the cluster ids. ``extent``: the size the ``cluster_cells`` divide (default: the points' own, 0.2-99.8%
+    quantiles). The points' cells are found where the points are (a GPU); only the coarse grid is labelled on the
+    host."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
-    lo, hi = np.quantile(means, [0.002, 0.998], axis=0)  # (one partition for both)
-    span = float((hi - lo).max()) if extent is None else extent
     from scipy.spatial import cKDTree
 
-    sub = means[:: max(1, len(means) // 100_000)]
+    m = torch.as_tensor(means).double()
+    lo_hi = _quantiles(m, (0.002, 0.998))  # (one partition for both)
+    lo = lo_hi[0].cpu().numpy()
+    span = float((lo_hi[1] - lo_hi[0]).max()) if extent is None else extent
+    sub = m[:: max(1, len(m) // 100_000)].cpu().numpy()
     # the median nearest-neighbour spacing, estimated from the neighbours of 20,000 of the points (each found among
     # all of them): the query of every point cost 0.9 s at 150k points, and the median moved by < 0.1%
     probe = sub[:: max(1, len(sub) // 20_000)]
@@ -165,16 +169,37 @@ def _clusters(means: np.ndarray, cfg: SelectConfig, extent: float | None = None
     # cells no finer than the Gaussians' own spacing, so a sparse splat stays one cluster
     cell = max(span / cfg.cluster_cells, 1.5 * float(np.median(nn)), 1e-9)
     lo = lo - 2 * cell
-    idx = np.floor((means - lo) / cell).astype(np.int64)
-    shape = np.maximum(idx.max(0) + 1, 1)
+    idx = torch.floor((m - torch.as_tensor(lo, device=m.device)) / cell).long()
+    shape = np.maximum(idx.amax(0).cpu().numpy() + 1, 1) if len(idx) else np.ones(3, np.int64)
     inside = (idx >= 0).all(1)
-    occ = np.zeros(shape, bool)
-    occ[tuple(idx[inside].T)] = True
+    flat = (idx[:, 0] * int(shape[1]) + idx[:, 1]) * int(shape[2]) + idx[:, 2]
+    occ = np.zeros(int(np.prod(shape)), bool)
+    occ[flat[inside].cpu().numpy()] = True
+    occ = occ.reshape(*shape)
     grown = ndimage.binary_dilation(occ, iterations=cfg.bridge_cells) if cfg.bridge_cells > 0 else occ
     labels, n = ndimage.label(grown, structure=np.ones((3, 3, 3), bool))
-    lab = np.zeros(len(means), np.int64)
-    lab[inside] = labels[tuple(idx[inside].T)]
+    lab = torch.zeros(len(m), dtype=torch.long, device=m.device)
+    lab[inside] = torch.from_numpy(labels.reshape(-1)).to(m.device).long()[flat[inside]]
     return lab, lo, cell, np.arange(1, n + 1)
+
+
+def _quantiles(x: Tensor, qs: Sequence[float]) -> Tensor:
+    """float64 [len(qs), D]: the column quantiles of ``x`` [N, D] (linear interpolation, NumPy's default): NumPy's on
+    the CPU, a sort on a GPU (``torch.quantile`` refuses inputs of more than 16M elements)."""
+    if x.device.type == "cpu":
+        return torch.from_numpy(np.quantile(x.double().numpy(), qs, axis=0))
+    return _sorted_quantiles(x, qs)
+
+
+def _sorted_quantiles(x: Tensor, qs: Sequence[float]) -> Tensor:
+    """:func:`_quantiles` by a sort along the rows, on ``x``'s device."""
+    s = torch.sort(x.double(), dim=0).values
+    pos = torch.tensor(qs, dtype=torch.float64) * (len(s) - 1)
+    i0 = pos.floor().long().clamp(0, len(s) - 1)
+    i1 = (i0 + 1).clamp(max=len(s) - 1)
+    t = (pos - i0).to(s.device)[:, None]
+    a, b = s[i0.to(s.device)], s[i1.to(s.device)]
+    return a + (b - a) * t
 
 
 @torch.no_grad()
@@ -210,21 +235,22 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
             flat = torch.from_numpy(np.abs(height) <= plane.tol).to(idx.device)
             support = torch.zeros_like(cand)
             support[idx[flat]] = True
-            idx, means = idx[torch.from_numpy(keep).to(idx.device)], means[keep]
+            idx = idx[torch.from_numpy(keep).to(idx.device)]
             extent = plane.size  # the scene the plane holds, not the floaters and background around it
-    lab, _, _, ids = _clusters(means, cfg, extent)
-    d = np.linalg.norm(means - centre[None], axis=1)
+    m_dev = g.means[idx].double()
+    lab, _, _, ids = _clusters(m_dev, cfg, extent)
     valid = lab > 0
-    if not valid.any():
-        chosen = np.ones(len(means), bool)
+    if not bool(valid.any()):
+        chosen = torch.ones(len(lab), dtype=torch.bool, device=lab.device)
     else:
         # distance of each cluster to the centre: its nearest Gaussian
-        dmin = np.full(int(lab.max()) + 1, np.inf)
-        np.minimum.at(dmin, lab[valid], d[valid])
-        dmin[0] = np.inf
-        chosen = lab == int(np.argmin(dmin))
+        d = (m_dev - torch.as_tensor(centre, dtype=torch.float64, device=m_dev.device)).norm(dim=1)
+        dmin = torch.full((int(lab.max()) + 1,), float("inf"), dtype=torch.float64, device=d.device)
+        dmin = dmin.scatter_reduce(0, lab[valid], d[valid], reduce="amin")
+        dmin[0] = float("inf")
+        chosen = lab == int(torch.argmin(dmin))
     selected = torch.zeros_like(cand)
-    selected[idx[torch.from_numpy(chosen).to(idx.device)]] = True
+    selected[idx[chosen.to(idx.device)]] = True
     logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
                 g.means.shape[0], len(ids))  # fmt: skip
     return ObjectSelection(prob, selected, centre, len(ids), on_support=on_support, support=support)
