@@ -20,7 +20,9 @@ import functools
 import hashlib
 import json
 import logging
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -182,22 +184,30 @@ def load_capture(
         p = str(f["file_path"])
         by_name[str((data_dir / p).resolve())] = p
         by_name.setdefault(Path(p).name, p)
-    views: list[CaptureView] = []
     n = int(cameras.camera_to_worlds.shape[0])
-    sources: dict[str, int] = {}
+    sizes, Ks, keys = [], [], []
     for i in range(n):
         img = Path(image_filenames[i])
-        key = by_name.get(str(img.resolve()), by_name.get(img.name, img.name))
+        keys.append(by_name.get(str(img.resolve()), by_name.get(img.name, img.name)))
         w, h = int(cameras.width[i]), int(cameras.height[i])
         s = 1.0 if max_width is None else min(1.0, max_width / w)
-        W, H = max(1, round(w * s)), max(1, round(h * s))
-        K = torch.tensor([[float(cameras.fx[i]) * s, 0.0, float(cameras.cx[i]) * s],
-                          [0.0, float(cameras.fy[i]) * s, float(cameras.cy[i]) * s], [0.0, 0.0, 1.0]])  # fmt: skip
-        label = label_paths[i] if label_paths is not None else None
-        mask, src = _foreground(data_dir, key, label, W, H)
+        sizes.append((max(1, round(w * s)), max(1, round(h * s))))
+        Ks.append(torch.tensor([[float(cameras.fx[i]) * s, 0.0, float(cameras.cx[i]) * s],
+                                [0.0, float(cameras.fy[i]) * s, float(cameras.cy[i]) * s], [0.0, 0.0, 1.0]]))  # fmt: skip
+
+    def foreground(i: int) -> tuple[np.ndarray, str]:
+        return _foreground(data_dir, keys[i], label_paths[i] if label_paths is not None else None, *sizes[i])
+
+    # the views' files on a thread pool: PNG decoding and the masks' decompression release the GIL (60 views of
+    # 512 px: 0.55 s one at a time on the GPU machine's CPU)
+    with ThreadPoolExecutor(max_workers=max(1, min(8, n, os.cpu_count() or 1))) as pool:
+        masks = list(pool.map(foreground, range(n)))
+    views: list[CaptureView] = []
+    sources: dict[str, int] = {}
+    for i, (mask, src) in enumerate(masks):
         sources[src] = sources.get(src, 0) + 1
-        views.append(CaptureView(viewmat_from_c2w(cameras.camera_to_worlds[i].cpu()), K, W, H,
-                                 torch.from_numpy(mask), name=key, mask_source=src))  # fmt: skip
+        views.append(CaptureView(viewmat_from_c2w(cameras.camera_to_worlds[i].cpu()), Ks[i], *sizes[i],
+                                 torch.from_numpy(mask), name=keys[i], mask_source=src))  # fmt: skip
     logger.info("object masks: %s", ", ".join(f"{v} views from {k}" for k, v in sorted(sources.items())))
     return views
 

@@ -60,14 +60,14 @@ class _Boundary:
     pid: Tensor
 
     @classmethod
-    def of(cls, grid: VoxelGrid, parts: np.ndarray) -> _Boundary:
+    def of(cls, grid: VoxelGrid, parts: np.ndarray, device: torch.device | str = "cpu") -> _Boundary:
         solid = parts >= 0
         inner = np.zeros_like(solid)
         inner[1:-1, 1:-1, 1:-1] = (solid[1:-1, 1:-1, 1:-1] & solid[:-2, 1:-1, 1:-1] & solid[2:, 1:-1, 1:-1]
                                    & solid[1:-1, :-2, 1:-1] & solid[1:-1, 2:, 1:-1] & solid[1:-1, 1:-1, :-2]
                                    & solid[1:-1, 1:-1, 2:])  # fmt: skip
         ijk = np.argwhere(solid & ~inner)
-        return cls(grid.centres(torch.from_numpy(ijk)), torch.from_numpy(parts[tuple(ijk.T)]))
+        return cls(grid.centres(torch.from_numpy(ijk)).to(device), torch.from_numpy(parts[tuple(ijk.T)]).to(device))
 
 
 @torch.no_grad()
@@ -80,31 +80,35 @@ def part_maps(grid: VoxelGrid, parts: np.ndarray | _Boundary, view: CaptureView,
     out = np.full(height * width, -1, np.int64)
     if len(b.pid) == 0:
         return out.reshape(height, width)
-    R, t = view.viewmat[:3, :3], view.viewmat[:3, 3]
+    dev = b.x.device
+    R, t = view.viewmat[:3, :3].to(dev), view.viewmat[:3, 3].to(dev)
+    K = view.K.to(dev)
     pc = b.x @ R.T + t
     sx, sy = width / view.width, height / view.height
     z = pc[:, 2]
-    u = (view.K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + view.K[0, 2]) * sx
-    v = (view.K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + view.K[1, 2]) * sy
+    u = (K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]) * sx
+    v = (K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]) * sy
     ok = (z > 1e-6) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
     pix = (v.floor().long() * width + u.floor().long())[ok]
     zz = z[ok]
-    best = torch.full((height * width,), float("inf")).scatter_reduce(0, pix, zz, reduce="amin")
+    best = torch.full((height * width,), float("inf"), device=dev).scatter_reduce(0, pix, zz, reduce="amin")
     front = zz <= best[pix]
     pid = b.pid[ok]
-    out_t = torch.from_numpy(out)
+    out_t = torch.from_numpy(out).to(dev)
     out_t[pix[front]] = pid[front]
-    return out_t.numpy().reshape(height, width)
+    return out_t.cpu().numpy().reshape(height, width)
 
 
 def observation_shares(grid: VoxelGrid, parts: np.ndarray, num_parts: int, views: Sequence[CaptureView],
-                       observations: Sequence[MaskObservation]) -> list[tuple[int, np.ndarray]]:  # fmt: skip
+                       observations: Sequence[MaskObservation], device: torch.device | str = "cpu"
+                       ) -> list[tuple[int, np.ndarray]]:  # fmt: skip
     """``(i, share [P])`` for each observation ``i`` whose view is among ``views`` and whose mask covers some part:
     the share of the mask's pixels where each part is the visible surface (module doc). ``parts``: int part id per
-    voxel, -1 outside the solid."""
+    voxel, -1 outside the solid. ``device``: where the part maps are rendered (the splat's: a GPU projects the
+    boundary voxels into 60 views in a fraction of the CPU's time)."""
     by_view = {v.name: v for v in views}
     maps: dict[tuple[str, int, int], np.ndarray] = {}
-    boundary = _Boundary.of(grid, parts)
+    boundary = _Boundary.of(grid, parts, device)
     out: list[tuple[int, np.ndarray]] = []
     for i, ob in enumerate(observations):
         view = by_view.get(ob.view)

@@ -429,14 +429,14 @@ def reconstruct_object(
     shares: list[tuple[int, np.ndarray]] = []
     if by_views:
         P = int(parts.max()) + 1
-        shares = observation_shares(grid, np.where(solids[0], parts, -1), P, views, observations)
+        shares = observation_shares(grid, np.where(solids[0], parts, -1), P, views, observations, device)
         if shares and cfg.absorb_unobserved:
             seen = fuse_part_materials(shares, observations, mat_names, P, a0, lam)[1]
             merged = absorb_unobserved(parts, seen >= cfg.min_part_observation)
             if merged is not parts:
                 parts = merged
                 shares = observation_shares(grid, np.where(solids[0], parts, -1), int(parts.max()) + 1, views,
-                                            observations)  # fmt: skip
+                                            observations, device)  # fmt: skip
             # touching parts whose views name the same material are one piece of it (the absorbed voxels that
             # separated them now join them)
             P = int(parts.max()) + 1
@@ -454,7 +454,7 @@ def reconstruct_object(
     pm /= pm.sum(1, keepdims=True)
     levels: np.ndarray | None = None  # one material per part and sample, from its pooled mixture
     if observations and not by_views:  # the structure's evidence
-        shares = observation_shares(grid, nominal_parts, P, views, observations)
+        shares = observation_shares(grid, nominal_parts, P, views, observations, device)
     if cfg.part_materials == "voxels" or alpha is None:
         levels = material_quantiles(parts, mixture, P, pm)
     else:
