@@ -301,10 +301,6 @@ class ExportCommand:
 
     def main(self) -> ExportResult:
         check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
-        if {"mass", "voxels"} & set(self.outputs):  # the geometry's imports beside the loading (geometry/prefetch.py)
-            from ..geometry.prefetch import prefetch_imports
-
-            prefetch_imports()
         run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env,
                        capture=bool({"mass", "voxels"} & set(self.outputs)))
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
