@@ -175,6 +175,36 @@ def _replay_rasterization() -> None:
     reconstruct.render_depth = lambda *a, **k: _RASTER["render"]
 
 
+_FUNCTIONS = {
+    "select": ["lift_masks", "_clusters", "find_support_plane"],
+    "reconstruct": ["_within_hull", "_object_views", "signed_mask_distances", "carve_votes_many", "solid_from_votes",
+                    "support_excess", "voxel_mixture", "part_labels", "observation_shares", "concavities",
+                    "pooled_part_alpha", "material_quantiles", "part_areas", "fuse_structure"],
+}  # fmt: skip
+_FUNC_TIMES: dict[str, list[float]] = {}
+
+
+def _time_functions(device: str) -> None:
+    """Time the geometry's functions (--functions): each call wrapped with a device sync on both sides; the
+    variants' areas run on a thread pool, so their times overlap and add up to more than the stage's."""
+    from physgs_nerfstudio.geometry import reconstruct, select
+
+    sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
+    for mod, names in ((select, _FUNCTIONS["select"]), (reconstruct, _FUNCTIONS["reconstruct"])):
+        for name in names:
+            f = getattr(mod, name)
+
+            def timed(*a, _f=f, _name=name, **k):
+                sync()
+                t = time.perf_counter()
+                out = _f(*a, **k)
+                sync()
+                _FUNC_TIMES.setdefault(_name, []).append(time.perf_counter() - t)
+                return out
+
+            setattr(mod, name, timed)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--gaussians", type=int, default=1_000_000)
@@ -188,6 +218,8 @@ def main() -> None:
                     help="the timed runs reuse the untimed run's lifted masks and depth renders (the same inputs "
                          "give the same outputs): the stages then time the rest, which a GPU run pays on its CPU; "
                          "for CPU comparisons, where the pure-torch rasterizer would hide it")  # fmt: skip
+    ap.add_argument("--functions", action="store_true",
+                    help="also time the geometry's functions, summed per timed run (median over the runs)")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     device = ("cuda" if torch.cuda.is_available() else "cpu") if args.device == "auto" else args.device
@@ -201,18 +233,27 @@ def main() -> None:
     run_once(pf, views, device, cfg)  # untimed: CUDA context, kernels, thread pools
     if args.reuse_rasterization:
         _replay_rasterization()
-    runs = [run_once(pf, views, device, cfg) for _ in range(args.repeats)]
+    if args.functions:
+        _time_functions(device)
+    runs, per_run = [], []
+    for _ in range(args.repeats):
+        _FUNC_TIMES.clear()
+        runs.append(run_once(pf, views, device, cfg))
+        per_run.append({k: sum(v) for k, v in _FUNC_TIMES.items()})
     med = {k: statistics.median(r[0][k] for r in runs) for k in runs[0][0]}
     print(f"{'stage':<24}{'median s':>10}")
     for k, v in med.items():
         print(f"{k:<24}{v:>10.3f}")
+    functions = {k: statistics.median(r.get(k, 0.0) for r in per_run) for k in per_run[0]} if args.functions else {}
+    for k, v in sorted(functions.items(), key=lambda kv: -kv[1]):
+        print(f"  {k:<22}{v:>10.3f}")
     print(f"mass {runs[-1][1]:.2f} kg (the table's true mass {true_kg:.2f} kg; a sanity check, not an accuracy figure)")
     if args.out:
         args.out.write_text(json.dumps({"gaussians": pf.num_gaussians, "views": len(views), "size": args.size,
                                         "device": device, "depth_render": args.depth_render,
                                         "reuse_rasterization": args.reuse_rasterization, "gpu": torch.cuda.get_device_name() if device == "cuda"
                                         else None, "repeats": args.repeats, "median_s": med,
-                                        "runs_s": [r[0] for r in runs], "mass_kg": runs[-1][1],
+                                        "runs_s": [r[0] for r in runs], "functions_s": functions, "mass_kg": runs[-1][1],
                                         "true_kg": true_kg}, indent=2))  # fmt: skip
 
 

@@ -8,6 +8,7 @@
 #   bash benchmarks/gpu/run_gpu.sh mem       # issue 13: memory and iteration cost of the material heads (chair)
 #   HEAD=lifted bash benchmarks/gpu/run_gpu.sh full   # the full run with another material head
 #   BASE=.export_base bash benchmarks/gpu/run_gpu.sh export  # issues 12+13: full chair run, its mass, exports before/after
+#                                            # (MID=NAME=DIR: a third tree between them)
 #   OBJECTS=5 STEPS=3000 bash benchmarks/gpu/run_gpu.sh batch     # issue 14: physgs batch (local) over the suite
 #   bash benchmarks/gpu/run_gpu.sh geometry  # issue 12: full chair run, geometry vs ground truth (geometry_diag.py)
 #   OBJECTS="table stool" bash benchmarks/gpu/run_gpu.sh gsuite  # issue 12: the same for other generated objects
@@ -144,7 +145,8 @@ case "${1:-kernels}" in
       cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
     fi
     echo "[$(elapsed) s] exports before/after"  # CASES: the cases, in order; PROFILE=0: no --profile-load/--breakdown
-    python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" --tree "after=$PWD" --views 10 --warmup \
+    python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "before=$BASE" ${MID:+--tree "$MID"} --tree "after=$PWD" \
+      --views 10 --warmup \
       --cases ${CASES:-load mass all maps1 mapsN ply} $([ "${PROFILE:-1}" = 1 ] && echo --profile-load --breakdown) \
       --budget-s $((LIMIT - 60 - $(elapsed))) --out "$OUT/export.json" 2>&1 | grep -v Warning > "$OUT/export.log"
     tail -30 "$OUT/export.log"
