@@ -251,3 +251,15 @@ def test_small_training_images_are_not_downscaled_into_splitting_every_gaussian(
     assert out["rgb"].shape[:2] == model.get_gt_img(batch["image"]).shape[:2]
     assert long_side * 0.05 < 6.0  # the blob's 32 px: even full resolution is too small for the split
     assert model.strategy.refine_scale2d_stop_iter == 0 and d == 4  # split off; the schedule is then harmless
+
+
+@pytest.mark.parametrize("per_call", [2, 3])
+def test_lifting_several_views_per_call_gives_the_same_evidence(blob_dm, per_call) -> None:
+    model = make_model(blob_dm)
+    cameras, cached = blob_dm.material_views("train")
+    assert len(cached) >= 3
+    one = lift_material_maps(model, cameras, cached)
+    many = lift_material_maps(model, cameras, cached, views_per_call=per_call)
+    assert float(one.evidence.sum()) > 0 and one.views == many.views > 0
+    for a, b in ((one.evidence, many.evidence), (one.weight, many.weight), (one.labelled, many.labelled)):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)

@@ -27,7 +27,7 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineC
 from torch import Tensor
 
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
-from physgs_nerfstudio.lifting import label_evidence_maps, lift_evidence
+from physgs_nerfstudio.lifting import label_evidence_maps, lift_views
 
 from .datamanager import PhysGSDatamanagerConfig
 from .model import MaterialEvidence, PhysGSModel, PhysGSModelConfig
@@ -53,6 +53,10 @@ class PhysGSPipelineConfig(VanillaPipelineConfig):
     """Channels per lifting render (`lift_evidence`'s channel_chunk; K evidence + labelled + visibility channels in
     all): fewer channels per render lower its peak memory and cost more renders. gsplat renders 1-5, 8, 9, 16,
     17, 32, 33, ... channels as they are and pads any other count to the next power of two."""
+    lift_views_per_call: int = 1
+    """Training views rendered in one rasterizer call per lifting (`lift_views`): more save the per-call work on a
+    GPU (projection, tile sorting, launches) and raise the lifting's peak memory with the views in flight
+    (benchmarks/README.md, "Training")."""
     evidence_per_view: Literal["view", "pixels"] = "view"
     """How a view's lifted evidence counts in the Dirichlet. "view": divided by the Gaussian's blending weight in
     that view, so every view that sees the Gaussian (weight above `min_view_weight`) is one confidence-weighted
@@ -85,10 +89,13 @@ def lift_material_maps(
     min_view_weight: float = 0.05,
     min_evidence: float = 1e-3,
     channel_chunk: int = 32,
+    views_per_call: int = 1,
 ) -> MaterialEvidence:
     """The material maps of `views` (cached data with `material` / `material_confidence`, [H, W, 1] uint8,
     one per camera of `cameras`) lifted onto the model's Gaussians as they stand (module doc). Views without
-    a map still count for every Gaussian's total weight (labelled_fraction)."""
+    a map still count for every Gaussian's total weight (labelled_fraction). ``views_per_call``: views of one size
+    rendered in one rasterizer call (:func:`physgs_nerfstudio.lifting.lift_views`); the same evidence, added view
+    by view in order."""
     K, N, device = model.num_materials, model.num_points, model.device
     geometry = (model.means.detach(), model.quats.detach(), torch.exp(model.scales.detach()),
                 torch.sigmoid(model.opacities.detach()).squeeze(-1))  # fmt: skip
@@ -96,26 +103,41 @@ def lift_material_maps(
     weight = torch.zeros(N, 1, device=device)
     labelled = torch.zeros(N, 1, device=device)
     used = 0
-    for idx, data in enumerate(views):
-        maps, has_labels = _view_maps(data, K, device)
-        used += int(has_labels)
-        cam = cameras[idx : idx + 1].to(device)
-        cam.metadata = {"cam_idx": idx}
-        c2w = model.camera_optimizer.apply_to_camera(cam)
-        lifted = lift_evidence(
-            *geometry, viewmat_from_c2w(c2w), cam.get_intrinsics_matrices().to(device), int(cam.width.item()),
-            int(cam.height.item()), maps, backend=model.config.rasterize_backend,
-            rasterize_mode=model.config.rasterize_mode, channel_chunk=channel_chunk,
-        )  # fmt: skip
-        view_evidence, view_labelled = lifted.evidence[:, :K].to(evidence), lifted.evidence[:, K:].to(labelled)
-        view_weight = lifted.visibility.to(weight)[:, None]
-        if evidence_per_view == "view":
-            seen = view_weight > min_view_weight
-            norm = torch.where(seen, view_weight, torch.full_like(view_weight, float("inf")))
-            view_evidence, view_weight, view_labelled = view_evidence / norm, view_weight / norm, view_labelled / norm
-        evidence += view_evidence
-        weight += view_weight
-        labelled += view_labelled
+    groups: list[list[int]] = []  # consecutive views of one size, at most views_per_call each
+    for idx in range(len(views)):
+        size = (int(cameras.width[idx]), int(cameras.height[idx]))
+        if groups and len(groups[-1]) < views_per_call and size == (int(cameras.width[groups[-1][0]]),
+                                                                     int(cameras.height[groups[-1][0]])):  # fmt: skip
+            groups[-1].append(idx)
+        else:
+            groups.append([idx])
+    for group in groups:
+        maps, viewmats, Ks = [], [], []
+        for idx in group:
+            view_maps, has_labels = _view_maps(views[idx], K, device)
+            maps.append(view_maps)
+            used += int(has_labels)
+            cam = cameras[idx : idx + 1].to(device)
+            cam.metadata = {"cam_idx": idx}
+            viewmats.append(viewmat_from_c2w(model.camera_optimizer.apply_to_camera(cam)))
+            Ks.append(cam.get_intrinsics_matrices().to(device))
+        width, height = int(cameras.width[group[0]]), int(cameras.height[group[0]])
+        for _, ev, vis in lift_views(
+            *geometry, torch.cat(viewmats), torch.cat(Ks), width, height, torch.cat(maps),
+            backend=model.config.rasterize_backend, rasterize_mode=model.config.rasterize_mode,
+            channel_chunk=channel_chunk, views_per_call=len(group),
+        ):  # fmt: skip
+            for k in range(vis.shape[0]):  # view by view, in order
+                view_evidence, view_labelled = ev[k, :, :K].to(evidence), ev[k, :, K:].to(labelled)
+                view_weight = vis[k].to(weight)[:, None]
+                if evidence_per_view == "view":
+                    seen = view_weight > min_view_weight
+                    norm = torch.where(seen, view_weight, torch.full_like(view_weight, float("inf")))
+                    view_evidence, view_weight, view_labelled = (view_evidence / norm, view_weight / norm,
+                                                                 view_labelled / norm)  # fmt: skip
+                evidence += view_evidence
+                weight += view_weight
+                labelled += view_labelled
     evidence = evidence.clamp_min(0.0)
     evidence[evidence.sum(-1) < min_evidence] = 0.0
     return MaterialEvidence(evidence, weight, labelled.clamp_min(0.0), used)
@@ -138,7 +160,8 @@ class PhysGSPipeline(VanillaPipeline):
         c = self.config
         lifted = lift_material_maps(self.model, cameras, views, evidence_per_view=c.evidence_per_view,
                                     min_view_weight=c.min_view_weight, min_evidence=c.min_evidence,
-                                    channel_chunk=c.lift_channel_chunk)  # fmt: skip
+                                    channel_chunk=c.lift_channel_chunk,
+                                    views_per_call=c.lift_views_per_call)  # fmt: skip
         self.model.set_material_evidence(lifted)
         return lifted
 
