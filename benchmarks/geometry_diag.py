@@ -104,6 +104,8 @@ def main() -> None:
     ap.add_argument("--baseline", action="store_true",
                     help="the geometry before the hull test and the mask completion (before/after comparisons)")
     ap.add_argument("--tag", default="", help="suffix of the output files (geometry_diag<tag>.json)")
+    ap.add_argument("--hull-vote-fraction", type=float, default=None,
+                    help="the selection's hull_vote_fraction (default: the shipped one)")
     a = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     a.out.mkdir(parents=True, exist_ok=True)
@@ -133,6 +135,8 @@ def main() -> None:
     real = op >= 0.05
     done("ground truth per Gaussian")
     cfg = reconstruct.GeometryConfig()
+    if a.hull_vote_fraction is not None:
+        cfg.select.hull_vote_fraction = a.hull_vote_fraction
     if a.no_hull or a.baseline:
         cfg.select.hull_vote_fraction = 2.0
     if a.baseline:
