@@ -120,6 +120,34 @@ def test_box_volume_from_carving(box):
     assert np.all(np.abs(geo.volumes.sum(1) / v - 1) < 0.25)
 
 
+def test_lifting_falls_back_to_one_view_per_call_when_a_group_runs_out_of_gpu_memory(box, monkeypatch, caplog):
+    """A group of views in one rasterizer call that runs out of GPU memory is lifted again view by view: the same
+    evidence, and a warning instead of a failed export."""
+    from physgs_nerfstudio.geometry import gaussians
+
+    pf, views = box
+    views = views[:5]
+    expect = gaussians.lift_masks(pf, views, backend="reference", views_per_call=1)
+    real = gaussians.lift_views
+    calls = []
+
+    def lift_views(*a, views_per_call=1, **k):
+        calls.append(views_per_call)
+        if views_per_call > 1:
+            raise torch.cuda.OutOfMemoryError("CUDA out of memory (simulated)")
+        return real(*a, views_per_call=views_per_call, **k)
+
+    monkeypatch.setattr(gaussians, "lift_views", lift_views)
+    monkeypatch.setattr(torch.cuda, "empty_cache", lambda: None)
+    with caplog.at_level("WARNING"):
+        got = gaussians.lift_masks(pf, views, backend="reference", views_per_call=3)
+    assert calls == [3, 1, 1, 1, 2, 1, 1]
+    assert "one at a time" in caplog.text
+    for a, b in zip(got, expect):
+        torch.testing.assert_close(a, b)
+    assert float(expect[0].sum()) > 0
+
+
 def test_sphere_volume_and_area():
     R = 0.25
     means, scales, quats = shell_sphere(R, 0.015)

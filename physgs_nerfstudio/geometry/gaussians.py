@@ -7,9 +7,10 @@ Works on any object with ``means``, ``quats``, ``scales`` (activated), ``opaciti
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import logging
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import torch
 from jaxtyping import Float
@@ -21,6 +22,9 @@ from ..render.backend import resolve_backend
 from .capture import CaptureView
 
 __all__ = ["ViewRender", "depth_spread", "lift_masks", "render_depth"]
+
+logger = logging.getLogger(__name__)
+_T = TypeVar("_T")
 
 
 @dataclass
@@ -76,7 +80,8 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
     # each attribute read once (on a subset view of a field, every read gathers its rows again)
     means, quats, scales, opacities = g.means, g.quats, g.scales, g.opacities
     dev = means.device
-    for group in _view_groups(views, _views_per_call(backend, dev, means.shape[0])):
+
+    def render(group: list[CaptureView]) -> list[ViewRender]:
         vm = torch.stack([v.viewmat.to(dev) for v in group])
         K = torch.stack([v.K.to(dev) for v in group])
         if spread:
@@ -86,6 +91,7 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
             colors = torch.zeros(means.shape[0], 1, device=dev)
         rgbd, alpha, _ = rasterize(means, quats, scales, opacities, colors, vm, K, group[0].width, group[0].height,
                                    render_mode="RGB+ED", packed=False, backend=backend)  # fmt: skip
+        rendered = []
         for i, v in enumerate(group):
             a = alpha[i, ..., 0]
             d = rgbd[i, ..., -1]
@@ -99,7 +105,11 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
                 med = torch.where(a > 1e-3, torch.where(torch.isfinite(med), med.to(d.dtype), d), float("inf"))
                 if depth == "median":
                     d, med = med, None
-            out.append(ViewRender(torch.where(a > 1e-3, d, torch.full_like(d, float("inf"))), a, sp, med))
+            rendered.append(ViewRender(torch.where(a > 1e-3, d, torch.full_like(d, float("inf"))), a, sp, med))
+        return rendered
+
+    for group in _view_groups(views, _views_per_call(backend, dev, means.shape[0])):
+        out += _grouped(render, group)
     return out
 
 
@@ -153,18 +163,36 @@ def lift_masks(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
     per_call = views_per_call if views_per_call is not None else _views_per_call(backend, dev, n)
     inside = torch.zeros(n, dtype=torch.float64, device=dev)
     outside = torch.zeros_like(inside)
-    for group in _view_groups(views, per_call):
+
+    def lift(group: list[CaptureView]) -> list[tuple[Tensor, Tensor]]:
         size = (group[0].width, group[0].height)
         masks = torch.stack([v.mask.to(dev).float() for v in group])[..., None]
         viewmats = torch.stack([v.viewmat.to(dev) for v in group])
         Ks = torch.stack([v.K.to(dev) for v in group])
-        for _, ev, vis in lift_views(means, quats, scales, opacities, viewmats, Ks, size[0], size[1], masks,
-                                     backend=backend, views_per_call=len(group)):  # type: ignore[arg-type]  # fmt: skip
-            for k in range(vis.shape[0]):  # view by view, in order
-                w = vis[k].double()
-                seen = w > min_view_weight
-                frac = torch.where(seen, ev[k, :, 0].double() / w.clamp_min(1e-12), torch.zeros_like(w)).clamp(0, 1)
-                inside += torch.where(seen, frac, torch.zeros_like(frac))
-                outside += torch.where(seen, 1 - frac, torch.zeros_like(frac))
+        return [(ev[k, :, 0], vis[k])
+                for _, ev, vis in lift_views(means, quats, scales, opacities, viewmats, Ks, size[0], size[1], masks,
+                                             backend=backend, views_per_call=len(group))  # type: ignore[arg-type]
+                for k in range(vis.shape[0])]  # fmt: skip
+
+    for group in _view_groups(views, per_call):
+        for ev, vis in _grouped(lift, group):  # view by view, in order
+            w = vis.double()
+            seen = w > min_view_weight
+            frac = torch.where(seen, ev.double() / w.clamp_min(1e-12), torch.zeros_like(w)).clamp(0, 1)
+            inside += torch.where(seen, frac, torch.zeros_like(frac))
+            outside += torch.where(seen, 1 - frac, torch.zeros_like(frac))
     return inside, outside
 
+
+def _grouped(fn: Callable[[list[CaptureView]], list[_T]], group: list[CaptureView]) -> list[_T]:
+    """``fn(group)``, one result per view; when the group runs out of GPU memory, its views one at a time (the same
+    results: a grouped call only saves per-call work)."""
+    try:
+        return fn(group)
+    except torch.cuda.OutOfMemoryError:
+        if len(group) == 1:
+            raise
+        torch.cuda.empty_cache()
+        logger.warning("out of GPU memory with %d views in one rasterizer call: rendering them one at a time",
+                       len(group))  # fmt: skip
+        return [r for v in group for r in fn([v])]
