@@ -186,3 +186,13 @@ def test_label_evidence_maps():
     with pytest.raises(ValueError, match="shape"):
         label_evidence_maps(labels, conf[..., :1], num_classes=3)
     assert math.isclose(float(ev.sum()), 1.75)
+
+
+def test_group_views_runs_of_one_size_in_order():
+    from physgs_nerfstudio.lifting import group_views
+
+    sizes = [(8, 6), (8, 6), (8, 6), (4, 3), (8, 6), (8, 6)]
+    assert group_views(sizes, 2) == [[0, 1], [2], [3], [4, 5]]
+    assert group_views(sizes, 8) == [[0, 1, 2], [3], [4, 5]]
+    assert group_views(sizes, 1) == [[i] for i in range(6)]
+    assert group_views([], 4) == []

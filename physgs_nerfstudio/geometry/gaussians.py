@@ -16,7 +16,7 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-from ..lifting import lift_views
+from ..lifting import group_views, lift_views
 from ..render import rasterize, reference_median_depth
 from ..render.backend import resolve_backend
 from .capture import CaptureView
@@ -139,14 +139,8 @@ def _views_per_call(backend: str, device: torch.device, n: int) -> int:
 
 
 def _view_groups(views: Sequence[CaptureView], per_call: int) -> list[list[CaptureView]]:
-    """Consecutive runs of at most ``per_call`` views of one size, in order."""
-    groups: list[list[CaptureView]] = []
-    for v in views:
-        if groups and len(groups[-1]) < per_call and (groups[-1][0].width, groups[-1][0].height) == (v.width, v.height):
-            groups[-1].append(v)
-        else:
-            groups.append([v])
-    return groups
+    """Consecutive runs of at most ``per_call`` views of one size, in order (:func:`..lifting.group_views`)."""
+    return [[views[i] for i in g] for g in group_views([(v.width, v.height) for v in views], per_call)]
 
 
 @torch.no_grad()

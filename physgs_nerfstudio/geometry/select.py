@@ -219,7 +219,8 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
         raise GeometryError("no Gaussian lies on the object masks of the views (foreground probability >= "
                          f"{cfg.min_prob}): check that perception ran on this dataset, or give a bbox.")  # fmt: skip
     idx = torch.nonzero(cand).squeeze(1)
-    means = g.means[idx].double().cpu().numpy()
+    m_dev = g.means[idx].double()  # the candidates' means, gathered once
+    means = m_dev.cpu().numpy()
     on_support = 0
     extent = None
     support = None
@@ -235,9 +236,9 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
             flat = torch.from_numpy(np.abs(height) <= plane.tol).to(idx.device)
             support = torch.zeros_like(cand)
             support[idx[flat]] = True
-            idx = idx[torch.from_numpy(keep).to(idx.device)]
+            kept = torch.from_numpy(keep).to(idx.device)
+            idx, m_dev = idx[kept], m_dev[kept]
             extent = plane.size  # the scene the plane holds, not the floaters and background around it
-    m_dev = g.means[idx].double()
     lab, _, _, ids = _clusters(m_dev, cfg, extent)
     valid = lab > 0
     if not bool(valid.any()):

@@ -9,7 +9,7 @@ the evidence of every Gaussian at once. Geometry is detached; no gradient reache
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import NamedTuple
 
 import torch
@@ -62,6 +62,18 @@ def lift_evidence(
         evidence += ev[0]
         visibility += vis[0]
     return LiftResult(evidence=evidence, visibility=visibility)
+
+
+def group_views(sizes: Sequence[tuple[int, int]], per_call: int) -> list[list[int]]:
+    """Indices of the consecutive runs of at most ``per_call`` views of one size ``(width, height)``, in order: the
+    groups that :func:`lift_views` (or any rasterizer call of several cameras) can take in one call."""
+    groups: list[list[int]] = []
+    for i, size in enumerate(sizes):
+        if groups and len(groups[-1]) < per_call and sizes[groups[-1][0]] == size:
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    return groups
 
 
 def lift_views(

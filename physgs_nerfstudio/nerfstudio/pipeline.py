@@ -27,7 +27,7 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineC
 from torch import Tensor
 
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
-from physgs_nerfstudio.lifting import label_evidence_maps, lift_views
+from physgs_nerfstudio.lifting import group_views, label_evidence_maps, lift_views
 
 from .datamanager import PhysGSDatamanagerConfig
 from .model import MaterialEvidence, PhysGSModel, PhysGSModelConfig
@@ -103,15 +103,8 @@ def lift_material_maps(
     weight = torch.zeros(N, 1, device=device)
     labelled = torch.zeros(N, 1, device=device)
     used = 0
-    groups: list[list[int]] = []  # consecutive views of one size, at most views_per_call each
-    for idx in range(len(views)):
-        size = (int(cameras.width[idx]), int(cameras.height[idx]))
-        if groups and len(groups[-1]) < views_per_call and size == (int(cameras.width[groups[-1][0]]),
-                                                                     int(cameras.height[groups[-1][0]])):  # fmt: skip
-            groups[-1].append(idx)
-        else:
-            groups.append([idx])
-    for group in groups:
+    sizes = [(int(cameras.width[i]), int(cameras.height[i])) for i in range(len(views))]
+    for group in group_views(sizes, views_per_call):
         maps, viewmats, Ks = [], [], []
         for idx in group:
             view_maps, has_labels = _view_maps(views[idx], K, device)
