@@ -648,23 +648,26 @@ def default_batch_points(device: torch.device | str) -> int:
     return 1 << 23 if torch.device(device).type == "cuda" else 1
 
 
-def mask_votes(x: Tensor, views: Sequence[CaptureView], sdf: Sequence[Tensor], margin_px: float,
-               batch_points: int | None = None) -> tuple[Tensor, Tensor]:  # fmt: skip
-    """int32 [n] each, for points ``x`` [n, 3] (float32, on the views' device): the views that frame each point (in
-    front of the camera, inside the image) and those among them in which it lies outside the mask by more than
-    ``margin_px`` (``sdf``: the masks' signed distances, :func:`signed_mask_distances`, on that device); the
-    carving's projection and mask lookup (:func:`carve_votes_many`), views of one image size together."""
+def mask_view_votes(x: Tensor, views: Sequence[CaptureView], sdf: Sequence[Tensor], margin_px: float,
+                    batch_points: int | None = None) -> tuple[Tensor, Tensor]:  # fmt: skip
+    """bool [V, n] each, for points ``x`` [n, 3] (float32, on the views' device), in the order of ``views``: whether
+    each view frames each point (in front of the camera, inside the image), and whether it frames it and the point
+    lies outside its mask by more than ``margin_px`` (``sdf``: the masks' signed distances,
+    :func:`signed_mask_distances`, on that device); the carving's projection and mask lookup
+    (:func:`carve_votes_many`), views of one image size together."""
     dev = x.device
     cams = [(v.viewmat[:3, :3].to(dev), v.viewmat[:3, 3].to(dev), v.K.to(dev)) for v in views]
     none = [None] * len(views)
     batches = _ViewBatch.group(views, cams, list(sdf), none, none, False)
-    framed = torch.zeros(len(x), dtype=torch.int32, device=dev)
+    row = {id(v): i for i, v in enumerate(views)}
+    framed = torch.zeros(len(views), len(x), dtype=torch.bool, device=dev)
     outside = torch.zeros_like(framed)
     points = batch_points if batch_points is not None else default_batch_points(dev)
     for part in _ViewBatch.parts(batches, len(x), points):
         ok, _, dist, *_ = part.lookup(x)
-        _add_views(framed, ok)
-        _add_views(outside, ok & (dist > margin_px))
+        rows = torch.tensor([row[id(v)] for v in part.views], device=dev)
+        framed[rows] = ok
+        outside[rows] = ok & (dist > margin_px)
     return framed, outside
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
 
 import torch
@@ -49,6 +50,11 @@ class PhysGSPipelineConfig(VanillaPipelineConfig):
     """Also lift every this many steps during training (0 = off), so that the viewer shows the lifted materials
     and properties while training runs (with `material_head="lifted"`, the only material map there is). Each
     lifting costs one K+2 channel render and backward per training view (benchmarks/README.md, "Training")."""
+    lifting_every_needs_viewer: bool = True
+    """The `lifting_every` liftings are previews, for the viewer (with `material_head="lifted"`, the final material
+    field is the last iteration's lifting whatever they did): they run only when the trainer has a viewer (`--vis`
+    viewer, viewer+tensorboard, ...), and a headless run lifts once before an evaluation that is due after a skipped
+    one, so evaluations read materials as fresh. False: they run in every run."""
     lift_channel_chunk: int = 8
     """Channels per lifting render (`lift_evidence`'s channel_chunk; K evidence + labelled + visibility channels in
     all): fewer channels per render lower its peak memory and cost more renders. gsplat renders 1-5, 8, 9, 16,
@@ -164,6 +170,7 @@ class PhysGSPipeline(VanillaPipeline):
         cbs = super().get_training_callbacks(training_callback_attributes)
         trainer = training_callback_attributes.trainer
         iterations = trainer.config.max_num_iterations if trainer is not None else None
+        self._viewer = trainer is not None and "viewer" in str(getattr(trainer.config, "vis", ""))
         cbs.append(
             TrainingCallback(
                 [TrainingCallbackLocation.AFTER_TRAIN_ITERATION], self._lift_on_schedule, args=[iterations]
@@ -180,8 +187,27 @@ class PhysGSPipeline(VanillaPipeline):
         last = None if iterations is None else self._first_step + iterations - 1
         every = self.config.lifting_every
         periodic = every > 0 and step > 0 and step % every == 0
+        if periodic and self.config.lifting_every_needs_viewer and not getattr(self, "_viewer", False):
+            periodic = False  # a preview that nobody sees (config doc): the next evaluation lifts instead
+            self._stale = True
         if step == self.lifting_step or periodic or (self.config.lift_at_end and step == last):
             # the iteration's parameter gradients are spent (the optimizers stepped; the next iteration zeroes
             # them): free them so that the lifting's peak memory does not stack on them
             self.model.zero_grad(set_to_none=True)
             self.lift()
+            self._stale = False
+
+    def _lift_if_stale(self) -> None:
+        """Lift before an evaluation when a periodic lifting was skipped since the last one (headless runs)."""
+        if getattr(self, "_stale", False):
+            self.lift()
+            self._stale = False
+
+    def get_eval_image_metrics_and_images(self, step: int):  # type: ignore[no-untyped-def]
+        self._lift_if_stale()
+        return super().get_eval_image_metrics_and_images(step)
+
+    def get_average_eval_image_metrics(self, step: int | None = None, output_path: Path | None = None,
+                                       get_std: bool = False):  # type: ignore[no-untyped-def]  # fmt: skip
+        self._lift_if_stale()
+        return super().get_average_eval_image_metrics(step, output_path, get_std)
