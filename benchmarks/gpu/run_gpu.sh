@@ -100,7 +100,7 @@ case "${1:-kernels}" in
     if [ -n "${ALT_ARGS:-}" ]; then
       echo "[$(elapsed) s] re-export: $ALT_ARGS"
       CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $SEEDS --jobs "$JOBS" --out /tmp/mass_suite \
-        --alt-name "${ALT_NAME:-alt}" --export-args "$ALT_ARGS" > "$OUT/mass_suite_${ALT_NAME:-alt}.log" 2>&1
+        --alt-name "${ALT_NAME:-alt}" --export-args="$ALT_ARGS" > "$OUT/mass_suite_${ALT_NAME:-alt}.log" 2>&1
       tail -2 "$OUT/mass_suite_${ALT_NAME:-alt}.log"; cp /tmp/mass_suite/mass_suite_${ALT_NAME:-alt}.json "$OUT/" 2>/dev/null
     fi
     echo "[$(elapsed) s] suite done; waiting for gsplat"; wait
@@ -247,7 +247,7 @@ case "${1:-kernels}" in
       (CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $SUITE_SEEDS --jobs "${JOBS:-12}" \
         --out /tmp/mass_suite > "$OUT/mass_suite.log" 2>&1; cp /tmp/mass_suite/mass_suite.json "$OUT/" 2>/dev/null
        CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $SUITE_SEEDS --jobs "${JOBS:-12}" --out \
-        /tmp/mass_suite --alt-name baseline --export-args "--mass.geometry.select.hull-vote-fraction 2 \
+        /tmp/mass_suite --alt-name baseline --export-args="--mass.geometry.select.hull-vote-fraction 2 \
         --mass.geometry.no-complete-masks" > "$OUT/mass_suite_baseline.log" 2>&1
        cp /tmp/mass_suite/mass_suite_baseline.json "$OUT/" 2>/dev/null; echo "[$(elapsed) s] suite done") &
       SUITE_PID=$!
@@ -380,7 +380,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
             > "$OUT/mass_suite.log" 2>&1; tail -1 "$OUT/mass_suite.log"; cp /tmp/mass_suite/mass_suite.json "$OUT/" 2>/dev/null
           if [ -n "${ALT_ARGS:-}" ]; then
             CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $CPU_SEEDS --jobs "${JOBS:-8}" --out /tmp/mass_suite \
-              --alt-name "${ALT_NAME:-alt}" --export-args "$ALT_ARGS" > "$OUT/mass_suite_${ALT_NAME:-alt}.log" 2>&1
+              --alt-name "${ALT_NAME:-alt}" --export-args="$ALT_ARGS" > "$OUT/mass_suite_${ALT_NAME:-alt}.log" 2>&1
             tail -1 "$OUT/mass_suite_${ALT_NAME:-alt}.log"; cp /tmp/mass_suite/mass_suite_${ALT_NAME:-alt}.json "$OUT/" 2>/dev/null
           fi
           echo "[$(elapsed) s] CPU suite done"
@@ -403,7 +403,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14
         if [ -n "${ALT_ARGS:-}" ]; then  # the same runs exported with ALT_ARGS as well
           python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
-            --alt-name "gpu_${ALT_NAME:-alt}" --export-args "$ALT_ARGS" > "$OUT/gpu_mass_suite_${ALT_NAME:-alt}.log" 2>&1
+            --alt-name "gpu_${ALT_NAME:-alt}" --export-args="$ALT_ARGS" > "$OUT/gpu_mass_suite_${ALT_NAME:-alt}.log" 2>&1
           tail -1 "$OUT/gpu_mass_suite_${ALT_NAME:-alt}.log"
         fi
         cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
