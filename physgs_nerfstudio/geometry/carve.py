@@ -415,8 +415,11 @@ class _ViewBatch:
     is, pair for pair, the one that a view on its own gets (:func:`carve_votes_many`)."""
 
     def __init__(self, views: list[CaptureView], cams: list[tuple[Tensor, Tensor, Tensor]],
-                 around: dict[str, list[Tensor]], held: dict[str, list[Tensor]], bilinear: bool) -> None:  # fmt: skip
+                 around: dict[str, list[Tensor]], held: dict[str, list[Tensor]], bilinear: bool,
+                 index: list[int] | None = None) -> None:  # fmt: skip
         self.views, self.cams, self.bilinear = views, cams, bilinear
+        self.index = index if index is not None else list(range(len(views)))
+        """each view's position in the views the batches were grouped from (:meth:`group`)"""
         self._around, self._held = around, held
         self._stacked: tuple[list, list] | None = None  # stacked when first looked up
         self._parts: dict[tuple[int, int], _ViewBatch] = {}
@@ -454,7 +457,7 @@ class _ViewBatch:
         for idx in groups.values():
             around = {k: [per_view[i][0][k] for i in idx] for k in per_view[idx[0]][0]}
             held = {k: [per_view[i][1][k] for i in idx] for k in per_view[idx[0]][1]}
-            out.append(cls([views[i] for i in idx], [cams[i] for i in idx], around, held, bilinear))
+            out.append(cls([views[i] for i in idx], [cams[i] for i in idx], around, held, bilinear, idx))
         return out
 
     @staticmethod
@@ -471,7 +474,8 @@ class _ViewBatch:
         if (b0, b1) in self._parts:  # (the next chunk of voxels)
             return self._parts[(b0, b1)]
         sub = lambda d: {k: v[b0:b1] for k, v in d.items()}
-        part = _ViewBatch(self.views[b0:b1], self.cams[b0:b1], sub(self._around), sub(self._held), self.bilinear)
+        part = _ViewBatch(self.views[b0:b1], self.cams[b0:b1], sub(self._around), sub(self._held), self.bilinear,
+                          self.index[b0:b1])  # fmt: skip
         self._parts[(b0, b1)] = part
         return part
 
@@ -659,13 +663,12 @@ def mask_view_votes(x: Tensor, views: Sequence[CaptureView], sdf: Sequence[Tenso
     cams = [(v.viewmat[:3, :3].to(dev), v.viewmat[:3, 3].to(dev), v.K.to(dev)) for v in views]
     none = [None] * len(views)
     batches = _ViewBatch.group(views, cams, list(sdf), none, none, False)
-    row = {id(v): i for i, v in enumerate(views)}
     framed = torch.zeros(len(views), len(x), dtype=torch.bool, device=dev)
     outside = torch.zeros_like(framed)
     points = batch_points if batch_points is not None else default_batch_points(dev)
     for part in _ViewBatch.parts(batches, len(x), points):
         ok, _, dist, *_ = part.lookup(x)
-        rows = torch.tensor([row[id(v)] for v in part.views], device=dev)
+        rows = torch.tensor(part.index, device=dev)
         framed[rows] = ok
         outside[rows] = ok & (dist > margin_px)
     return framed, outside

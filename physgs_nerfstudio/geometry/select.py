@@ -157,24 +157,23 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
             means[s0 : s0 + chunk].float(), views, sdf, cfg.hull_margin_px)
     n_framed, n_outside = framed.sum(0), outside.sum(0)
     if cfg.hull_weigh_views:
-        w = hull_view_weights(framed, outside).to(torch.float32)
-        w_framed = (framed.to(w.dtype) * w[:, None]).sum(0)
-        w_outside = (outside.to(w.dtype) * w[:, None]).sum(0)
+        w = hull_view_weights(framed, outside, (n_framed, n_outside)).to(torch.float32)
+        w_framed, w_outside = w @ framed.to(w.dtype), w @ outside.to(w.dtype)
         by_vote = (w_outside >= cfg.hull_vote_fraction * w_framed) & (w_framed > 0)
     else:
         by_vote = n_outside >= cfg.hull_vote_fraction * n_framed
     return ((n_outside >= cfg.hull_min_votes) & by_vote) | (n_framed < cfg.hull_min_framed_fraction * len(views))
 
 
-def hull_view_weights(framed: Tensor, outside: Tensor) -> Tensor:
+def hull_view_weights(framed: Tensor, outside: Tensor, counts: tuple[Tensor, Tensor] | None = None) -> Tensor:
     """float64 [V]: each view's weight in the hull vote, from the views' votes on the selected centres (bool [V, n]
     each, :func:`.carve.mask_view_votes`): the *recall* of its mask, the share of the centres that the views'
     majority holds inside the masks (inside in more than half of the views that frame them) which this view, where
     it frames them, holds inside too. A view whose segmentation lost a part of the object (the built-in segmenter at
     512 px dropped the table's top in a third of the views) keeps few of them, and its "outside" says little: it
     votes with that little weight, so that the views which did see the part decide. A view that frames none of them
-    weighs 1."""
-    n_framed, n_outside = framed.sum(0), outside.sum(0)
+    weighs 1. ``counts``: ``(framed.sum(0), outside.sum(0))`` when the caller has them."""
+    n_framed, n_outside = counts if counts is not None else (framed.sum(0), outside.sum(0))
     member = (n_framed > 0) & (2 * n_outside < n_framed)
     held = (framed & member).sum(1)
     kept = (framed & ~outside & member).sum(1)
