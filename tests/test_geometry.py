@@ -203,6 +203,37 @@ def test_floor_is_not_the_object():
     assert np.allclose(capture_centre(views), [0, 0, 0.15], atol=1e-3)
 
 
+def test_resting_plane_among_the_background_ends_the_solid():
+    """The masks hold the box alone, so the floor is background; the plane the box stands on is still found among
+    all the Gaussians, and no voxel centre of the solid lies under it."""
+    from physgs_nerfstudio.geometry.select import SelectConfig
+    from physgs_nerfstudio.geometry.support import SupportConfig
+
+    obj = box_surface((0.3, 0.3, 0.3), 0.02, centre=(0.0, 0.0, 0.15))
+    g = torch.arange(-1.0, 1.0, 0.04) + 0.02
+    X, Y = torch.meshgrid(g, g, indexing="ij")
+    fp = torch.stack([X, Y, torch.zeros_like(X) - 1e-3], -1).reshape(-1, 3).double()
+    floor = _flat(fp, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(fp), 0.032)
+    means, scales, quats = (torch.cat([a, b]) for a, b in zip(obj, floor))
+    labels = torch.cat([torch.zeros(len(obj[0])), torch.ones(len(floor[0]))]).long()
+    pf = field_from(means, scales, quats, densities=[700.0, 1500.0], labels=labels, names=["oak", "tile"],
+                    thickness_m=[None, None])  # fmt: skip
+    only_obj = field_from(*obj, densities=[700.0], names=["oak"])
+    views = ring_views(pf, (0, 0, 0.15), 1.6, elevations=(15.0, 40.0, 70.0), mask_pf=only_obj)
+    geo = _geo(pf, views, resolution=40)
+    plane = geo.selection.plane
+    assert plane is not None and geo.selection.support is None  # found among the background, not the foreground
+    assert abs(plane.normal[2]) > 0.999 and abs(plane.offset + 1e-3) < 0.01
+    ijk = np.argwhere(geo.solid)
+    z = np.asarray(geo.grid.origin)[2] + (ijk[:, 2] + 0.5) * geo.grid.voxel_size
+    assert (plane.height(np.column_stack([np.zeros((len(z), 2)), z])) >= 0).all()
+    assert 0.9 * 0.3**3 <= geo.volumes[0].sum() <= 1.2 * 0.3**3
+    off = _geo(pf, views, resolution=40, select=SelectConfig(support=SupportConfig(cut_below=False)))
+    assert off.selection.plane is None
+    # nothing below the plane is cut that the carving kept above it
+    assert (geo.solid <= off.solid).all() if geo.solid.shape == off.solid.shape else True
+
+
 def test_structure_per_part_not_per_material(tmp_path):
     """Two steel boxes: the masks over the left one are answered hollow (2 mm), over the right one solid."""
     left = box_surface((0.2, 0.2, 0.2), 0.02, centre=(-0.3, 0.0, 0.0))

@@ -552,3 +552,43 @@ def test_face_dilation_by_shifts_is_scipys():
     mask[0, 0, 0] = mask[-1, -1, -1] = True  # at the corners: nothing wraps around
     expect = ndimage.binary_dilation(mask, ndimage.generate_binary_structure(3, 1))
     assert np.array_equal(_dilate_faces(mask), expect)
+
+
+def test_inside_takes_the_material_seen_at_its_own_height():
+    """A shoe in voxels: a slab 3 voxels thick whose sides and rim show material 0, under a narrower block (inset by
+    2 voxels) whose sides and top show material 1, all solid, nothing observed inside. By plain distance much of the
+    slab's middle layer is nearer to the block's sides (8.2 voxels against 9.1 at its centre) and goes to material 1.
+    Counting height 3 times, the middle layer keeps (but for ties) the material of the slab's own sides (9.5 against 10); the layer
+    right under the block still goes partly to it. ``up_weight`` 1 is the plain Euclidean rule (oracle: a
+    brute-force nearest source per voxel)."""
+    from physgs_nerfstudio.geometry.parts import voxel_mixture
+
+    grid = VoxelGrid((0.0, 0.0, 0.0), 1.0, (20, 20, 12))
+    solid = np.zeros(grid.shape, bool)
+    solid[:, :, :3] = True
+    solid[2:18, 2:18, 3:] = True
+    inner = ndimage.binary_erosion(solid, ndimage.generate_binary_structure(3, 1), border_value=0)
+    face = solid & ~inner  # voxels with an empty face-neighbour
+    face[:, :, 0] = False  # the bottom rests on the floor: no view sees it
+    ijk = np.argwhere(face)
+    material = (ijk[:, 2] >= 3).astype(int)
+    means = torch.from_numpy(ijk + 0.5).float()
+    pi = torch.nn.functional.one_hot(torch.from_numpy(material), 2).double()
+    opac = torch.ones(len(ijk))
+    slab_inside = inner.copy()
+    slab_inside[:, :, 3:] = False
+    block_inside = inner & ~slab_inside
+    plain = np.argmax(voxel_mixture(grid, solid, means, opac, pi, up_weight=1.0), -1)
+    layered = np.argmax(voxel_mixture(grid, solid, means, opac, pi, up_weight=3.0), -1)  # GeometryConfig's default
+    assert (plain[slab_inside] == 1).mean() > 0.3  # the plain rule gives much of the slab to the block
+    mid = slab_inside.copy()
+    mid[:, :, 2:] = False  # the slab's middle layer (the top one lies a voxel under the block)
+    assert (plain[mid] == 1).mean() > 0.2 and (layered[mid] == 0).mean() > 0.9
+    assert (layered[slab_inside] == 0).mean() > (plain[slab_inside] == 0).mean() + 0.2
+    assert (layered[block_inside] == 1).all() and (plain[block_inside] == 1).all()
+    # the plain rule is the brute-force nearest source (ties: either material at equal distance)
+    c = np.argwhere(slab_inside) + 0.5
+    d = np.linalg.norm(c[:, None, :] - (ijk + 0.5)[None], axis=-1)
+    best = d.min(1, keepdims=True)
+    can = [(material[np.isclose(row, b)]) for row, b in zip(d, best[:, 0])]
+    assert all(p in m for p, m in zip(plain[slab_inside], can))

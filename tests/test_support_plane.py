@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from physgs_nerfstudio.geometry.support import SupportConfig, find_support_plane
+from physgs_nerfstudio.geometry.support import SupportConfig, find_resting_plane, find_support_plane
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -81,3 +81,29 @@ def test_a_tilted_floor_is_found_along_its_own_normal(tilt: float, seed: int) ->
     plane = find_support_plane(pts, _ring(30, 3.0, 20, 60) @ R.T, UP, SupportConfig())
     assert plane is not None
     assert plane.normal @ (R @ UP) > np.cos(np.deg2rad(1.0))
+
+
+@pytest.mark.parametrize("case", ["box", "table"])
+def test_resting_plane_is_the_floor_among_all_gaussians(case: str) -> None:
+    """:func:`find_resting_plane`: the object selected, the floor and far background not; the plane is the floor,
+    never the object's own face, and an object with no floor under it rests on nothing."""
+    rng = np.random.default_rng(2)
+    if case == "box":
+        obj = _box_surface(rng, (-0.2, -0.15, 0.0), (0.2, 0.15, 0.25), 4000)
+        obj = obj[obj[:, 2] > 1e-9]  # a splat has nothing on the face that rests on the floor: no view sees it
+    else:
+        top = _box_surface(rng, (-0.5, -0.3, 0.72), (0.5, 0.3, 0.745), 5000)
+        legs = [_box_surface(rng, (sx * 0.45 - 0.02, sy * 0.25 - 0.02, 0.0), (sx * 0.45 + 0.02, sy * 0.25 + 0.02, 0.72),
+                             500) for sx in (-1, 1) for sy in (-1, 1)]  # fmt: skip
+        obj = np.concatenate([top, *legs])
+    floor = _floor(rng, 3.0, 20000, z=-0.001)
+    far = rng.uniform(-6, 6, size=(2000, 3)) + np.array([0, 0, 3.0])  # background around and above
+    cams = _ring(40, 3.0, 15, 60)
+    pts = np.concatenate([obj, floor, far])
+    sel = np.zeros(len(pts), bool)
+    sel[: len(obj)] = True
+    plane = find_resting_plane(pts, sel, cams, UP)
+    assert plane is not None
+    assert abs(plane.normal @ UP) > 0.999 and abs(plane.offset + 0.001) < 0.005
+    assert find_resting_plane(np.concatenate([obj, far]), sel[: len(obj) + len(far)], cams, UP) is None
+    assert find_resting_plane(pts, sel, cams, UP, SupportConfig(enabled=False)) is None

@@ -11,6 +11,7 @@ solids, so a part keeps its identity across variants.
 from __future__ import annotations
 
 import logging
+import math
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -33,6 +34,7 @@ from .carve import (
 )
 from .errors import GeometryError
 from .extent import support_excess
+from .support import SupportPlane, find_resting_plane, views_up
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
@@ -123,6 +125,13 @@ class GeometryConfig:
     min_voxel_evidence: float = 0.5
     """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
     (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
+    interior_up_weight: float = 3.0
+    """in the nearest-evidence rule of the solid's inside (:func:`.parts.voxel_mixture`), a vertical distance counts
+    this many times a horizontal one, so that an inside voxel takes the material of the observed surface nearest at
+    its own height: an object at rest is built in layers (a sole under an upper, a base under a pole, a top on its
+    legs), and the boundary between two parts inside it continues the seam seen on its sides. 1: plain Euclidean
+    distance. Used only where the views' up direction is within 25 degrees of the grid's z (a capture oriented by
+    nerfstudio's dataparser is); elsewhere 1"""
     object_mask_dilate_px: int = 2
     """the object's own silhouette (its Gaussians rendered alone) is dilated by this before it cuts the
     foreground masks, so that other objects in the views do not count as this one"""
@@ -180,7 +189,8 @@ class ObjectGeometry:
         return {"grid": self.grid.to_dict(), "solid_voxels": int(self.solid.sum()), "num_parts": self.num_parts,
                 "variants": self.variant_names, "views_used": self.views_used, "mask_sources": self.mask_sources,
                 "selected_gaussians": self.selection.num_selected,
-                "object_centre_scene": [float(x) for x in self.selection.centre]}  # fmt: skip
+                "object_centre_scene": [float(x) for x in self.selection.centre],
+                "rests_on_plane": self.selection.plane is not None}  # fmt: skip
 
 
 def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
@@ -320,6 +330,43 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     return cut, hull & inside
 
 
+def _resting_plane(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
+    """Set ``selection.plane`` to the plane the object rests on when the selection found no support plane among the
+    foreground (:func:`.support.find_resting_plane`; ``cfg.select.support.cut_below`` off: no plane, no cut)."""
+    sc = cfg.select.support
+    if not sc.cut_below:
+        selection.plane = None
+        return
+    if selection.plane is not None or not sc.enabled:
+        return
+    opaque = g.opacities.reshape(-1) >= cfg.select.min_opacity
+    keep = opaque | selection.selected
+    means = g.means[keep].double().cpu().numpy()
+    cams = np.stack([v.centre.double().cpu().numpy() for v in views])
+    plane = find_resting_plane(means, selection.selected[keep].cpu().numpy(), cams, views_up(views), sc)
+    if plane is not None:
+        logger.info("object: resting on a plane found among the Gaussians around it (%.0f%% of them on it); the "
+                    "solid ends there", 100 * plane.share)  # fmt: skip
+    selection.plane = plane
+
+
+def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plane: SupportPlane | None
+               ) -> tuple[list[np.ndarray], np.ndarray]:  # fmt: skip
+    """The solids and the hull without the voxels whose centres lie below ``plane`` (None: unchanged)."""
+    if plane is None:
+        return solids, hull
+    ax = [grid.origin[i] + (np.arange(grid.shape[i]) + 0.5) * grid.voxel_size for i in range(3)]
+    n = np.asarray(plane.normal, dtype=np.float64)
+    height = (ax[0][:, None, None] * n[0] + ax[1][None, :, None] * n[1] + ax[2][None, None, :] * n[2]) - plane.offset
+    above = height >= 0
+    return [s & above for s in solids], hull & above
+
+
+def _up_weight(views: Sequence[CaptureView], weight: float) -> float:
+    """``weight`` when the views' up direction is within 25 degrees of the grid's z axis, else 1."""
+    return weight if abs(float(views_up(views)[2])) >= math.cos(math.radians(25.0)) else 1.0
+
+
 def _solid_bounds(grid: VoxelGrid, solid: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Scene-unit bounds of the solid voxels (None when there are none)."""
     if not solid.any():
@@ -384,6 +431,7 @@ def reconstruct_object(
     step("selecting the object")
     selection = select_object(g, views, cfg.select, backend=cfg.backend)
     _within_hull(g, selection, views, cfg)
+    _resting_plane(g, selection, views, cfg)
     step("rendering depth")
     obj_views, renders = _object_views(g, selection, views, cfg)
     sources: dict[str, int] = {}
@@ -410,6 +458,7 @@ def reconstruct_object(
                     100 * share)
         solids, hull = _carve_variants(grid, obj_views, renders, variants, sdf, device, g.means[selection.selected],
                                        cfg.extent_pad_voxels, wider, **ext)
+    solids, hull = _cut_below(grid, solids, hull, selection.plane)
     names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else [])
     union = np.logical_or.reduce(solids)
     if not solids[0].any():
@@ -420,7 +469,8 @@ def reconstruct_object(
     labelled = getattr(g, "labelled", None)
     pi_sel = pi(sel) if callable(pi) else pi[sel]
     mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi_sel,
-                            labelled[sel] if labelled is not None else None, min_evidence=cfg.min_voxel_evidence)
+                            labelled[sel] if labelled is not None else None, min_evidence=cfg.min_voxel_evidence,
+                            up_weight=_up_weight(views, cfg.interior_up_weight))  # fmt: skip
     parts = part_labels(union, mixture, cfg.min_part_fraction)
     K = pi_sel.shape[1]
     mat_names = material_names if material_names is not None else [str(k) for k in range(K)]

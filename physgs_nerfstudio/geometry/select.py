@@ -48,7 +48,7 @@ from .capture import CaptureView
 from .carve import mask_view_votes, signed_mask_distances
 from .errors import GeometryError
 from .gaussians import lift_masks
-from .support import SupportConfig, find_support_plane, views_up
+from .support import SupportConfig, SupportPlane, find_support_plane, views_up
 
 logger = logging.getLogger(__name__)
 
@@ -118,6 +118,9 @@ class ObjectSelection:
     """foreground Gaussians dropped as the support plane's (module doc, step 2)"""
     support: Tensor | None = None
     """bool [N]: the support plane's Gaussians (within its tolerance of it), None when there is none"""
+    plane: SupportPlane | None = None
+    """the plane the object stands on: the support plane found among the foreground (step 2), or the resting plane
+    found among all the Gaussians (:func:`.support.find_resting_plane`, set by the reconstruction); None: none"""
 
     @property
     def num_selected(self) -> int:
@@ -286,4 +289,5 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     selected[idx[chosen.to(idx.device)]] = True
     logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
                 g.means.shape[0], len(ids))  # fmt: skip
-    return ObjectSelection(prob, selected, centre, len(ids), on_support=on_support, support=support)
+    return ObjectSelection(prob, selected, centre, len(ids), on_support=on_support, support=support,
+                           plane=plane if support is not None else None)
