@@ -181,7 +181,9 @@ def _carve(**kw):
     return CarveConfig(**kw)
 
 
-def test_floor_is_not_the_object():
+def _box_on_floor():
+    """A 0.3 m oak box standing on a 2 m tile floor 1 mm below it: (the field, the box's field alone, the box's
+    Gaussians)."""
     obj = box_surface((0.3, 0.3, 0.3), 0.02, centre=(0.0, 0.0, 0.15))
     g = torch.arange(-1.0, 1.0, 0.04) + 0.02
     X, Y = torch.meshgrid(g, g, indexing="ij")
@@ -192,6 +194,11 @@ def test_floor_is_not_the_object():
     pf = field_from(means, scales, quats, densities=[700.0, 1500.0], labels=labels, names=["oak", "tile"],
                     thickness_m=[None, None])  # fmt: skip
     only_obj = field_from(*obj, densities=[700.0], names=["oak"])
+    return pf, only_obj, obj
+
+
+def test_floor_is_not_the_object():
+    pf, only_obj, obj = _box_on_floor()
     views = ring_views(pf, (0, 0, 0.15), 1.6, elevations=(15.0, 40.0, 70.0), mask_pf=only_obj)
     geo = _geo(pf, views)
     sel = geo.selection.selected
@@ -209,16 +216,7 @@ def test_resting_plane_among_the_background_ends_the_solid():
     from physgs_nerfstudio.geometry.select import SelectConfig
     from physgs_nerfstudio.geometry.support import SupportConfig
 
-    obj = box_surface((0.3, 0.3, 0.3), 0.02, centre=(0.0, 0.0, 0.15))
-    g = torch.arange(-1.0, 1.0, 0.04) + 0.02
-    X, Y = torch.meshgrid(g, g, indexing="ij")
-    fp = torch.stack([X, Y, torch.zeros_like(X) - 1e-3], -1).reshape(-1, 3).double()
-    floor = _flat(fp, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(fp), 0.032)
-    means, scales, quats = (torch.cat([a, b]) for a, b in zip(obj, floor))
-    labels = torch.cat([torch.zeros(len(obj[0])), torch.ones(len(floor[0]))]).long()
-    pf = field_from(means, scales, quats, densities=[700.0, 1500.0], labels=labels, names=["oak", "tile"],
-                    thickness_m=[None, None])  # fmt: skip
-    only_obj = field_from(*obj, densities=[700.0], names=["oak"])
+    pf, only_obj, obj = _box_on_floor()
     views = ring_views(pf, (0, 0, 0.15), 1.6, elevations=(15.0, 40.0, 70.0), mask_pf=only_obj)
     geo = _geo(pf, views, resolution=40)
     plane = geo.selection.plane
