@@ -34,7 +34,6 @@ from .carve import (
 )
 from .errors import GeometryError
 from .extent import support_excess
-from .support import SupportPlane, find_resting_plane, views_up
 from .gaussians import ViewRender, render_depth
 from .grid import VoxelGrid
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
@@ -50,6 +49,7 @@ from .parts import (
 )
 from .select import ObjectSelection, SelectConfig, outside_mask_hull, select_object
 from .structure import PartStructure, StructureConfig, fuse_structure
+from .support import SupportPlane, find_resting_plane, views_up
 
 logger = logging.getLogger(__name__)
 
@@ -355,10 +355,7 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
     """The solids and the hull without the voxels whose centres lie below ``plane`` (None: unchanged)."""
     if plane is None:
         return solids, hull
-    ax = [grid.origin[i] + (np.arange(grid.shape[i]) + 0.5) * grid.voxel_size for i in range(3)]
-    n = np.asarray(plane.normal, dtype=np.float64)
-    height = (ax[0][:, None, None] * n[0] + ax[1][None, :, None] * n[1] + ax[2][None, None, :] * n[2]) - plane.offset
-    above = height >= 0
+    above = plane.above_voxels(grid)
     return [s & above for s in solids], hull & above
 
 

@@ -20,6 +20,9 @@ object's own flat bottom (a crate's, a shoe's sole) or top (a table's) is never 
   on all four sides, by ``margin`` of that footprint's size (an object's own bottom face *is* its footprint);
 * **substantial**: it holds at least ``min_share`` of the foreground near it.
 
+Where the masks leave the floor out, :func:`find_resting_plane` runs the same search among all the Gaussians around
+the object, and the carved solid ends at the plane it finds (``cut_below``).
+
 The plane is fitted by RANSAC with the normal constrained to be level (three points from the lowest third of the
 foreground, best inlier count), refined by least squares on its inliers. The tolerance is the inliers' own
 thickness: ``tol_sigmas`` robust standard deviations (1.4826 x MAD) of their distances to the plane, at least
@@ -36,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .capture import CaptureView
+from .grid import VoxelGrid
 
 __all__ = ["SupportConfig", "SupportPlane", "find_resting_plane", "find_support_plane", "views_up"]
 
@@ -87,6 +91,12 @@ class SupportPlane:
         """Signed distance of points [N, 3] above the plane."""
         return x @ self.normal - self.offset
 
+    def above_voxels(self, grid: VoxelGrid) -> np.ndarray:
+        """bool [X, Y, Z]: the voxels of ``grid`` whose centres lie on or above the plane."""
+        ax = [grid.origin[i] + (np.arange(grid.shape[i]) + 0.5) * grid.voxel_size for i in range(3)]
+        n = np.asarray(self.normal, dtype=np.float64)
+        return (ax[0][:, None, None] * n[0] + ax[1][None, :, None] * n[1] + ax[2][None, None, :] * n[2]) >= self.offset
+
     def drops(self, x: np.ndarray) -> np.ndarray:
         """bool [N]: points on the plane (within its tolerance) or below it."""
         return self.height(x) <= self.tol
@@ -106,6 +116,13 @@ def _fit(x: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float]:
     n = np.linalg.svd(x - c, full_matrices=False)[2][-1]
     n = n if n @ up >= 0 else -n
     return n, float(c @ n)
+
+
+def _in_plane(n: np.ndarray) -> np.ndarray:
+    """[3, 2]: two orthonormal directions perpendicular to the unit vector ``n`` (columns)."""
+    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    return np.stack([a, np.cross(n, a)], 1)
 
 
 def find_support_plane(means: np.ndarray, cameras: np.ndarray, up: np.ndarray,
@@ -157,9 +174,7 @@ def find_support_plane(means: np.ndarray, cameras: np.ndarray, up: np.ndarray,
     on = np.abs(r) <= tol
     if n @ up < cos_max or on.sum() < 10:
         return None
-    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    uv = x @ np.stack([a, np.cross(n, a)], 1)
+    uv = x @ _in_plane(n)
     lo_on, hi_on = np.quantile(uv[on], 0.01, axis=0), np.quantile(uv[on], 0.99, axis=0)
     size = float(np.max(hi_on - lo_on))
     # the plane's neighbourhood: far floaters and background (other clusters) neither support nor refute it
@@ -187,8 +202,8 @@ def find_resting_plane(means: np.ndarray, selected: np.ndarray, cameras: np.ndar
     masks took the floor in. Where they did not (perception's masks hold the object alone, the usual case), the
     floor or table under the object is background, but it is still there in the splat, and it says where the object
     ends below: nothing of the object lies under the surface it stands on, while the carving cannot tell, since no
-    view sees past the underside (the generated lamp's steel base came out with two layers of voxels under the floor,
-    1.3x its volume). ``means`` [N, 3]: every Gaussian's centre (opaque enough to count); ``selected`` bool [N]: the
+    view sees past the underside (the generated objects, which stand on no floor, keep about a voxel layer under
+    their bottoms: the lamp's steel base came out 1.3x its volume). ``means`` [N, 3]: every Gaussian's centre (opaque enough to count); ``selected`` bool [N]: the
     object's. The points are the object's and every Gaussian within the object's footprint grown by its size on
     each side and from half that size under its bottom up to its top; the plane must pass all the tests of
     :func:`find_support_plane` on them (level, below everything, wider than the object, substantial)."""
@@ -198,9 +213,7 @@ def find_resting_plane(means: np.ndarray, selected: np.ndarray, cameras: np.ndar
     if not cfg.enabled or len(obj) < 50:
         return None
     up = np.asarray(up, dtype=np.float64) / max(float(np.linalg.norm(up)), 1e-12)
-    a = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    frame = np.stack([a, np.cross(up, a), up], 1)  # horizontal, horizontal, up
+    frame = np.column_stack([_in_plane(up), up])  # horizontal, horizontal, up
     p_obj = obj @ frame
     lo, hi = np.quantile(p_obj, 0.01, axis=0), np.quantile(p_obj, 0.99, axis=0)
     size = float(np.max(hi[:2] - lo[:2]))
