@@ -592,3 +592,43 @@ def test_inside_takes_the_material_seen_at_its_own_height():
     best = d.min(1, keepdims=True)
     can = [(material[np.isclose(row, b)]) for row, b in zip(d, best[:, 0])]
     assert all(p in m for p, m in zip(plain[slab_inside], can))
+
+
+def test_closed_form_eigenvalues_are_lapacks():
+    """The plate test's 3 x 3 eigenvalues in closed form against NumPy's LAPACK, on random covariances and the
+    degenerate ones a voxel window gives (zero, a multiple of the identity, rank one, a repeated eigenvalue)."""
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(2000, 3, 4))
+    m = a @ a.transpose(0, 2, 1)
+    m[:10] = 0.0
+    m[10:20] = np.eye(3) * 2.5
+    v = rng.normal(size=(10, 3))
+    m[20:30] = v[:, :, None] * v[:, None, :]
+    m[30:40] = np.diag([1.0, 1.0, 4.0])
+    got = parts_mod.sym3_eigvalsh(torch.from_numpy(m)).numpy()
+    want = np.linalg.eigvalsh(m)
+    assert np.all(np.diff(got, axis=1) >= 0)
+    # near a repeated eigenvalue the arccos loses half the digits: 1e-7 of the matrix's scale, far below what the
+    # plate test's ratio (0.25 by default) can notice
+    scale = np.abs(want).max(1, keepdims=True)
+    assert np.all(np.abs(got - want) <= 1e-7 * scale + 1e-300)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_plate_test_by_summed_tables_equals_each_window_directly(seed):
+    """_plate_like's window moments from summed-volume tables against each window's voxels gathered directly
+    (their covariance and its eigenvalues by LAPACK)."""
+    rng = np.random.default_rng(seed)
+    solid = rng.random((14, 11, 17)) < 0.35
+    solid[2:12, 3:9, 8] = True  # a plate
+    solid[7, 5, 1:16] = True  # a rod
+    at = tuple(a[::3] for a in np.nonzero(solid))
+    half, min_plate = 3, 0.25
+    got = parts_mod._plate_like(solid, at, half, min_plate)
+    want = []
+    for c in np.stack(at, -1):
+        lo, hi = np.maximum(c - half, 0), np.minimum(c + half + 1, solid.shape)
+        pts = np.argwhere(solid[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]).astype(np.float64)
+        ev = np.linalg.eigvalsh(np.cov(pts.T, bias=True)) if len(pts) > 1 else np.zeros(3)
+        want.append(ev[1] >= min_plate * max(ev[2], 1e-12))
+    assert got.tolist() == want

@@ -8,6 +8,7 @@
 #   bash benchmarks/gpu/run_gpu.sh mem       # issue 13: memory and iteration cost of the material heads (chair)
 #   HEAD=lifted bash benchmarks/gpu/run_gpu.sh full   # the full run with another material head
 #   BASE=.export_base bash benchmarks/gpu/run_gpu.sh export  # issues 12+13: full chair run, its mass, exports before/after
+#                                            # (TIMELINE=N: then N mass exports timed function by function)
 #                                            # (MID=NAME=DIR: a third tree between them)
 #   OBJECTS=5 STEPS=3000 bash benchmarks/gpu/run_gpu.sh batch     # issue 14: physgs batch (local) over the suite
 #   bash benchmarks/gpu/run_gpu.sh geometry  # issue 12: full chair run, geometry vs ground truth (geometry_diag.py)
@@ -150,6 +151,11 @@ case "${1:-kernels}" in
       --cases ${CASES:-load mass all maps1 mapsN ply} $([ "${PROFILE:-1}" = 1 ] && echo --profile-load --breakdown) \
       --budget-s $((LIMIT - 60 - $(elapsed))) --out "$OUT/export.json" 2>&1 | grep -v Warning > "$OUT/export.log"
     tail -30 "$OUT/export.log"
+    for i in $(seq 1 "${TIMELINE:-0}"); do  # TIMELINE=N: N fresh mass exports, function by function (export_timeline.py)
+      TIMELINE_JSON="$OUT/mass_timeline_$i.json" python3 benchmarks/export_timeline.py --load-config "$CFG" \
+        --output-dir /tmp/physgs_tl --outputs mass --overwrite 2>&1 | grep -v Warning > "$OUT/mass_timeline_$i.txt"
+      grep -A200 "^import torch" "$OUT/mass_timeline_$i.txt" | head -70
+    done
     if [ $(elapsed) -lt $((LIMIT - 40)) ]; then
       python3 -m nerfstudio.scripts.eval --load-config "$CFG" --output-path "$OUT/full_eval.json" 2>&1 | tail -2
     fi
@@ -388,6 +394,9 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         wait; echo "[$(elapsed) s] done"
         ;;
       train)
+        # the gsplat build first: six trainings started beside it each found no gsplat_cuda.so (seed 3939)
+        [ -n "${GSPLAT_BUILD_PID:-}" ] && wait "$GSPLAT_BUILD_PID"
+        echo "[$(elapsed) s] gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
         n=0
         for o in $OBJECTS; do
           d=/tmp/ms/${o}_s$GSEED

@@ -47,6 +47,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -207,12 +208,13 @@ def concavities(hull: np.ndarray, solid: np.ndarray, depth_voxels: float = 2.0) 
 
 def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts: int, *,
                sheet_voxels: float = 1.5, area_sigma: float = 0.5, min_plate: float = 0.0,
-               concave: np.ndarray | None = None) -> PartGeometry:  # fmt: skip
+               concave: np.ndarray | None = None, device: torch.device | str = "cpu") -> PartGeometry:  # fmt: skip
     """Per-part volume and wall area of ``solid`` (module doc). Computed on the solid's bounding box (with a margin
     for the smoothing and the sheet window): the same faces, nearest voxels and sheet test as on the whole grid.
     ``concave`` (:func:`concavities`): a face that is no sheet face and whose voxel borders a concavity but not the
     ordinary outside is the inner face of a wall whose outer face is counted (a cup carved with a thick wall, a
-    pan's inside) or the top of an unseen fill (under a cup's rim): it counts 0."""
+    pan's inside) or the top of an unseen fill (under a cup's rim): it counts 0. ``device``: where the plate
+    test's tables are summed (the splat's device)."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     from skimage.measure import marching_cubes
     h = grid.voxel_size
@@ -241,7 +243,8 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     sheet = _sheet_faces(solid, nv, sheet_voxels)
     if min_plate > 0 and sheet.any():
         idx = np.flatnonzero(sheet)
-        sheet[idx] = _plate_like(solid, tuple(a[idx] for a in nv), _plate_window(sheet_voxels), min_plate)
+        sheet[idx] = _plate_like(solid, tuple(a[idx] for a in nv), _plate_window(sheet_voxels), min_plate,
+                                  device)  # fmt: skip
     factor = np.where(sheet, 0.5, 1.0)
     if concave is not None and concave.any():
         inner = solid & _dilate_faces(concave)
@@ -336,43 +339,66 @@ def _plate_window(sheet_voxels: float) -> int:
     return 2 * int(np.ceil(2 * sheet_voxels)) + 1
 
 
-def _plate_like(solid: np.ndarray, at: tuple[np.ndarray, ...], half: int, min_plate: float) -> np.ndarray:
+def _plate_like(solid: np.ndarray, at: tuple[np.ndarray, ...], half: int, min_plate: float,
+                device: torch.device | str = "cpu") -> np.ndarray:  # fmt: skip
     """bool per voxel ``at``: the solid in the cube of half-width ``half`` around it spreads in two directions (a
     plate: the second-largest eigenvalue of its voxels' covariance is at least ``min_plate`` x the largest), not in
     one (a rod, whose cross-section is as thin as a sheet is thick, but whose faces are its one outer side). Window
-    sums of the voxel count and the coordinates' first and second moments come from summed-area tables."""
+    sums of the voxel count and the coordinates' first and second moments come from summed-area tables, built
+    on ``device`` (a GPU's cumulative sums took 19 passes over the grid off the host: 0.15-0.2 s per carving
+    variant on an H100's host, ``benchmarks/export_timeline.py``). Every table entry is an integer far below 2^53,
+    so the float64 sums are exact in any order and the device changes no result."""
     X, Y, Z = solid.shape
-    w = solid.astype(np.float64)
-    i, j, k = (np.arange(n, dtype=np.float64) for n in (X, Y, Z))
-    # the tables of w i^a j^b k^c (a + b + c <= 2), one axis at a time: the cumulative sums along z of w k^c (3), then
-    # along y of j^b times those (6), then along x of i^a times those (10), 19 passes instead of 30. Every value is an
-    # integer far below 2^53, so the sums are exact in any order: the same tables as three passes per channel.
-    along_z = [np.cumsum(w * k**c, axis=2) for c in range(3)]
-    along_y = {(b, c): np.cumsum(along_z[c] * (j**b)[:, None], axis=1) for b in range(3) for c in range(3 - b)}
-    c = np.asarray(at).T  # [F, 3]
-    lo = np.maximum(c - half, 0)
-    hi = np.minimum(c + half + 1, solid.shape)
-    sums = []
-    sat = np.zeros((X + 1, Y + 1, Z + 1))
+    dev = torch.device(device)
+    w = torch.from_numpy(np.ascontiguousarray(solid)).to(dev, torch.float64)
+    i, j, k = (torch.arange(n, dtype=torch.float64, device=dev) for n in (X, Y, Z))
     # channels: w, w i, w j, w k, w i^2, w j^2, w k^2, w i j, w i k, w j k (the order of the moments below)
-    for a, b, cz in ((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (2, 0, 0), (0, 2, 0), (0, 0, 2), (1, 1, 0), (1, 0, 1),
-                     (0, 1, 1)):  # fmt: skip
-        np.cumsum(along_y[(b, cz)] * (i**a)[:, None, None], axis=0, out=sat[1:, 1:, 1:])
-        box = np.zeros(len(c))
-        for sx in (0, 1):
-            for sy in (0, 1):
-                for sz in (0, 1):
-                    sign = (-1) ** (3 - sx - sy - sz)
-                    box += sign * sat[np.where(sx, hi[:, 0], lo[:, 0]), np.where(sy, hi[:, 1], lo[:, 1]),
-                                      np.where(sz, hi[:, 2], lo[:, 2])]  # fmt: skip
-        sums.append(box)
-    n = np.maximum(sums[0], 1.0)
-    mu = np.stack(sums[1:4], -1) / n[:, None]
-    m2 = np.empty((len(c), 3, 3))
-    for (a, b), k in zip(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)), range(4, 10)):
-        m2[:, a, b] = m2[:, b, a] = sums[k] / n - mu[:, a] * mu[:, b]
-    ev = np.linalg.eigvalsh(m2)  # ascending
-    return ev[:, 1] >= min_plate * np.maximum(ev[:, 2], 1e-12)
+    powers = ((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (2, 0, 0), (0, 2, 0), (0, 0, 2), (1, 1, 0), (1, 0, 1),
+              (0, 1, 1))  # fmt: skip
+    sat = torch.zeros((len(powers), X + 1, Y + 1, Z + 1), dtype=torch.float64, device=dev)
+    for ch, (a, b, c) in enumerate(powers):
+        sat[ch, 1:, 1:, 1:] = w * (i**a)[:, None, None] * (j**b)[None, :, None] * (k**c)[None, None, :]
+    for axis in (1, 2, 3):
+        sat = sat.cumsum(axis)
+    cen = torch.from_numpy(np.stack(at, -1).astype(np.int64)).to(dev)  # [F, 3]
+    lo = (cen - half).clamp_min(0)
+    hi = torch.minimum(cen + half + 1, torch.tensor(solid.shape, device=dev))
+    flat = sat.reshape(len(powers), -1)
+    sums = torch.zeros((len(powers), len(cen)), dtype=torch.float64, device=dev)
+    for sx in (0, 1):
+        for sy in (0, 1):
+            for sz in (0, 1):
+                x, y, z = (hi[:, d] if on else lo[:, d] for d, on in enumerate((sx, sy, sz)))
+                sign = (-1) ** (3 - sx - sy - sz)
+                sums += sign * flat[:, (x * (Y + 1) + y) * (Z + 1) + z]
+    n = sums[0].clamp_min(1.0)
+    mu = sums[1:4] / n
+    m2 = torch.empty((len(cen), 3, 3), dtype=torch.float64, device=dev)
+    for (a, b), ch in zip(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)), range(4, 10)):
+        m2[:, a, b] = m2[:, b, a] = sums[ch] / n - mu[a] * mu[b]
+    ev = sym3_eigvalsh(m2)  # ascending
+    return (ev[:, 1] >= min_plate * ev[:, 2].clamp_min(1e-12)).cpu().numpy()
+
+
+def sym3_eigvalsh(m: Tensor) -> Tensor:
+    """float64 [F, 3]: the eigenvalues, ascending, of the symmetric 3 x 3 matrices ``m`` [F, 3, 3], in closed form
+    (the trigonometric solution of the characteristic cubic), on ``m``'s device: ``torch.linalg.eigvalsh`` on a GPU
+    loads its solver library at first use, and NumPy's calls LAPACK once per matrix."""
+    m = m.double()
+    q = m.diagonal(dim1=1, dim2=2).sum(1) / 3.0
+    a01, a02, a12 = m[:, 0, 1], m[:, 0, 2], m[:, 1, 2]
+    d0, d1, d2 = m[:, 0, 0] - q, m[:, 1, 1] - q, m[:, 2, 2] - q
+    p = torch.sqrt((d0**2 + d1**2 + d2**2 + 2.0 * (a01**2 + a02**2 + a12**2)) / 6.0)
+    iso = p <= 1e-12 * q.abs().clamp_min(1e-300)  # a multiple of the identity (or zero): one triple eigenvalue
+    ps = torch.where(iso, torch.ones_like(p), p)
+    b00, b11, b22, b01, b02, b12 = d0 / ps, d1 / ps, d2 / ps, a01 / ps, a02 / ps, a12 / ps
+    det = b00 * (b11 * b22 - b12**2) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02)
+    phi = torch.arccos((det / 2.0).clamp(-1.0, 1.0)) / 3.0
+    hi = q + 2.0 * p * torch.cos(phi)
+    lo = q + 2.0 * p * torch.cos(phi + 2.0 * math.pi / 3.0)
+    out = torch.stack([lo, 3.0 * q - hi - lo, hi], -1)
+    out = torch.where(iso[:, None], q[:, None].expand_as(out), out)
+    return out.sort(dim=1).values  # rounding can swap the middle one with an end by an ulp
 
 
 def material_quantiles(parts: np.ndarray, mixture: np.ndarray, num_parts: int, part_mixture: np.ndarray,

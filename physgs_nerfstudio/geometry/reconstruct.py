@@ -523,7 +523,7 @@ def reconstruct_object(
         concave = concavities(hull, solids[0], max(2.0, cfg.concavity_px * _pixel_voxels(obj_views, grid)))
     def areas(s: np.ndarray) -> PartGeometry:
         return part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet, min_plate=cfg.min_plate,
-                          concave=concave)
+                          concave=concave, device=device)
 
     # the variants' surfaces on a thread pool: each is independent, and NumPy's and SciPy's loops release the GIL
     # for much of the work (8 variants of a 128-voxel grid on 2 cores: 1.3x; the same numbers as one at a time)
