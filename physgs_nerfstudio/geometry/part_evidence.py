@@ -77,26 +77,46 @@ def part_maps(grid: VoxelGrid, parts: np.ndarray | _Boundary, view: CaptureView,
     the view's intrinsics are rescaled to ``width`` x ``height``. ``parts``: the part grid, or its boundary
     computed once for many views."""
     b = parts if isinstance(parts, _Boundary) else _Boundary.of(grid, parts)
-    out = np.full(height * width, -1, np.int64)
     if len(b.pid) == 0:
-        return out.reshape(height, width)
-    dev = b.x.device
-    R, t = view.viewmat[:3, :3].to(dev), view.viewmat[:3, 3].to(dev)
-    K = view.K.to(dev)
-    pc = b.x @ R.T + t
-    sx, sy = width / view.width, height / view.height
-    z = pc[:, 2]
-    u = (K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]) * sx
-    v = (K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]) * sy
-    ok = (z > 1e-6) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    pix = (v.floor().long() * width + u.floor().long())[ok]
-    zz = z[ok]
-    best = torch.full((height * width,), float("inf"), device=dev).scatter_reduce(0, pix, zz, reduce="amin")
-    front = zz <= best[pix]
-    pid = b.pid[ok]
-    out_t = torch.from_numpy(out).to(dev)
-    out_t[pix[front]] = pid[front]
-    return out_t.cpu().numpy().reshape(height, width)
+        return np.full((height, width), -1, np.int64)
+    return _part_maps_many(b, [view], [(width, height)])[0].cpu().numpy().reshape(height, width)
+
+
+@torch.no_grad()
+def _part_maps_many(b: _Boundary, views: Sequence[CaptureView], sizes: Sequence[tuple[int, int]],
+                    chunk: int = 1 << 25) -> list[Tensor]:  # fmt: skip
+    """long [h * w] part id maps (-1: none) of ``views[i]`` at ``sizes[i] = (w, h)``, on the boundary's device:
+    :func:`part_maps` of many views in one z-buffer (their pixels laid end to end), the views batched up to
+    ``chunk`` voxel-view pairs. One view at a time, the 54 views of a GPU run cost about 0.2 s in small kernels
+    and host round trips (benchmarks/export_timeline.py)."""
+    dev, dt = b.x.device, b.x.dtype
+    out: list[Tensor] = []
+    step = max(1, chunk // max(len(b.pid), 1))
+    for s0 in range(0, len(views), step):
+        vs, sz = views[s0 : s0 + step], sizes[s0 : s0 + step]
+        R = torch.stack([v.viewmat[:3, :3] for v in vs]).to(dev, dt)
+        t = torch.stack([v.viewmat[:3, 3] for v in vs]).to(dev, dt)
+        K = torch.stack([v.K for v in vs]).to(dev, dt)
+        W = torch.tensor([w for w, _ in sz], device=dev)
+        H = torch.tensor([h for _, h in sz], device=dev)
+        sx = torch.tensor([w / v.width for (w, _), v in zip(sz, vs)], device=dev, dtype=dt)[:, None]
+        sy = torch.tensor([h / v.height for (_, h), v in zip(sz, vs)], device=dev, dtype=dt)[:, None]
+        pc = torch.einsum("vij,bj->vbi", R, b.x) + t[:, None, :]  # [V, B, 3] camera coordinates
+        z = pc[..., 2]
+        u = (K[:, 0, 0, None] * pc[..., 0] / z.clamp_min(1e-9) + K[:, 0, 2, None]) * sx
+        v = (K[:, 1, 1, None] * pc[..., 1] / z.clamp_min(1e-9) + K[:, 1, 2, None]) * sy
+        ok = (z > 1e-6) & (u >= 0) & (u < W[:, None]) & (v >= 0) & (v < H[:, None])
+        n_pix = W * H
+        pix = ((torch.cumsum(n_pix, 0) - n_pix)[:, None] + v.floor().long() * W[:, None] + u.floor().long())[ok]
+        zz = z[ok]
+        pid = b.pid[None, :].expand(len(vs), -1)[ok]
+        best = torch.full((int(n_pix.sum()),), float("inf"), device=dev, dtype=zz.dtype)
+        best = best.scatter_reduce(0, pix, zz, reduce="amin")
+        front = zz <= best[pix]
+        ids = torch.full((int(n_pix.sum()),), -1, dtype=torch.long, device=dev)
+        ids[pix[front]] = pid[front]
+        out.extend(ids.split(n_pix.tolist()))
+    return out
 
 
 def observation_shares(grid: VoxelGrid, parts: np.ndarray, num_parts: int, views: Sequence[CaptureView],
@@ -104,25 +124,27 @@ def observation_shares(grid: VoxelGrid, parts: np.ndarray, num_parts: int, views
                        ) -> list[tuple[int, np.ndarray]]:  # fmt: skip
     """``(i, share [P])`` for each observation ``i`` whose view is among ``views`` and whose mask covers some part:
     the share of the mask's pixels where each part is the visible surface (module doc). ``parts``: int part id per
-    voxel, -1 outside the solid. ``device``: where the part maps are rendered (the splat's: a GPU projects the
-    boundary voxels into 60 views in a fraction of the CPU's time)."""
+    voxel, -1 outside the solid. ``device``: where the part maps are rendered and the masks' pixels counted (the
+    splat's: a GPU does all views' maps in one z-buffer, and each view's masks as one product with the map's
+    one-hot parts)."""
     by_view = {v.name: v for v in views}
-    maps: dict[tuple[str, int, int], np.ndarray] = {}
     boundary = _Boundary.of(grid, parts, device)
-    out: list[tuple[int, np.ndarray]] = []
+    wanted: dict[tuple[str, int, int], list[int]] = {}  # (view, h, w) -> its observations
     for i, ob in enumerate(observations):
-        view = by_view.get(ob.view)
-        if view is None or ob.confidence <= 0:
-            continue
-        h, w = ob.mask.shape
-        key = (ob.view, h, w)
-        if key not in maps:
-            maps[key] = part_maps(grid, boundary, view, w, h)
-        ids = maps[key][ob.mask]
-        ids = ids[ids >= 0]
-        if len(ids):
-            out.append((i, np.bincount(ids, minlength=num_parts) / len(ids)))
-    return out
+        if ob.view in by_view and ob.confidence > 0:
+            wanted.setdefault((ob.view, *ob.mask.shape), []).append(i)
+    if not wanted or len(boundary.pid) == 0:
+        return []
+    keys = list(wanted)
+    maps = _part_maps_many(boundary, [by_view[k[0]] for k in keys], [(k[2], k[1]) for k in keys])
+    out: list[tuple[int, np.ndarray]] = []
+    for key, ids in zip(keys, maps):
+        idx = wanted[key]
+        masks = torch.from_numpy(np.stack([observations[i].mask.reshape(-1) for i in idx])).to(ids.device)
+        onehot = torch.nn.functional.one_hot(ids + 1, num_parts + 1).to(torch.float32)  # column 0: no part
+        counts = (masks.to(torch.float32) @ onehot)[:, 1:].double().cpu().numpy()  # exact below 2^24 pixels
+        out.extend((i, c / c.sum()) for i, c in zip(idx, counts) if c.sum() > 0)
+    return sorted(out, key=lambda s: s[0])
 
 
 def fuse_part_materials(shares: Sequence[tuple[int, np.ndarray]], observations: Sequence[MaskObservation],
