@@ -121,18 +121,3 @@ def test_export_defaults_for_old_configs_are_the_model_config_s() -> None:
     cfg = PhysGSModelConfig()
     assert MODEL_DEFAULTS == {name: getattr(cfg, name) for name in MODEL_DEFAULTS}
 
-
-def test_warmup_imports_the_geometrys_libraries_and_leaves_import_errors_to_the_export(monkeypatch):
-    """The export's warm-up thread: nothing to warm gives no thread; the geometry's modules are imported on it;
-    a module that fails to import is left for the export to report (the thread ends without raising)."""
-    import sys
-
-    from physgs_nerfstudio.export import warmup
-
-    assert warmup.start_warmup(cuda=False, geometry=False) is None
-    monkeypatch.setattr(warmup, "GEOMETRY_MODULES", ("scipy.ndimage", "physgs_no_such_module_for_the_test"))
-    t = warmup.start_warmup(cuda=False, geometry=True)
-    assert t is not None and t.daemon
-    t.join(timeout=60)
-    assert not t.is_alive()
-    assert "scipy.ndimage" in sys.modules and "physgs_no_such_module_for_the_test" not in sys.modules

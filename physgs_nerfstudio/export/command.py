@@ -37,7 +37,6 @@ from .report import print_mass_table, write_report
 from .runcheck import check_run
 from .staging import ExportStage, ExportWriteError, check_output_dir
 from .voxel import write_voxel_grid
-from .warmup import start_warmup
 
 logger = logging.getLogger(__name__)
 
@@ -268,9 +267,6 @@ class ExportCommand:
     truth_kg: float | None = None
     """ground-truth mass, if known: printed and checked against the interval"""
     device: Literal["auto", "cpu", "cuda"] = "auto"
-    warmup: bool = True
-    """on a GPU, create the CUDA context and import the geometry's libraries on a background thread while the run
-    loads (export/warmup.py); --no-warmup does each where it is first needed"""
     overwrite: bool = False
     """replace a non-empty --output-dir that is not a previous physgs export (a previous export is always
     replaced, as a unit, once the new one is complete)"""
@@ -305,12 +301,9 @@ class ExportCommand:
 
     def main(self) -> ExportResult:
         check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
-        geometry = bool({"mass", "voxels"} & set(self.outputs))
-        device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
-        if self.warmup and device == "cuda":  # (on a CPU the loading needs the cores itself: no gain measured)
-            start_warmup(cuda=True, geometry=geometry)  # beside the loading
         run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env,
-                       capture=geometry)
+                       capture=bool({"mass", "voxels"} & set(self.outputs)))
+        device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
         run.field = run.field.to(device)
         cameras = run.cameras
         views = views_from_cameras(cameras, self.views, self.max_map_width) if cameras is not None else []

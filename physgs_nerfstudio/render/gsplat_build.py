@@ -26,7 +26,6 @@ import json
 import logging
 import os
 import sys
-import threading
 from pathlib import Path
 from typing import Literal
 
@@ -37,7 +36,6 @@ __all__ = ["build_status", "prepare_gsplat", "record_gsplat_build"]
 STAMP = "physgs_build_stamp.json"
 Status = Literal["precompiled", "prebuilt", "jit", "unavailable"]
 _state: dict[str, str] = {}
-_lock = threading.Lock()  # an export prepares gsplat on its warm-up thread too (export/warmup.py): load it once
 
 
 def _gsplat_dir() -> Path | None:
@@ -134,11 +132,6 @@ def build_status() -> tuple[Status, str]:
 def prepare_gsplat() -> Status:
     """Once per process, before gsplat's first CUDA call: load a matching earlier build as ``gsplat.csrc``
     (module doc). Returns what gsplat will use."""
-    with _lock:
-        return _prepare()
-
-
-def _prepare() -> Status:
     if "status" in _state:
         return _state["status"]  # type: ignore[return-value]
     status, reason = build_status()
