@@ -120,4 +120,3 @@ def test_export_defaults_for_old_configs_are_the_model_config_s() -> None:
 
     cfg = PhysGSModelConfig()
     assert MODEL_DEFAULTS == {name: getattr(cfg, name) for name in MODEL_DEFAULTS}
-

@@ -124,6 +124,44 @@ def test_part_maps_with_the_boundary_computed_once():
                                   part_maps(grid, parts, view, 32, 24))  # fmt: skip
 
 
+
+def test_part_maps_of_many_views_are_each_views_z_buffer():
+    """observation_shares' one z-buffer over all views against each view's z-buffer built voxel by voxel in
+    Python (the nearest boundary voxel per pixel), in tilted views where no two voxels tie in depth."""
+    from physgs_nerfstudio.geometry.capture import CaptureView, viewmat_from_c2w
+    from physgs_nerfstudio.geometry.part_evidence import _Boundary, _part_maps_many
+
+    grid = VoxelGrid.from_bounds(torch.zeros(3), torch.ones(3), 16)
+    solid = np.zeros(grid.shape, bool)
+    solid[3:13, 4:12, 5:11] = True
+    parts = np.where(solid, np.indices(grid.shape)[0] // 5 + 2 * (np.indices(grid.shape)[2] >= 8), -1)
+    b = _Boundary.of(grid, parts)
+    views, sizes = [], [(40, 30), (24, 18), (40, 30)]
+    for ang in (0.3, 1.1, 2.0):
+        c, s = np.cos(ang), np.sin(ang)
+        R = torch.tensor([[c, 0, s], [0, 1, 0], [-s, 0, c]], dtype=torch.float32) @ torch.tensor(
+            [[1, 0, 0], [0, np.cos(0.4), -np.sin(0.4)], [0, np.sin(0.4), np.cos(0.4)]], dtype=torch.float32)
+        c2w = torch.cat([R, (torch.tensor([0.5, 0.5, 0.5]) + R @ torch.tensor([0.0, 0.0, 2.5]))[:, None]], 1)
+        K = torch.tensor([[90.0, 0, 20], [0, 90.0, 15], [0, 0, 1]])
+        views.append(CaptureView(viewmat_from_c2w(c2w), K, 40, 30, torch.zeros(30, 40, dtype=torch.bool)))
+    got = _part_maps_many(b, views, sizes, chunk=2 * len(b.pid))  # two views per batch: the batches join too
+    x, pid = b.x.double().numpy(), b.pid.numpy()
+    for view, (w, h), ids in zip(views, sizes, got):
+        vm, K = view.viewmat.double().numpy(), view.K.double().numpy()
+        want, depth = np.full(h * w, -1), np.full(h * w, np.inf)
+        for p, part in zip(x, pid):
+            pc = vm[:3, :3] @ p + vm[:3, 3]
+            if pc[2] <= 1e-6:
+                continue
+            u = (K[0, 0] * pc[0] / pc[2] + K[0, 2]) * w / view.width
+            v = (K[1, 1] * pc[1] / pc[2] + K[1, 2]) * h / view.height
+            if 0 <= u < w and 0 <= v < h:
+                k = int(v) * w + int(u)
+                if pc[2] < depth[k]:
+                    depth[k], want[k] = pc[2], part
+        assert (want >= 0).sum() > 50
+        np.testing.assert_array_equal(ids.numpy(), want)
+
 def test_solid_from_votes_on_the_bounding_box_equals_the_whole_grid():
     """Components and cavities on the solid's box (with its empty border layer) are those of the whole grid
     (oracle: label and fill on the whole grid), for pockets enclosed, open to the outside, and at the border."""

@@ -345,9 +345,9 @@ def _plate_like(solid: np.ndarray, at: tuple[np.ndarray, ...], half: int, min_pl
     plate: the second-largest eigenvalue of its voxels' covariance is at least ``min_plate`` x the largest), not in
     one (a rod, whose cross-section is as thin as a sheet is thick, but whose faces are its one outer side). Window
     sums of the voxel count and the coordinates' first and second moments come from summed-area tables, built
-    on ``device`` (a GPU's cumulative sums took 19 passes over the grid off the host: 0.15-0.2 s per carving
-    variant on an H100's host, ``benchmarks/export_timeline.py``). Every table entry is an integer far below 2^53,
-    so the float64 sums are exact in any order and the device changes no result."""
+    on ``device`` (the splat's: built on the host, the tables took 0.12-0.23 s per carving variant of the GPU chair,
+    ``benchmarks/export_timeline.py``). Every table entry is an integer far below 2^53, so the float64 sums are
+    exact in any order and the device changes no result."""
     X, Y, Z = solid.shape
     dev = torch.device(device)
     w = torch.from_numpy(np.ascontiguousarray(solid)).to(dev, torch.float64)
@@ -382,8 +382,8 @@ def _plate_like(solid: np.ndarray, at: tuple[np.ndarray, ...], half: int, min_pl
 
 def sym3_eigvalsh(m: Tensor) -> Tensor:
     """float64 [F, 3]: the eigenvalues, ascending, of the symmetric 3 x 3 matrices ``m`` [F, 3, 3], in closed form
-    (the trigonometric solution of the characteristic cubic), on ``m``'s device: ``torch.linalg.eigvalsh`` on a GPU
-    loads its solver library at first use, and NumPy's calls LAPACK once per matrix."""
+    (the trigonometric solution of the characteristic cubic), on ``m``'s device, without a solver library. Near a
+    repeated eigenvalue it keeps about 1e-7 of the matrix's scale (tests/test_geometry_fast_paths.py)."""
     m = m.double()
     q = m.diagonal(dim1=1, dim2=2).sum(1) / 3.0
     a01, a02, a12 = m[:, 0, 1], m[:, 0, 2], m[:, 1, 2]
