@@ -16,15 +16,15 @@ front of it or within the depth margin of it). A voxel is carved (empty) when it
 
 * ``min_vote_fraction`` of the views that see it (the rule for silhouettes), or
 * (off by default, see :class:`CarveConfig`) ``min_direct_fraction`` of the views that see it directly,
-  counting only the depth votes among them (the rule for space that few views can see: under an object shot from above, only the few low views see that
-  space at all, every higher view has it hidden behind the object; the low views that see past it are then
-  all the direct evidence there is).
+  counting only the depth votes among them (the rule for space that few views can see: under an object shot
+  from above, only the few low views see that space at all, every higher view has it hidden behind the object;
+  the low views that see past it are then all the direct evidence there is).
 
 A voxel that fewer than ``min_seen_fraction`` of the views have in their image at all is empty (an object-centric
-capture frames its object in every view). Otherwise it is solid, so space that no view sees past (the inside of a closed object) stays solid. The direct
-rule never lets silhouette votes alone carve (a thick part's inside is seen directly by no view, so two bad
-masks stay 2 votes out of every view that sees it). Why a vote rather than the classic visual hull's "any
-one view":
+capture frames its object in every view). Otherwise it is solid, so space that no view sees past (the inside of
+a closed object) stays solid. The direct rule never lets silhouette votes alone carve (a thick part's inside is
+seen directly by no view, so two bad masks stay 2 votes out of every view that sees it). Why a vote rather than
+the classic visual hull's "any one view":
 
 * one bad mask (a part the segmenter missed in one view) casts one wrong empty vote: with ``min_votes`` = 2 it
   cannot delete the part;

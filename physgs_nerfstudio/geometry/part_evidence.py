@@ -166,7 +166,8 @@ def fuse_part_materials(shares: Sequence[tuple[int, np.ndarray]], observations: 
 def absorb_unobserved(parts: np.ndarray, observed: np.ndarray) -> np.ndarray:
     """int [X, Y, Z] part grid in which every voxel of a part with ``observed[s]`` False, in a 26-connected piece of the
     solid that holds an observed part, takes the part of the nearest observed voxel (module doc; Euclidean, on the
-    solid's box); parts numbered 0..P'-1 again in their old order, -1 outside the solid. ``parts``: int part id per voxel, -1 outside; ``observed``: bool [P]."""
+    solid's box); parts numbered 0..P'-1 again in their old order, -1 outside the solid. ``parts``: int part id
+    per voxel, -1 outside; ``observed``: bool [P]."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
 
     from .carve import bounding_box

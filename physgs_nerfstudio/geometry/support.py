@@ -203,10 +203,11 @@ def find_resting_plane(means: np.ndarray, selected: np.ndarray, cameras: np.ndar
     floor or table under the object is background, but it is still there in the splat, and it says where the object
     ends below: nothing of the object lies under the surface it stands on, while the carving cannot tell, since no
     view sees past the underside (the generated objects, which stand on no floor, keep about a voxel layer under
-    their bottoms: the lamp's steel base came out 1.3x its volume). ``means`` [N, 3]: every Gaussian's centre (opaque enough to count); ``selected`` bool [N]: the
-    object's. The points are the object's and every Gaussian within the object's footprint grown by its size on
-    each side and from half that size under its bottom up to its top; the plane must pass all the tests of
-    :func:`find_support_plane` on them (level, below everything, wider than the object, substantial)."""
+    their bottoms: the lamp's steel base came out 1.3x its volume). ``means`` [N, 3]: every Gaussian's centre
+    (opaque enough to count); ``selected`` bool [N]: the object's. The points are the object's and every Gaussian
+    within the object's footprint grown by its size on each side and from half that size under its bottom up to
+    its top; the plane must pass all the tests of :func:`find_support_plane` on them (level, below everything,
+    wider than the object, substantial)."""
     cfg = cfg or SupportConfig()
     means = np.asarray(means, dtype=np.float64)
     obj = means[selected]
