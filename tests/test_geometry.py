@@ -579,3 +579,34 @@ def test_median_depth_is_the_transmittance_crossing():
                 hit = torch.nonzero(acc >= 0.5 - 1e-6)
                 want = float(z[order[hit[0, 0]]]) if len(hit) else float("inf")
                 assert float(med[y, x]) == pytest.approx(want, rel=1e-5, abs=1e-6)
+
+
+def test_surface_offset_is_a_normal_shift_of_each_variant(box):
+    """The surface offset (MassConfig.surface_offset_voxels): the part's whole surface is the box's (marching
+    cubes of the carved solid against 2 (0.4 x 0.3 + 0.4 x 0.2 + 0.3 x 0.2) m^2), and its volume's interval is
+    that of the mixture of normals N(V_g, (S_g s h)^2) over the variants g drawn uniformly (quantiles of the
+    mixture's CDF by root finding: an oracle that shares no code with the Monte Carlo)."""
+    from scipy.optimize import brentq
+    from scipy.stats import norm
+
+    pf, views = box
+    geo = _geo(pf, views)
+    assert geo.surface_areas.shape == geo.volumes.shape
+    assert geo.surface_areas[0].sum() == pytest.approx(2 * (0.12 + 0.08 + 0.06), rel=0.1)
+    s, n = 0.6, 40000
+    rep = integrate_mass(pf, geo, MassConfig(n_samples=n, seed=3, structure="solid", surface_offset_voxels=s))
+    V, sd = geo.volumes[:, 0], geo.surface_areas[:, 0] * s * geo.grid.voxel_size * max(1.0, geo.pixel_voxels)
+    cdf = lambda x: float(np.mean(norm.cdf((x - V) / sd)))
+    lo, hi = (brentq(lambda x, q=q: cdf(x) - q, 0.0, 2 * V.max()) for q in (0.05, 0.95))
+    got = rep.parts[0]["volume_interval_m3"]
+    assert got[0] == pytest.approx(lo, rel=0.01) and got[1] == pytest.approx(hi, rel=0.01)
+    assert rep.parts[0]["surface_area_m2"] == pytest.approx(float(geo.surface_areas[0, 0]))
+    assert rep.geometry["surface_offset_voxels"] == s
+    # the same draws of everything else: without the offset the interval is the variants' alone, and narrower
+    base = integrate_mass(pf, geo, MassConfig(n_samples=n, seed=3, structure="solid", surface_offset_voxels=0.0))
+    assert base.parts[0]["volume_interval_m3"][1] - base.parts[0]["volume_interval_m3"][0] < hi - lo
+    assert rep.mean_kg == pytest.approx(base.mean_kg, rel=0.01)  # a symmetric shift leaves the mean
+    assert rep.interval_kg[0] <= rep.median_kg <= rep.interval_kg[1]
+    assert rep.interval_kg[0] <= rep.mean_kg <= rep.interval_kg[1]
+    with pytest.raises(ValueError, match="surface_offset_voxels"):
+        MassConfig(surface_offset_voxels=-0.1)

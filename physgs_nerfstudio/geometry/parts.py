@@ -181,6 +181,9 @@ class PartGeometry:
     """[P] wall area per part (scene units^2): sheet faces count half"""
     sheet_share: np.ndarray
     """[P] share of each part's faces that lie on a sheet"""
+    surface: np.ndarray | None = None
+    """[P] whole surface area per part (scene units^2): every face counted once, the volume that moving the
+    part's surface out by one unit of length adds (the mass's surface offset, :mod:`physgs_nerfstudio.mass`)"""
 
 
 def concavities(hull: np.ndarray, solid: np.ndarray, depth_voxels: float = 2.0) -> np.ndarray:
@@ -220,7 +223,7 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     h = grid.voxel_size
     vol = np.bincount(parts[solid], minlength=num_parts).astype(np.float64) * h**3
     if not solid.any():
-        return PartGeometry(vol, np.zeros(num_parts), np.zeros(num_parts))
+        return PartGeometry(vol, np.zeros(num_parts), np.zeros(num_parts), np.zeros(num_parts))
     m = int(np.floor(sheet_voxels)) + 2  # empty voxels kept around the solid: the sheet test's ball fits inside
     if min_plate > 0:
         m = max(m, _plate_window(sheet_voxels))
@@ -255,7 +258,7 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     area, sheet_area, total_area = (np.bincount(pid[ok], x[ok], minlength=num_parts).astype(np.float64, copy=False)
                                     for x in (fa * factor, fa * sheet, fa))  # fmt: skip
     share = np.divide(sheet_area, total_area, out=np.zeros_like(area), where=total_area > 0)
-    return PartGeometry(vol, area, share)
+    return PartGeometry(vol, area, share, total_area)
 
 
 def _nearest_solid(solid: np.ndarray, at: np.ndarray, radius: int = 3) -> tuple[np.ndarray, ...]:

@@ -180,6 +180,11 @@ class ObjectGeometry:
     material_levels: np.ndarray | None = None
     """[P, J, K]: per part and quantile level, the volume share per material
     (:func:`physgs_nerfstudio.geometry.parts.material_quantiles`); None = each part one material"""
+    surface_areas: np.ndarray | None = None
+    """[G, P] whole surface area per variant and part, scene units^2 (every face once: the mass's surface
+    offset); None = no offset"""
+    pixel_voxels: float = 1.0
+    """the views' median pixel footprint at the grid's centre, in voxels (the masks' resolution)"""
 
     @property
     def num_parts(self) -> int:
@@ -190,7 +195,8 @@ class ObjectGeometry:
                 "variants": self.variant_names, "views_used": self.views_used, "mask_sources": self.mask_sources,
                 "selected_gaussians": self.selection.num_selected,
                 "object_centre_scene": [float(x) for x in self.selection.centre],
-                "rests_on_plane": self.selection.plane is not None}  # fmt: skip
+                "rests_on_plane": self.selection.plane is not None,
+                "pixel_footprint_voxels": self.pixel_voxels}  # fmt: skip
 
 
 def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
@@ -538,5 +544,6 @@ def reconstruct_object(
         grid=grid, solid=solids[0], parts=parts, part_mixture=pm, mixture=mixture, variant_names=names,
         volumes=np.stack([gm.volume for gm in geos]), areas=np.stack([gm.area for gm in geos]),
         sheet_share=geos[0].sheet_share, structure=structure, selection=selection, views_used=len(views),
-        mask_sources=sources, material_levels=levels,
+        mask_sources=sources, material_levels=levels, surface_areas=np.stack([gm.surface for gm in geos]),
+        pixel_voxels=_pixel_voxels(obj_views, grid) if obj_views else 1.0,
     )  # fmt: skip
