@@ -181,7 +181,7 @@ class PartGeometry:
     """[P] wall area per part (scene units^2): sheet faces count half"""
     sheet_share: np.ndarray
     """[P] share of each part's faces that lie on a sheet"""
-    surface: np.ndarray | None = None
+    surface: np.ndarray
     """[P] whole surface area per part (scene units^2): every face counted once, the volume that moving the
     part's surface out by one unit of length adds (the mass's surface offset, :mod:`physgs_nerfstudio.mass`)"""
 

@@ -177,12 +177,12 @@ class ObjectGeometry:
     views_used: int
     mask_sources: dict[str, int]
     """views per mask source, after the silhouette replacements of :func:`_object_views`"""
+    surface_areas: np.ndarray
+    """[G, P] whole surface area per variant and part, scene units^2 (every face once: the mass's surface
+    offset)"""
     material_levels: np.ndarray | None = None
     """[P, J, K]: per part and quantile level, the volume share per material
     (:func:`physgs_nerfstudio.geometry.parts.material_quantiles`); None = each part one material"""
-    surface_areas: np.ndarray | None = None
-    """[G, P] whole surface area per variant and part, scene units^2 (every face once: the mass's surface
-    offset); None = no offset"""
     pixel_voxels: float = 1.0
     """the views' median pixel footprint at the grid's centre, in voxels (the masks' resolution)"""
 
@@ -525,8 +525,9 @@ def reconstruct_object(
     sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else (
         cfg.carve.depth_margin_voxels + (2.0 if cfg.carve.depth_render == "median" else 1.0))
     concave = None
+    pixel_voxels = _pixel_voxels(obj_views, grid) if obj_views else 1.0
     if cfg.concavity_px is not None:
-        concave = concavities(hull, solids[0], max(2.0, cfg.concavity_px * _pixel_voxels(obj_views, grid)))
+        concave = concavities(hull, solids[0], max(2.0, cfg.concavity_px * pixel_voxels))
     def areas(s: np.ndarray) -> PartGeometry:
         return part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet, min_plate=cfg.min_plate,
                           concave=concave, device=device)
@@ -545,5 +546,5 @@ def reconstruct_object(
         volumes=np.stack([gm.volume for gm in geos]), areas=np.stack([gm.area for gm in geos]),
         sheet_share=geos[0].sheet_share, structure=structure, selection=selection, views_used=len(views),
         mask_sources=sources, material_levels=levels, surface_areas=np.stack([gm.surface for gm in geos]),
-        pixel_voxels=_pixel_voxels(obj_views, grid) if obj_views else 1.0,
+        pixel_voxels=pixel_voxels,
     )  # fmt: skip

@@ -185,7 +185,7 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
     rho = _density_draws(pf, cfg, rng)  # [S, K]
     hollow, thick = _structure_draws(geo, cfg, rng)
     V_solid = V
-    if cfg.surface_offset_voxels > 0 and geo.surface_areas is not None:  # drawn last: the other draws unchanged
+    if cfg.surface_offset_voxels > 0:  # drawn last: the other draws unchanged
         unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)  # the carving's resolution, scene units
         d = cfg.surface_offset_voxels * unit * rng.standard_normal(S)
         V_solid = np.maximum(geo.volumes[gi] + geo.surface_areas[gi] * d[:, None], 0.0) * mpu**3
@@ -197,6 +197,7 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
     q = lambda x: (float(np.quantile(x, lo_q)), float(np.quantile(x, hi_q)))
     Vn = geo.volumes[0] * mpu**3
     An = geo.areas[0] * mpu**2
+    Sn = geo.surface_areas[0] * mpu**2
     V_k = (geo.part_mixture * Vn[:, None]).sum(0)
     A_k = (geo.part_mixture * An[:, None]).sum(0)
     rho_mean = pf.material_means()[:, pf.property_index(cfg.density_key)].cpu().numpy()
@@ -224,14 +225,13 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
                       "mixture": {pf.material_names[int(i)]: float(geo.part_mixture[p, i]) for i in top
                                   if geo.part_mixture[p, i] > 1e-3},
                       "volume_m3": float(Vn[p]), "volume_interval_m3": q(V_solid[:, p]), "area_m2": float(An[p]),
-                      "surface_area_m2": float(geo.surface_areas[0, p] * mpu**2) if geo.surface_areas is not None
-                      else None,
+                      "surface_area_m2": float(Sn[p]),
                       "sheet_share": float(geo.sheet_share[p]), "structure": s,
                       "mass_mean_kg": float(m[:, p].mean()), "mass_interval_kg": q(m[:, p])})  # fmt: skip
     info = {**geo.summary(), "voxel_size_m": geo.grid.voxel_size * mpu, "structure_mode": cfg.structure,
             "density_draw": cfg.density_draw, "num_gaussians": int(pf.num_gaussians),
             "surface_offset_voxels": cfg.surface_offset_voxels,
-            "surface_area_m2": float(geo.surface_areas[0].sum() * mpu**2) if geo.surface_areas is not None else None,
+            "surface_area_m2": float(Sn.sum()),
             "volume_by_variant_m3": {n: float(v.sum() * mpu**3) for n, v in zip(geo.variant_names, geo.volumes)}}
     return MassReport(
         mean_kg=mean, median_kg=float(np.median(total)), interval_kg=q(total), level=cfg.level, n_samples=S,
