@@ -51,6 +51,7 @@ RULES = {
     "consensus0.34": {"depth_consensus": 0.34},
     "consensus0.5_band2": {"depth_consensus": 0.5, "near_band_voxels": 2.0},
     "expected_margin0.5": {"depth_render": "expected", "depth_margin_voxels": 0.5},
+    "expected_margin1": {"depth_render": "expected", "depth_margin_voxels": 1.0},
     "expected_consensus0.5": {"depth_render": "expected", "depth_consensus": 0.5},
     "expected_consensus0.34": {"depth_render": "expected", "depth_consensus": 0.34},
     "expected_consensus0.5_band2": {"depth_render": "expected", "depth_consensus": 0.5, "near_band_voxels": 2.0},

@@ -596,10 +596,12 @@ def test_inside_takes_the_material_seen_at_its_own_height():
     """A shoe in voxels: a slab 3 voxels thick whose sides and rim show material 0, under a narrower block (inset by
     2 voxels) whose sides and top show material 1, all solid, nothing observed inside. By plain distance much of the
     slab's middle layer is nearer to the block's sides (8.2 voxels against 9.1 at its centre) and goes to material 1.
-    Counting height 3 times, the middle layer keeps (but for ties) the material of the slab's own sides (9.5 against 10); the layer
-    right under the block still goes partly to it. ``up_weight`` 1 is the plain Euclidean rule (oracle: a
-    brute-force nearest source per voxel)."""
+    Counting height ``GeometryConfig.interior_up_weight`` times (10; 3 before session 14), the middle layer keeps
+    the material of the slab's own sides, as it did at 3 (but for ties: 9.5 against 10); the layer right under the
+    block still goes partly to it. ``up_weight`` 1 is the plain Euclidean rule (oracle: a brute-force nearest source
+    per voxel)."""
     from physgs_nerfstudio.geometry.parts import voxel_mixture
+    from physgs_nerfstudio.geometry.reconstruct import GeometryConfig
 
     grid = VoxelGrid((0.0, 0.0, 0.0), 1.0, (20, 20, 12))
     solid = np.zeros(grid.shape, bool)
@@ -617,13 +619,18 @@ def test_inside_takes_the_material_seen_at_its_own_height():
     slab_inside[:, :, 3:] = False
     block_inside = inner & ~slab_inside
     plain = np.argmax(voxel_mixture(grid, solid, means, opac, pi, up_weight=1.0), -1)
-    layered = np.argmax(voxel_mixture(grid, solid, means, opac, pi, up_weight=3.0), -1)  # GeometryConfig's default
+    up = GeometryConfig().interior_up_weight
+    layered = np.argmax(voxel_mixture(grid, solid, means, opac, pi, up_weight=up), -1)
+    three = np.argmax(voxel_mixture(grid, solid, means, opac, pi, up_weight=3.0), -1)
     assert (plain[slab_inside] == 1).mean() > 0.3  # the plain rule gives much of the slab to the block
     mid = slab_inside.copy()
     mid[:, :, 2:] = False  # the slab's middle layer (the top one lies a voxel under the block)
     assert (plain[mid] == 1).mean() > 0.2 and (layered[mid] == 0).mean() > 0.9
     assert (layered[slab_inside] == 0).mean() > (plain[slab_inside] == 0).mean() + 0.2
     assert (layered[block_inside] == 1).all() and (plain[block_inside] == 1).all()
+    # a larger weight keeps at least as much of the slab as 3 did (the same layers, farther seams)
+    assert (layered[slab_inside] == 0).mean() >= (three[slab_inside] == 0).mean()
+    assert (three[mid] == 0).mean() > 0.9
     # the plain rule is the brute-force nearest source (ties: either material at equal distance)
     c = np.argwhere(slab_inside) + 0.5
     d = np.linalg.norm(c[:, None, :] - (ijk + 0.5)[None], axis=-1)

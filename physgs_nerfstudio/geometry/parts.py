@@ -8,11 +8,14 @@
   an opaque, fully observed Gaussian by default). A solid voxel without evidence (the inside of a 3DGS object:
   Gaussians sit on surfaces; or a surface no view labelled) takes the mixture of the nearest voxel that has
   it (distance transform), i.e. it takes the nearest observed surface evidence. "Nearest" counts a vertical
-  distance ``up_weight`` times (3 by default, ``GeometryConfig.interior_up_weight``): an object at rest is
+  distance ``up_weight`` times (10 by default, ``GeometryConfig.interior_up_weight``): an object at rest is
   built in layers, and the seam between two parts inside it continues the one seen on its sides. A shoe's rubber
   sole, 25 mm thick under a leather upper as wide as it, is seen only along its edge; by plain Euclidean distance
   half of its inside was nearer to the upper, went to the hollow upper and weighed nothing (the shoe came out
-  0.62-0.66x of its mass at demo settings, seeds 3535 and 3737; with 3, 0.77-0.84x; benchmarks/README.md).
+  0.62-0.66x of its mass at demo settings, seeds 3535 and 3737; with 3, 0.77-0.84x). At 3 the sole's top third
+  still went to the upper: the short CPU trainings leave Gaussians on the sole's top face inside the upper, seen
+  through its semi-transparent leather and labelled leather, and at 3 they reached 3 times as deep as the sole's
+  edge reaches in. With 10 the shoe came out 0.94x and 1.00x (benchmarks/README.md, session 14).
 * **Parts.** Connected components (26-connectivity) of solid voxels sharing a dominant (argmax) material;
   parts below ``min_part_fraction`` of the object's volume are pooled into one residual part.
 * **A part's material** (:func:`pooled_part_alpha`, the default ``part_materials="pooled"``). A part is one

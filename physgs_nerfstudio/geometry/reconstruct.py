@@ -125,7 +125,7 @@ class GeometryConfig:
     min_voxel_evidence: float = 0.5
     """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
     (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
-    interior_up_weight: float = 3.0
+    interior_up_weight: float = 10.0
     """in the nearest-evidence rule of the solid's inside (:func:`.parts.voxel_mixture`), a vertical distance counts
     this many times a horizontal one, so that an inside voxel takes the material of the observed surface nearest at
     its own height: an object at rest is built in layers (a sole under an upper, a base under a pole, a top on its
