@@ -422,6 +422,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         # (benchmarks/carve_diag.py --parts) -> carve_diag_gpu_s$GSEED.json
         RUNS=$(for o in $OBJECTS; do [ -d /tmp/ms/${o}_s$GSEED/runs ] && echo /tmp/ms/${o}_s$GSEED; done)
         PYTHONUNBUFFERED=1 timeout $((${LIMIT:-570} - $(elapsed))) python3 benchmarks/carve_diag.py $RUNS --parts \
+          ${NO_MEDIAN:+--no-median} \
           --rules ${RULES:-expected expected_consensus0.5} --out "$OUT/carve_diag_gpu_s$GSEED.json" 2>&1 \
           | grep -v -i warn | cut -c1-400
         echo "[$(elapsed) s] done"
