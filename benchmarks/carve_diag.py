@@ -132,12 +132,13 @@ def parts_report(run_dir: Path, resolution: int | None) -> dict:
     parts = [p for p in build_layout(truth["layout"], int(truth.get("seed", 0))).parts if p.role == "object"]
     grid = geo.grid
     ijk = np.argwhere(np.ones(grid.shape, bool))
-    gt = _part_of(parts, _to_world(grid.centres(torch.from_numpy(ijk)).double().numpy(), T, s), 0.0).reshape(grid.shape)
+    world = _to_world(grid.centres(torch.from_numpy(ijk)).double().numpy(), T, s)
+    gt = _part_of(parts, world, 0.0).reshape(grid.shape)
     names = run.field.material_names
     dom = np.argmax(geo.part_mixture, 1)
     mpu3 = float(run.field.metres_per_unit) ** 3
     # where each true part's lost voxels lie: its bottom or top 1.5 voxels (world height), or elsewhere (sides)
-    z = _to_world(grid.centres(torch.from_numpy(ijk)).double().numpy(), T, s)[:, 2].reshape(grid.shape)
+    z = world[:, 2].reshape(grid.shape)
     dz = 1.5 * grid.voxel_size / s
 
     def lost(i: int) -> dict:

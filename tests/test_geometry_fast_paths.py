@@ -668,12 +668,12 @@ def test_inside_is_not_taken_by_evidence_seen_through_the_part_above():
     def to_block(w: float) -> np.ndarray:
         return np.argmax(voxel_mixture(grid, solid, means, opac, pi, up_weight=w), -1)[inside] == 1
 
-    for w in (3.0, GeometryConfig().interior_up_weight):
-        got = to_block(w)
+    got = {w: to_block(w) for w in (3.0, GeometryConfig().interior_up_weight)}
+    for w, g in got.items():
         clear = (w * d != h)[inside]  # off the ties, the rule is exact
-        assert np.array_equal(got[clear], (w * d < h)[inside][clear]), w
+        assert np.array_equal(g[clear], (w * d < h)[inside][clear]), w
     assert GeometryConfig().interior_up_weight == 10.0
-    assert to_block(3.0).sum() >= 300 and to_block(10.0).sum() <= 8
+    assert got[3.0].sum() >= 300 and got[10.0].sum() <= 8
 
 
 def test_closed_form_eigenvalues_are_lapacks():
