@@ -370,7 +370,8 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     those seeds and its re-export with ALT_ARGS (ALT_NAME)
     #   PHASE=train: `ns-train physgs` (STEPS, 7000) of OBJECTS, CONC at a time on the one GPU, then
     #     `mass_suite.py --trained` (`physgs export --outputs mass` with its defaults, 4 at a time) -> mass_suite_gpu.json,
-    #     and with ALT_ARGS the same runs exported with those flags too -> mass_suite_gpu_ALT_NAME.json
+    #     and with ALT_ARGS the same runs exported with those flags too -> mass_suite_gpu_ALT_NAME.json (ALT2_ARGS,
+#     ALT2_NAME: a second such export)
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
     OBJECTS=${OBJECTS:-"mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase"}
     case "${PHASE:?PHASE=scenes|train}" in
@@ -414,6 +415,11 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
           python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
             --alt-name "gpu_${ALT_NAME:-alt}" --export-args="$ALT_ARGS" > "$OUT/gpu_mass_suite_${ALT_NAME:-alt}.log" 2>&1
           tail -1 "$OUT/gpu_mass_suite_${ALT_NAME:-alt}.log"
+        fi
+        if [ -n "${ALT2_ARGS:-}" ]; then  # ... and with a second set of flags
+          python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
+            --alt-name "gpu_${ALT2_NAME:-alt2}" --export-args="$ALT2_ARGS" > "$OUT/gpu_mass_suite_${ALT2_NAME:-alt2}.log" 2>&1
+          tail -1 "$OUT/gpu_mass_suite_${ALT2_NAME:-alt2}.log"
         fi
         cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
         echo "[$(elapsed) s] done"
