@@ -180,3 +180,60 @@ def test_depth_consensus_needs_a_majority_of_the_views_near_the_surface() -> Non
     assert keep.tolist() == [True, False, False, True, True]
     off = solid_from_votes(votes, grid, CarveConfig(depth_consensus=0.0, min_component=0.0, fill_cavities=False))
     assert off.ravel().tolist() == [False, False, False, True, False]
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 30.0, 60.0, 72.0])
+def test_incidence_cos_is_the_angle_between_ray_and_plane_normal(tilt_deg):
+    """A plane's depth map (camera z) rendered analytically through a pinhole: the angle from each pixel's ray to the
+    plane's normal, computed directly, is what incidence_cos gives (exact for a plane, also where it uses one-sided
+    differences next to a transparent pixel); pixels that are not opaque give 1."""
+    from physgs_nerfstudio.geometry.carve import incidence_cos
+
+    H, W, f = 24, 32, 60.0
+    K = torch.tensor([[f, 0.0, W / 2 + 1.3], [0.0, f * 1.1, H / 2 - 0.7], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    t = math.radians(tilt_deg)
+    n = torch.tensor([0.0, math.sin(t), -math.cos(t)], dtype=torch.float64)  # towards the camera when tilt = 0
+    p0 = torch.tensor([0.1, -0.05, 3.0], dtype=torch.float64)  # a point of the plane: n . x = n . p0
+    v, u = torch.meshgrid(torch.arange(H, dtype=torch.float64) + 0.5, torch.arange(W, dtype=torch.float64) + 0.5,
+                          indexing="ij")  # fmt: skip
+    ray = torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], torch.ones_like(u)], -1)
+    depth = (n @ p0) / (ray @ n)  # z of the ray's hit: x = z * ray
+    alpha = torch.ones(H, W, dtype=torch.float64)
+    alpha[5, 7] = 0.1  # its neighbours measure the slope one-sided
+    alpha[10:12, 3] = 0.0
+    got = incidence_cos(depth, alpha, K)
+    want = (ray @ n).abs() / ray.norm(dim=-1)
+    op = alpha >= 0.5
+    assert torch.allclose(got[op], want[op], atol=1e-9)
+    assert (got[~op] == 1).all()
+    assert depth.min() > 0  # the plane is in front of the camera at every pixel
+
+
+def test_grazing_pixels_give_no_depth_evidence():
+    """With max_incidence_deg, a view's depth evidence (its depth votes, the views that see a voxel directly and near)
+    is what the same view gives with the pixels seen beyond that angle made transparent; silhouette votes are
+    unchanged; 90 changes nothing."""
+    from physgs_nerfstudio.geometry.carve import incidence_cos
+
+    grid, views, renders = _scene(3)
+    # a step in depth across the image's middle columns, steeper in lower rows: grazing there, facing elsewhere
+    for r in renders:
+        H, W = r.depth.shape
+        ramp = ((torch.arange(W) + 0.5 - W / 2 + 2) / 4).clamp(0, 1)[None, :]
+        r.depth = 1.6 + ramp * torch.linspace(0.1, 1.5, H)[:, None]
+        r.alpha = torch.ones(H, W) * 0.9
+    base = CarveConfig(min_vote_fraction=0.1)
+    got = carve_votes(grid, views, renders, CarveConfig(min_vote_fraction=0.1, max_incidence_deg=70.0))
+    cut = []
+    for r, v in zip(renders, views):
+        graze = incidence_cos(r.depth, r.alpha, v.K) < math.cos(math.radians(70.0))
+        cut.append(ViewRender(depth=r.depth, alpha=torch.where(graze, torch.zeros_like(r.alpha), r.alpha)))
+        assert 0 < int(graze.sum()) < graze.numel()
+    want = carve_votes(grid, views, cut, base)
+    for a, b in ((got.empty, want.empty), (got.depth_empty, want.depth_empty), (got.direct, want.direct),
+                 (got.near, want.near), (got.seen, want.seen)):  # fmt: skip
+        assert torch.equal(a, b)
+    same = carve_votes(grid, views, renders, CarveConfig(min_vote_fraction=0.1, max_incidence_deg=90.0))
+    plain = carve_votes(grid, views, renders, base)
+    assert torch.equal(same.empty, plain.empty) and torch.equal(same.depth_empty, plain.depth_empty)
+    assert not torch.equal(got.depth_empty, plain.depth_empty)
