@@ -80,7 +80,6 @@ evidence (a depth rendered too deep through a semi-transparent wall), never seen
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -129,11 +128,6 @@ class CarveConfig:
     bilinear lookup; half a pixel's depth change with the nearest); 0 = off"""
     min_alpha: float = 0.5
     """pixels less opaque than this do not carve by depth"""
-    max_incidence_deg: float = 90.0
-    """pixels whose rendered surface is seen at more than this angle from its normal (:func:`incidence_cos`) have no
-    depth evidence: they neither carve by depth nor count as seeing a voxel directly or near their surface. A depth
-    seen at grazing incidence places the surface only to its error divided by the angle's cosine along the ray (an
-    underside that only the lowest views see, nearly edge-on); 90 = off"""
     depth_render: Literal["auto", "expected", "median", "first"] = "auto"
     """the rendered depth that carves (module doc, "First surface"): "expected", the blending-weighted mean of the
     Gaussians' depths; "median", the depth where the transmittance crosses 1/2; "first", the expected depth
@@ -245,31 +239,6 @@ def depth_slack(depth: Tensor, alpha: Tensor, min_alpha: float = 0.5, lookup: st
             first = torch.where(p_ok & n_ok, (prev - 2 * d + nxt).abs() / 8, first)
         out += first
     return out
-
-
-def incidence_cos(depth: Tensor, alpha: Tensor, K: Tensor, min_alpha: float = 0.5) -> Tensor:
-    """float [H, W]: the cosine of the angle between each opaque pixel's ray and the normal of the rendered surface
-    there, the surface being the depth map (camera z) back-projected through the intrinsics ``K``: the normal is
-    the cross product of the back-projected point's differences along the two image axes (central where both
-    neighbours are opaque, else one-sided towards the opaque one). 1 where a pixel has no opaque neighbour along an
-    axis (no slope to measure) or is not opaque itself."""
-    H, W = depth.shape
-    dev, dt = depth.device, depth.dtype
-    v, u = torch.meshgrid(torch.arange(H, device=dev, dtype=dt) + 0.5, torch.arange(W, device=dev, dtype=dt) + 0.5,
-                          indexing="ij")  # fmt: skip
-    ray = torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], torch.ones_like(u)], -1)
-    P = depth[..., None] * ray
-    op = alpha >= min_alpha
-    diffs, has = [], torch.ones_like(op)
-    for dim in (0, 1):  # d/dv, d/du
-        prev, nxt = _shift(P, dim, 1, 0.0), _shift(P, dim, -1, 0.0)
-        p_ok, n_ok = _shift(op, dim, 1, False) & op, _shift(op, dim, -1, False) & op
-        both = (p_ok & n_ok)[..., None]
-        diffs.append(torch.where(both, 0.5 * (nxt - prev), torch.where(n_ok[..., None], nxt - P, P - prev)))
-        has &= p_ok | n_ok
-    n = torch.cross(diffs[1], diffs[0], dim=-1)
-    cos = (n * ray).sum(-1).abs() / (n.norm(dim=-1) * ray.norm(dim=-1)).clamp_min(1e-30)
-    return torch.where(has & op & (n.norm(dim=-1) > 0), cos, torch.ones_like(cos))
 
 
 def _corners(shape: tuple[int, ...], u: Tensor, v: Tensor) -> list[tuple[Tensor, Tensor, Tensor]]:
@@ -392,16 +361,8 @@ def carve_votes_many(
         raise ValueError("carve_votes_many: every setting must use the same depth_render and mixed_depth_voxels.")
     images = ([carve_depth(r, kind, cfgs[0].mixed_depth_voxels * grid.voxel_size).to(device) for r in renders]
               if any_depth else [None] * len(views))  # fmt: skip
-    max_inc = cfgs[0].max_incidence_deg
-    if any(c.max_incidence_deg != max_inc for c in cfgs):
-        raise ValueError("carve_votes_many: every setting must use the same max_incidence_deg.")
-    alphas = [r.alpha.to(device) for r in renders] if any_depth else [None] * len(views)
-    if any_depth and max_inc < 90.0:  # grazing pixels hold no depth evidence (CarveConfig.max_incidence_deg)
-        cos_max = math.cos(math.radians(max_inc))
-        alphas = [torch.where(incidence_cos(d, a, v.K.to(device), cfgs[0].min_alpha) < cos_max, torch.zeros_like(a), a)
-                  for d, a, v in zip(images, alphas, views)]  # fmt: skip
-    depth = ([(d, a, depth_slack(d, a, lookup=lookup) if slope else None)
-              for d, a in zip(images, alphas)] if any_depth else [None] * len(views))  # fmt: skip
+    depth = ([(d, r.alpha.to(device), depth_slack(d, r.alpha.to(device), lookup=lookup) if slope else None)
+              for d, r in zip(images, renders)] if any_depth else [None] * len(views))  # fmt: skip
     use_spread = any_depth and any(c.front_spread > 0 or c.max_spread_voxels < float("inf") for c in cfgs)
     if use_spread and any(r.spread is None for r in renders):
         raise ValueError("carve_votes_many: front_spread / max_spread_voxels need renders with a depth spread "
