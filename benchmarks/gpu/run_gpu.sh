@@ -371,7 +371,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #   PHASE=train: `ns-train physgs` (STEPS, 7000) of OBJECTS, CONC at a time on the one GPU, then
     #     `mass_suite.py --trained` (`physgs export --outputs mass` with its defaults, 4 at a time) -> mass_suite_gpu.json,
     #     and with ALT_ARGS the same runs exported with those flags too -> mass_suite_gpu_ALT_NAME.json (ALT2_ARGS,
-#     ALT2_NAME: a second such export)
+    #     ALT2_NAME: a second such export)
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
     OBJECTS=${OBJECTS:-"mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase"}
     case "${PHASE:?PHASE=scenes|train}" in
@@ -411,16 +411,14 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
           --alt-name gpu > "$OUT/gpu_mass_suite.log" 2>&1
         cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14
-        if [ -n "${ALT_ARGS:-}" ]; then  # the same runs exported with ALT_ARGS as well
+        # the same runs exported with ALT_ARGS and ALT2_ARGS as well (each where set)
+        for alt in "${ALT_NAME:-alt}=${ALT_ARGS:-}" "${ALT2_NAME:-alt2}=${ALT2_ARGS:-}"; do
+          name=${alt%%=*} args=${alt#*=}
+          [ -n "$args" ] || continue
           python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
-            --alt-name "gpu_${ALT_NAME:-alt}" --export-args="$ALT_ARGS" > "$OUT/gpu_mass_suite_${ALT_NAME:-alt}.log" 2>&1
-          tail -1 "$OUT/gpu_mass_suite_${ALT_NAME:-alt}.log"
-        fi
-        if [ -n "${ALT2_ARGS:-}" ]; then  # ... and with a second set of flags
-          python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
-            --alt-name "gpu_${ALT2_NAME:-alt2}" --export-args="$ALT2_ARGS" > "$OUT/gpu_mass_suite_${ALT2_NAME:-alt2}.log" 2>&1
-          tail -1 "$OUT/gpu_mass_suite_${ALT2_NAME:-alt2}.log"
-        fi
+            --alt-name "gpu_$name" --export-args="$args" > "$OUT/gpu_mass_suite_$name.log" 2>&1
+          tail -1 "$OUT/gpu_mass_suite_$name.log"
+        done
         cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
         echo "[$(elapsed) s] done"
         ;;
