@@ -29,12 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from geometry_diag import _to_world
 
 from physgs_nerfstudio.export.voxel import load_voxel_grid
-from physgs_nerfstudio.synth.geometry import _Difference
 from physgs_nerfstudio.synth.objects import build_layout
-
-
-def _outer(part):
-    return part.primitive._outer() if isinstance(part.primitive, _Difference) else part.primitive
 
 
 def voxel_truth(vx: dict, transform: np.ndarray, scale: float, parts: list, profile: str | None = None) -> dict:
@@ -52,10 +47,11 @@ def voxel_truth(vx: dict, transform: np.ndarray, scale: float, parts: list, prof
     rows = []
     for p in parts:
         local = p.to_local(world)
-        enclosed = _outer(p).contains(local)
+        enclosed = p.outer().contains(local)
         in_any |= enclosed
         kept = enclosed & flat_occ
-        to = np.bincount(flat_pid[kept][flat_pid[kept] >= 0], minlength=int(pid.max()) + 1)
+        ids = flat_pid[kept]
+        to = np.bincount(ids[ids >= 0], minlength=int(pid.max()) + 1)
         row = {"part": p.name, "material": p.material, "volume_model": p.volume_model,
                "enclosed_on_grid_m3": float(enclosed.sum() * cell), "enclosed_m3": float(p.enclosed_volume()),
                "kept_share": float(kept.sum() / max(int(enclosed.sum()), 1)),

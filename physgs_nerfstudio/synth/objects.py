@@ -95,11 +95,13 @@ class Part:
             return self.primitive.volume()
         return self.primitive.shell_volume(float(self.thickness_m), self.open_ends)
 
+    def outer(self) -> Primitive:
+        """The solid bounded by the part's outer surface (a vessel's wall and its cavity), in the part's frame."""
+        return self.primitive._outer() if isinstance(self.primitive, _Difference) else self.primitive
+
     def enclosed_volume(self) -> float:
         """Volume enclosed by the outer surface (cavities of open vessels included)."""
-        if isinstance(self.primitive, _Difference):
-            return self.primitive._outer().volume()
-        return self.primitive.volume()
+        return self.outer().volume()
 
     # -- frames --------------------------------------------------------------------------------
     def to_local(self, p: np.ndarray) -> np.ndarray:
