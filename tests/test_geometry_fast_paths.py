@@ -190,7 +190,8 @@ def test_solid_from_votes_on_the_bounding_box_equals_the_whole_grid():
 
 def _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=1 << 20):
     """The carving votes as computed before the views were voted on together (carve_votes_many at 95953ad, one view
-    and one setting at a time, 2-D indexing of each image): the oracle of the batched vote."""
+    and one setting at a time, 2-D indexing of each image): the oracle of the batched vote; with the along-ray
+    extent (``front_extent``) read as the spread is and subtracted from the depth per setting."""
     from physgs_nerfstudio.geometry.carve import (
         _corners,
         _sample,
@@ -199,21 +200,21 @@ def _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=1 << 20):
         signed_mask_distances,
     )
 
-    def sample_opaque(depth, alpha, u, v, min_alpha, extra=None):
+    def sample_opaque(depth, alpha, u, v, min_alpha, *extras):
         num, den = torch.zeros_like(u), torch.zeros_like(u)
-        num2 = torch.zeros_like(u) if extra is not None else None
+        nums = [torch.zeros_like(u) if e is not None else None for e in extras]
         for yy, xx, w in _corners(depth.shape, u, v):
             ok = alpha[yy, xx] >= min_alpha
             w = torch.where(ok, w, 0.0)
             num += w * torch.where(ok, depth[yy, xx], 0.0)
-            if num2 is not None:
-                num2 += w * torch.where(ok, extra[yy, xx], 0.0)
+            for e, n in zip(extras, nums):
+                if n is not None:
+                    n += w * torch.where(ok, e[yy, xx], 0.0)
             den += w
         has = den > 0
         d = torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
-        if num2 is None:
-            return d, has
-        return d, has, torch.where(has, num2 / den.clamp_min(1e-12), torch.zeros_like(num2))
+        return (d, has, *[torch.where(has, n / den.clamp_min(1e-12), torch.zeros_like(n)) if n is not None else None
+                          for n in nums])
 
     M, G = grid.num_voxels, len(cfgs)
     empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32) for _ in cfgs] for _ in range(3))
@@ -229,6 +230,8 @@ def _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=1 << 20):
               for d, r in zip(images, renders)] if any_depth else [None] * len(views))  # fmt: skip
     use_spread = any_depth and any(c.front_spread > 0 or c.max_spread_voxels < float("inf") for c in cfgs)
     spreads = [r.spread for r in renders] if use_spread else [None] * len(views)
+    use_extent = any_depth and any(c.extent_multiple() > 0 for c in cfgs)
+    extents = [r.extent for r in renders] if use_extent else [None] * len(views)
     shape = torch.as_tensor(grid.shape)
     for s0 in range(0, M, chunk):
         flat = torch.arange(s0, min(M, s0 + chunk))
@@ -236,7 +239,7 @@ def _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=1 << 20):
         x = grid.centres(ijk)
         n_seen = torch.zeros(len(flat), dtype=torch.int32)
         n_empty, n_depth, n_direct = ([torch.zeros_like(n_seen) for _ in range(G)] for _ in range(3))
-        for view, (R, t, K), sd, dz, spr in zip(views, cams, sdf, depth, spreads):
+        for view, (R, t, K), sd, dz, spr, ext in zip(views, cams, sdf, depth, spreads, extents):
             pc = x @ R.T + t
             z = pc[:, 2]
             u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
@@ -249,15 +252,15 @@ def _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=1 << 20):
                 d, a = dz[0][vi, ui], dz[1][vi, ui]
                 sl = dz[2][vi, ui] if dz[2] is not None else None
                 sp = spr[vi, ui] if spr is not None else None
+                ex = ext[vi, ui] if ext is not None else None
                 if lookup == "bilinear":
-                    if spr is not None:
-                        d, _, sp = sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height),
-                                                 0.5, spr)  # fmt: skip
-                    else:
-                        d = sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5)[0]
+                    d, _, sp, ex = sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5,
+                                                 spr, ext)  # fmt: skip
+            d_as_read = d if dz is not None else None
             for g, cfg in enumerate(cfgs):
                 vote = ok & (dist > cfg.mask_margin_px)
                 if dz is not None and cfg.use_depth:
+                    d = d_as_read - cfg.extent_multiple() * ex if ex is not None else d_as_read
                     margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
                     if sl is not None and cfg.depth_slope_margin > 0:
                         margin = margin + cfg.depth_slope_margin * sl
@@ -302,7 +305,8 @@ def _carving_scene(seed, sizes=((40, 32), (40, 32), (36, 30), (40, 32), (40, 32)
         alpha = torch.rand(H, W, generator=g)
         depth[alpha < 0.1] = float("inf")
         renders.append(ViewRender(depth=depth, alpha=alpha, spread=0.05 * torch.rand(H, W, generator=g),
-                                  median=depth - 0.2 * torch.rand(H, W, generator=g)))  # fmt: skip
+                                  median=depth - 0.2 * torch.rand(H, W, generator=g),
+                                  extent=0.03 * torch.rand(H, W, generator=g)))  # fmt: skip
         views.append(CaptureView(torch.tensor(vm, dtype=torch.float32), K, W, H, mask, name=f"v{i}"))
     grid = VoxelGrid.from_bounds(np.array([-0.6, -0.5, -0.4]), np.array([0.6, 0.5, 0.45]), 22)
     return grid, views, renders
@@ -328,6 +332,8 @@ def test_carve_votes_of_views_together_equal_one_view_at_a_time(seed):
         [CarveConfig(depth_render="first", front_spread=0.5, depth_lookup="nearest"),
          CarveConfig(depth_render="first", max_spread_voxels=1.0, depth_lookup="nearest")],
         [CarveConfig(depth_render="median"), CarveConfig(depth_render="median", mask_margin_px=0.7)],
+        [CarveConfig(front_extent=1.0), CarveConfig(front_extent=0.0), CarveConfig(front_extent=2.0, front_spread=1.0)],
+        [replace(c, front_extent=1.5, depth_lookup="nearest") for c in variants[:3]],
     ]
     for cfgs in settings:
         want = _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=2000)

@@ -54,6 +54,21 @@ and lowered the held-out suite's median APE) and with the expected depth on gspl
 surfaces are sharp and the median gained nothing (:func:`resolve_depth_render`; docs/architecture.md, "Mass
 geometry"; benchmarks/README.md, rounds 5 and 7).
 
+The Gaussians' depth. A rasterizer gives every pixel that a Gaussian covers the depth of the Gaussian's *centre*,
+and a trained splat's surface Gaussians have their centres behind the surface they draw: their footprints, not
+their centres, reach the object's outline in the views that see a face edge-on. So the expected depth lies about one
+Gaussian thickness behind each face, and the depth votes carved that layer off both faces of every plate (on the
+GPU the table's oak top kept 0.53 of its volume and the dumbbell's plates 0.71-0.75, both faces losing 4-5 mm
+whatever the voxel: benchmarks/README.md, session 16). ``front_extent`` moves the depth that carves towards the
+camera by k times the pixel's blended *along-ray extent* (:func:`.gaussians.ray_extent`: each Gaussian's standard
+deviation along the ray through it, ``1 / sqrt(d^T Sigma^-1 d)``, rendered as a colour channel): a flat Gaussian
+lying in a face adds its thickness across the face, not its in-plane size, and a face of thin Gaussians is not moved.
+k = 1 with the expected depth (the default, gsplat's depth), 0 with the median depth (the CPU's reference rasterizer),
+which already lies in front of a layer's centres; the mass interval samples k - 1 and k + 1 as geometry variants,
+since where the surface lies within a Gaussian's extent is known only to about one extent. Measured on the GPU suite
+at a fresh seed (5252; benchmarks/README.md, session 17): median APE 0.146 -> 0.099, median volume error 0.148 ->
+0.074.
+
 Depth consensus. The vote's fraction is low (15% of the views that frame a voxel) because most views cannot see
 a given empty voxel at all: it is hidden behind the object in them. But then a surface voxel is carved as soon as
 15% of the views render the surface behind it, so the carved surface follows the *most* biased views, not the
@@ -142,6 +157,11 @@ class CarveConfig:
     "First surface"); 0 = the expected depth"""
     max_spread_voxels: float = float("inf")
     """pixels whose depth spread exceeds this many voxels do not carve by depth (their depth is no surface)"""
+    front_extent: float | None = None
+    """carve with the rendered depth moved this many of its pixel's blended along-ray extents
+    (:func:`.gaussians.ray_extent`) towards the camera (module doc, "The Gaussians' depth"); 0 = the depth as
+    rendered; None (default): 1 with the expected depth, 0 with the median and "first" depths, which already lie in
+    front of the centres (:meth:`extent_multiple`)"""
     min_direct_fraction: float = 2.0
     """... or at least this fraction of the views that see it directly see past it by depth (module doc);
     > 1 (the default) switches the direct rule off: over the generated suite at seed 101 it carved the space
@@ -175,9 +195,18 @@ class CarveConfig:
             raise ValueError(f"CarveConfig.min_votes must be >= 1, got {self.min_votes}.")
         if not 0 <= self.min_vote_fraction <= 1:
             raise ValueError(f"CarveConfig.min_vote_fraction must be in [0, 1], got {self.min_vote_fraction}.")
+        if self.front_extent is not None and not self.front_extent >= 0:
+            raise ValueError(f"CarveConfig.front_extent must be >= 0 (or None: by the depth), got {self.front_extent}.")
         if self.depth_margin_voxels < -1 or self.depth_margin_rel < 0:
             raise ValueError(f"CarveConfig: depth_margin_voxels must be >= -1 and depth_margin_rel >= 0, got "
                              f"{self.depth_margin_voxels} and {self.depth_margin_rel}.")
+
+    def extent_multiple(self) -> float:
+        """``front_extent`` resolved: as set, or (None) 1 where the depth that carves is the expected depth, else 0
+        (an unresolved ``depth_render="auto"`` carves with the median where the render has one)."""
+        if self.front_extent is not None:
+            return float(self.front_extent)
+        return 1.0 if self.depth_render == "expected" else 0.0
 
 
 def signed_mask_distance(mask: np.ndarray | Tensor) -> Float[Tensor, "H W"]:
@@ -277,7 +306,8 @@ def carve_depth(render: ViewRender, kind: str, mixed: float = 0.0) -> Tensor:
     """float [H, W]: the depth image that carves (:class:`CarveConfig` ``depth_render``; ``mixed``: the
     "first" rule's threshold in depth units). "median" and "first" need a render with its median depth, unless
     the render's ``depth`` already is the median; "auto" (not resolved by :func:`resolve_depth_render`): the
-    render's median where it has one, else its depth."""
+    render's median where it has one, else its depth. (``front_extent`` moves it by the looked-up extent, per
+    setting, in the vote.)"""
     if kind == "auto":
         kind = "median"
     if kind == "expected" or (kind == "median" and render.median is None):
@@ -368,9 +398,14 @@ def carve_votes_many(
         raise ValueError("carve_votes_many: front_spread / max_spread_voxels need renders with a depth spread "
                          "(render_depth(..., spread=True)).")  # fmt: skip
     spreads = [r.spread.to(device) for r in renders] if use_spread else [None] * len(views)
+    use_extent = any_depth and any(c.extent_multiple() > 0 for c in cfgs)
+    if use_extent and any(r.extent is None for r in renders):
+        raise ValueError("carve_votes_many: front_extent needs renders with their along-ray extent "
+                         "(render_depth(..., extent=True)).")  # fmt: skip
+    extents = [r.extent.to(device) for r in renders] if use_extent else [None] * len(views)
     shape = torch.as_tensor(grid.shape, device=device)
     rule = _Rule(cfgs, grid.voxel_size)
-    batches = _ViewBatch.group(views, cams, sdf, depth, spreads, lookup == "bilinear")
+    batches = _ViewBatch.group(views, cams, sdf, depth, spreads, lookup == "bilinear", extents)
     for s0 in range(0, M, chunk):  # voxel centres once per chunk, then every view
         flat = torch.arange(s0, min(M, s0 + chunk), device=device)
         ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
@@ -380,11 +415,11 @@ def carve_votes_many(
         n_empty, n_depth, n_direct = (torch.zeros(G, len(flat), dtype=torch.int32, device=device) for _ in range(3))
         n_near = torch.zeros(G, len(flat), dtype=torch.int32, device=device) if counts_near else None
         for part in _ViewBatch.parts(batches, len(flat), batch_points):  # [B, n] per quantity
-            ok, z, dist, d, a, sl, sp = part.lookup(x)
+            ok, z, dist, d, a, sl, sp, ex = part.lookup(x)
             if d is None:
                 vote = rule.silhouette(ok, dist)
             else:
-                vote, dvote, seen_directly, seen_near = rule.votes(ok, dist, z, d, a, sl, sp)
+                vote, dvote, seen_directly, seen_near = rule.votes(ok, dist, z, d, a, sl, sp, ex)
                 _add_views(n_depth, dvote)
                 _add_views(n_direct, seen_directly)
                 if seen_near is not None and n_near is not None:
@@ -434,11 +469,12 @@ class _ViewBatch:
 
     @classmethod
     def group(cls, views: Sequence[CaptureView], cams: list[tuple[Tensor, Tensor, Tensor]], sdf: list[Tensor],
-              depth: list, spreads: list, bilinear: bool) -> list[_ViewBatch]:  # fmt: skip
+              depth: list, spreads: list, bilinear: bool, extents: list | None = None) -> list[_ViewBatch]:  # fmt: skip
         """The views grouped by the sizes and types of their images (in their order)."""
         groups: dict[tuple, list[int]] = {}
         per_view = []
-        for i, (sd, dz, spr) in enumerate(zip(sdf, depth, spreads)):
+        extents = extents if extents is not None else [None] * len(views)
+        for i, (sd, dz, spr, ext) in enumerate(zip(sdf, depth, spreads, extents)):
             around = {"sdf": sd}
             held: dict[str, Tensor] = {}
             if dz is not None:
@@ -447,6 +483,8 @@ class _ViewBatch:
                     held["slack"] = dz[2]
                 if spr is not None:
                     held["spread"] = spr
+                if ext is not None:
+                    held["extent"] = ext
                 if bilinear:
                     around.update({k: v for k, v in held.items() if k != "slack"})
             per_view.append((around, held))
@@ -513,9 +551,10 @@ class _ViewBatch:
 
     def lookup(self, x: Tensor) -> tuple[Tensor, ...]:
         """[B, n] each, for voxel centres ``x`` [n, 3]: whether the view frames the centre, its camera depth, the mask
-        distance there (:func:`_sample`), and the depth, alpha, slack and spread that the vote reads (None where not
-        rendered): the depth and the spread bilinear from the opaque pixels (alpha >= 0.5) among the four around the
-        point, their bilinear weights renormalised (the depth +inf and the spread 0 where none is opaque), or else
+        distance there (:func:`_sample`), and the depth, alpha, slack, spread and along-ray extent that the vote reads
+        (None where not rendered): the depth, the spread and the extent bilinear from the opaque pixels (alpha >= 0.5)
+        among the four around the point, their bilinear weights renormalised (the depth +inf and the others 0 where
+        none is opaque), or else
         the pixel's own; the alpha and the slack the pixel's own."""
         pc = (torch.stack([x @ R.T + t for R, t, _ in self.cams]) if len(self) > 1
               else (x @ self.cams[0][0].T + self.cams[0][1])[None])  # [B, n, 3], each view's as on its own
@@ -539,7 +578,7 @@ class _ViewBatch:
         vals, weights = at["sdf"]
         dist = sum(s * cw for s, cw in zip(vals, weights))
         if not self.held:
-            return ok, z, dist, None, None, None, None  # type: ignore[return-value]
+            return ok, z, dist, None, None, None, None, None  # type: ignore[return-value]
         if len(self) == 1:
             ui = u.floor().long().clamp(0, self.views[0].width - 1)
             vi = v.floor().long().clamp(0, self.views[0].height - 1)
@@ -549,26 +588,25 @@ class _ViewBatch:
         px: dict[str, Tensor] = {}
         for stack, shape, names in self.held:
             px.update(zip(names, self._gather(stack, shape, vi, ui)))
-        d, a, sl, sp = px["depth"], px["alpha"], px.get("slack"), px.get("spread")
+        d, a, sl = px["depth"], px["alpha"], px.get("slack")
+        extra = {n: px[n] for n in ("spread", "extent") if n in px}
         if self.bilinear:
             depth, weights = at["depth"]
             alpha = at["alpha"][0]
-            spread = at["spread"][0] if sp is not None else None
             num = torch.zeros_like(u)
             den = torch.zeros_like(u)
-            num2 = torch.zeros_like(u) if spread is not None else None
+            nums = {n: torch.zeros_like(u) for n in extra}
             for k, cw in enumerate(weights):
                 good = alpha[k] >= 0.5
                 cw = torch.where(good, cw, 0.0)
                 num += cw * torch.where(good, depth[k], 0.0)
-                if num2 is not None:
-                    num2 += cw * torch.where(good, spread[k], 0.0)  # type: ignore[index]
+                for n, acc in nums.items():
+                    acc += cw * torch.where(good, at[n][0][k], 0.0)
                 den += cw
             has = den > 0
             d = torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
-            if num2 is not None:
-                sp = torch.where(has, num2 / den.clamp_min(1e-12), torch.zeros_like(num2))
-        return ok, z, dist, d, a, sl, sp
+            extra = {n: torch.where(has, acc / den.clamp_min(1e-12), torch.zeros_like(acc)) for n, acc in nums.items()}
+        return ok, z, dist, d, a, sl, extra.get("spread"), extra.get("extent")
 
 class _Rule:
     """The carving rule of several settings at once, as [G, n] comparisons against [G, 1] columns of the settings'
@@ -583,6 +621,7 @@ class _Rule:
             "slope": [c.depth_slope_margin for c in cfgs],
             "min_alpha": [c.min_alpha for c in cfgs],
             "front_spread": [c.front_spread for c in cfgs],
+            "front_extent": [c.extent_multiple() for c in cfgs],
             "max_spread": [c.max_spread_voxels * voxel_size for c in cfgs],
             "use_depth": [c.use_depth for c in cfgs],
             "has_slope": [c.depth_slope_margin > 0 for c in cfgs],
@@ -614,11 +653,14 @@ class _Rule:
         return ok & (dist > self.col("mask_margin", dist))
 
     def votes(self, ok: Tensor, dist: Tensor, z: Tensor, d: Tensor, a: Tensor, sl: Tensor | None,
-              sp: Tensor | None) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:  # fmt: skip
+              sp: Tensor | None, ex: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:  # fmt: skip
         """bool [G, n] each (or [1, n] where every setting gives the same): the empty votes, the depth votes among
         them, whether the view sees the voxel directly, and whether near its surface (None when no setting asks
         for the depth consensus)."""
-        margin = self.col("margin_abs", d) + self.col("margin_rel", d) * d
+        like = d  # [B, n]: the columns' shape ([G, 1, 1]) whatever the depth's below
+        if ex is not None:  # the surface in front of the Gaussians' centres (module doc, "The Gaussians' depth")
+            d = d - self.col("front_extent", ex) * ex
+        margin = self.col("margin_abs", like) + self.col("margin_rel", like) * d
         slope = self.every("has_slope")
         if sl is not None and slope is not False:
             sloped = margin + self.col("slope", sl) * sl
@@ -640,7 +682,7 @@ class _Rule:
             # a view has a say about the voxel only where it could have voted: the voxel falls clearly inside its
             # mask (not on the silhouette's edge pixels, whose depth is the edge's) and its depth is sharp there
             # (the lookup's slack no wider than the band)
-            band = self.col("near_band", d)
+            band = self.col("near_band", like)
             deep = dist <= self.col("mask_margin", dist) - self.col("near_inset", dist)
             near = inside & deep & (z <= d + margin + band) & (margin <= band)
         return self.silhouette(ok, dist) | dvote, dvote, inside & (z <= d + margin), near

@@ -19,9 +19,10 @@ from torch import Tensor
 from ..lifting import group_views, lift_views
 from ..render import rasterize, reference_median_depth
 from ..render.backend import resolve_backend
+from ..render.projection import quat_to_rotmat
 from .capture import CaptureView
 
-__all__ = ["ViewRender", "depth_spread", "lift_masks", "render_depth"]
+__all__ = ["ViewRender", "depth_spread", "lift_masks", "ray_extent", "render_depth"]
 
 logger = logging.getLogger(__name__)
 _T = TypeVar("_T")
@@ -37,6 +38,9 @@ class ViewRender:
     median: Float[Tensor, "H W"] | None = None
     """median depth (the transmittance crosses 1/2) where alpha >= 1/2, the expected depth elsewhere; None = not
     rendered"""
+    extent: Float[Tensor, "H W"] | None = None
+    """the blending-weighted mean of the contributing Gaussians' extents along their rays (:func:`ray_extent`),
+    camera-z units, 0 where nothing is rendered; None = not rendered"""
 
 
 def depth_spread(m: Tensor) -> Tensor:
@@ -66,11 +70,31 @@ def depth_spread(m: Tensor) -> Tensor:
     return (vzz - explained).clamp_min(0).sqrt().float()
 
 
+def ray_extent(means: Float[Tensor, "N 3"], quats: Float[Tensor, "N 4"], scales: Float[Tensor, "N 3"],
+               viewmat: Float[Tensor, "4 4"]) -> Float[Tensor, " N"]:  # fmt: skip
+    """float [N]: each Gaussian's extent along the ray from the camera ``viewmat`` through its centre, in camera-z
+    units: the standard deviation ``1 / sqrt(d^T Sigma^-1 d)`` of its density along the ray's unit direction ``d``
+    (the Gaussian restricted to the line), times ``d``'s camera-z component.
+
+    A rasterizer gives every pixel that a Gaussian covers the depth of its *centre*. A Gaussian that draws part of a
+    surface extends in front of its centre along the ray by about this much; for a flat Gaussian lying in a face
+    seen at an angle ``theta`` to its normal it is ``sigma_normal / cos(theta)`` along the ray: the face's thickness
+    as the ray crosses it, not the Gaussian's in-plane size."""
+    R = quat_to_rotmat(quats)  # local -> world
+    pc = means @ viewmat[:3, :3].T + viewmat[:3, 3]
+    d = pc / pc.norm(dim=-1, keepdim=True).clamp_min(1e-12)  # the ray's direction, camera frame
+    local = ((d @ viewmat[:3, :3]).unsqueeze(1) @ R).squeeze(1)  # ... in each Gaussian's frame (R^T d)
+    q = (local / scales.clamp_min(1e-12)).square().sum(-1)
+    return d[:, 2] / q.sqrt().clamp_min(1e-12)
+
+
 @torch.no_grad()
 def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto", spread: bool = False,
-                 depth: Literal["expected", "median", "both"] = "expected") -> list[ViewRender]:  # fmt: skip
+                 depth: Literal["expected", "median", "both"] = "expected", extent: bool = False
+                 ) -> list[ViewRender]:  # fmt: skip
     """Expected depth and alpha of the Gaussians ``g`` in every view; with ``spread`` also the depth spread
-    about a plane (:func:`depth_spread`, from the weighted moments of the Gaussians' centres rendered as colours).
+    about a plane (:func:`depth_spread`, from the weighted moments of the Gaussians' centres rendered as colours);
+    with ``extent`` the blended extent of the Gaussians along the rays (:func:`ray_extent`, a colour channel).
     ``depth="median"``: the depth where the transmittance crosses 1/2
     (:func:`physgs_nerfstudio.render.reference_median_depth`, on any device) where alpha reaches 1/2, the
     expected depth elsewhere; "both": the expected depth in ``depth`` and the median in ``median``."""
@@ -84,8 +108,14 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
     def render(group: list[CaptureView]) -> list[ViewRender]:
         vm = torch.stack([v.viewmat.to(dev) for v in group])
         K = torch.stack([v.K.to(dev) for v in group])
-        if spread:
-            colors = torch.stack([_centre_moments(means, vm[i], K[i]) for i in range(len(group))])
+        channels = [[] for _ in group]  # per view: [N, C] colour blocks
+        for i, ch in enumerate(channels):
+            if spread:
+                ch.append(_centre_moments(means, vm[i], K[i]))
+            if extent:
+                ch.append(ray_extent(means, quats, scales, vm[i])[:, None])
+        if channels[0]:
+            colors = torch.stack([torch.cat(ch, -1) for ch in channels])
             colors = colors[0] if len(group) == 1 else colors
         else:
             colors = torch.zeros(means.shape[0], 1, device=dev)
@@ -95,17 +125,20 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
         for i, v in enumerate(group):
             a = alpha[i, ..., 0]
             d = rgbd[i, ..., -1]
-            sp = None
+            sp = ext = None
             if spread:
-                m = rgbd[i, ..., :-1] / a[..., None].clamp_min(1e-10)
+                m = rgbd[i, ..., :9] / a[..., None].clamp_min(1e-10)
                 sp = torch.where(a > 1e-3, depth_spread(m), torch.zeros_like(d))
+            if extent:
+                e = rgbd[i, ..., -2] / a.clamp_min(1e-10)
+                ext = torch.where(a > 1e-3, e, torch.zeros_like(d))
             med = None
             if depth != "expected":
                 med = reference_median_depth(means, quats, scales, opacities, vm[i], K[i], v.width, v.height)
                 med = torch.where(a > 1e-3, torch.where(torch.isfinite(med), med.to(d.dtype), d), float("inf"))
                 if depth == "median":
                     d, med = med, None
-            rendered.append(ViewRender(torch.where(a > 1e-3, d, torch.full_like(d, float("inf"))), a, sp, med))
+            rendered.append(ViewRender(torch.where(a > 1e-3, d, torch.full_like(d, float("inf"))), a, sp, med, ext))
         return rendered
 
     for group in _view_groups(views, _views_per_call(backend, dev, means.shape[0])):

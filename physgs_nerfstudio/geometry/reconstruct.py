@@ -72,6 +72,9 @@ class GeometryConfig:
     """(min_votes, min_vote_fraction) pairs"""
     depth_margin_variants: tuple[float, ...] = (-0.5, 1.0)
     """depth margins in voxels (negative: also carve up to that much behind the rendered surface)"""
+    front_extent_variants: tuple[float, ...] = (-1.0, 1.0)
+    """where the depth is moved in front by its extent (``carve.front_extent``, :meth:`CarveConfig.extent_multiple`
+    > 0): the multiple of the extent moved by these much more or less (not below 0), one variant each"""
     pad_fraction: float = 0.1
     """domain padding around the object's Gaussians, as a fraction of their extent"""
     refit_fraction: float = 0.5
@@ -222,7 +225,8 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     sub = _Subset(g, selection.selected)
     spread = cfg.carve.front_spread > 0 or cfg.carve.max_spread_voxels < float("inf")
     kind = {"expected": "expected", "median": "median"}.get(cfg.carve.depth_render, "both")
-    renders = render_depth(sub, views, backend=cfg.backend, spread=spread, depth=kind)  # type: ignore[arg-type]
+    renders = render_depth(sub, views, backend=cfg.backend, spread=spread, depth=kind,  # type: ignore[arg-type]
+                           extent=any(c.extent_multiple() > 0 for _, c in _variants(cfg)))  # fmt: skip
     k = 2 * cfg.object_mask_dilate_px + 1
     kernel = np.ones((k, k), np.uint8)
     ground: list[np.ndarray | None] = [None] * len(views)
@@ -311,14 +315,16 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
     that much more, as one more variant; and the first variant's visual hull (:func:`.carve.hull_from_votes`).
     ``scales`` and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
-    by_key: dict[tuple[float, float], CarveConfig] = {}  # the votes depend on these two settings only
+    def key(cc: CarveConfig) -> tuple[float, float, float]:  # the votes depend on these settings only
+        return cc.mask_margin_px, cc.depth_margin_voxels, cc.extent_multiple()
+
+    by_key: dict[tuple[float, float, float], CarveConfig] = {}
     for _, cc in variants:
-        by_key.setdefault((cc.mask_margin_px, cc.depth_margin_voxels), cc)
+        by_key.setdefault(key(cc), cc)
     votes = carve_votes_many(grid, views, renders, list(by_key.values()), sdf=sdf, device=device)
     cache = dict(zip(by_key, votes))
-    key0 = (variants[0][1].mask_margin_px, variants[0][1].depth_margin_voxels)
-    hull = hull_from_votes(cache[key0], grid, variants[0][1])
-    solids = [solid_from_votes(cache[(cc.mask_margin_px, cc.depth_margin_voxels)], grid, cc) for _, cc in variants]
+    hull = hull_from_votes(cache[key(variants[0][1])], grid, variants[0][1])
+    solids = [solid_from_votes(cache[key(cc)], grid, cc) for _, cc in variants]
     if means is None or extent_pad_voxels is None:
         return solids, hull
     candidates = np.logical_or.reduce(solids) | hull
@@ -394,6 +400,10 @@ def _variants(cfg: GeometryConfig) -> list[tuple[str, CarveConfig]]:
     out += [(f"mask{m:+g}px", replace(base, mask_margin_px=base.mask_margin_px + m)) for m in cfg.mask_margin_variants_px]
     out += [(f"vote{k}/{q:g}", replace(base, min_votes=k, min_vote_fraction=q)) for k, q in cfg.vote_variants]
     out += [(f"depth{d:g}vox", replace(base, depth_margin_voxels=d)) for d in cfg.depth_margin_variants]
+    k = base.extent_multiple()
+    if k > 0:  # the surface's place in front of the centres is known to about one extent (docs/architecture.md)
+        out += [(f"front{k + d:g}x", replace(base, front_extent=k + d)) for d in cfg.front_extent_variants
+                if k + d >= 0]  # fmt: skip
     return out
 
 
