@@ -70,7 +70,7 @@ def prepare(run_dir: Path, cache: Path | None, median: bool = True) -> dict:
     rc._within_hull(pf, sel, views, cfg)
     obj_views, _ = rc._object_views(pf, sel, views, cfg)
     sub = rc._Subset(pf, sel.selected)
-    ed = render_depth(sub, views, backend=cfg.backend, spread=True)
+    ed = render_depth(sub, views, backend=cfg.backend, spread=True, extent=True)
     # the median depth runs the reference compositor, on CUDA too: minutes per run at 60 views of 512 px
     med = render_depth(sub, views, backend=cfg.backend, depth="median") if median else None
     grid = rc._domain(pf, sel.selected, cfg)
@@ -90,7 +90,8 @@ def carve(d: dict, rule: dict) -> dict:
     if d["med"] is None and rule.get("depth_render") in ("median", "first"):
         raise SystemExit(f"rule {rule} needs the median depth: run without --no-median")
     med = d["med"] if d["med"] is not None else [None] * len(d["ed"])
-    renders = [ViewRender(e.depth, e.alpha, e.spread, m.depth if m is not None else None) for m, e in zip(med, d["ed"])]
+    renders = [ViewRender(e.depth, e.alpha, e.spread, m.depth if m is not None else None, e.extent)
+               for m, e in zip(med, d["ed"])]  # fmt: skip
     sdf = [signed_mask_distance(v.mask) for v in d["views"]]
     grid = d["grid"]
     cfg = rc.GeometryConfig()
