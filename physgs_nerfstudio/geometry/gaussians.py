@@ -80,11 +80,20 @@ def ray_extent(means: Float[Tensor, "N 3"], quats: Float[Tensor, "N 4"], scales:
     surface extends in front of its centre along the ray by about this much; for a flat Gaussian lying in a face
     seen at an angle ``theta`` to its normal it is ``sigma_normal / cos(theta)`` along the ray: the face's thickness
     as the ray crosses it, not the Gaussian's in-plane size."""
-    R = quat_to_rotmat(quats)  # local -> world
+    return _ray_extent(means, _axes_over_scales(quats, scales), viewmat)
+
+
+def _axes_over_scales(quats: Tensor, scales: Tensor) -> Tensor:
+    """float [N, 3, 3]: each Gaussian's axes (rotation columns) divided by its scales: ``d^T Sigma^-1 d`` is the
+    squared norm of ``d`` times it (view-independent, so computed once for every view)."""
+    return quat_to_rotmat(quats) / scales.clamp_min(1e-12)[:, None, :]
+
+
+def _ray_extent(means: Tensor, axes: Tensor, viewmat: Tensor) -> Tensor:
+    """:func:`ray_extent` from :func:`_axes_over_scales`."""
     pc = means @ viewmat[:3, :3].T + viewmat[:3, 3]
     d = pc / pc.norm(dim=-1, keepdim=True).clamp_min(1e-12)  # the ray's direction, camera frame
-    local = ((d @ viewmat[:3, :3]).unsqueeze(1) @ R).squeeze(1)  # ... in each Gaussian's frame (R^T d)
-    q = (local / scales.clamp_min(1e-12)).square().sum(-1)
+    q = ((d @ viewmat[:3, :3]).unsqueeze(1) @ axes).squeeze(1).square().sum(-1)  # |R^T d / s|^2
     return d[:, 2] / q.sqrt().clamp_min(1e-12)
 
 
@@ -104,6 +113,7 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
     # each attribute read once (on a subset view of a field, every read gathers its rows again)
     means, quats, scales, opacities = g.means, g.quats, g.scales, g.opacities
     dev = means.device
+    axes = _axes_over_scales(quats, scales) if extent else None
 
     def render(group: list[CaptureView]) -> list[ViewRender]:
         vm = torch.stack([v.viewmat.to(dev) for v in group])
@@ -113,7 +123,7 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
             if spread:
                 ch.append(_centre_moments(means, vm[i], K[i]))
             if extent:
-                ch.append(ray_extent(means, quats, scales, vm[i])[:, None])
+                ch.append(_ray_extent(means, axes, vm[i])[:, None])
         if channels[0]:
             colors = torch.stack([torch.cat(ch, -1) for ch in channels])
             colors = colors[0] if len(group) == 1 else colors
