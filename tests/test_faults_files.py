@@ -405,6 +405,21 @@ def trained_run(tmp_path_factory):
     return config_path
 
 
+def test_the_cli_export_ends_at_once_with_its_files_complete(trained_run, tmp_path):
+    """`physgs export` ends its process without the interpreter's teardown (cli.main): the exit status, the printed
+    output and the written files are those of the normal exit (PHYSGS_NO_FAST_EXIT=1)."""
+    args = ["export", "--load-config", str(trained_run), "--outputs", "ply", "--device", "cpu"]
+    fast = _physgs([*args, "--output-dir", "fast"], tmp_path)
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONWARNINGS="ignore", PHYSGS_NO_FAST_EXIT="1")
+    slow = subprocess.run([sys.executable, "-m", "physgs_nerfstudio.cli", *args, "--output-dir", "slow"], cwd=tmp_path,
+                          env=env, capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    assert fast.returncode == 0 and slow.returncode == 0, fast.stderr[-2000:] + slow.stderr[-2000:]
+    assert fast.stdout.strip() and fast.stdout.splitlines()[-1] == slow.stdout.splitlines()[-1]
+    assert _tree(tmp_path / "fast").keys() == _tree(tmp_path / "slow").keys()
+    ply = [k for k in _tree(tmp_path / "fast") if k.endswith(".ply")]
+    assert ply and all((tmp_path / "fast" / k).read_bytes() == (tmp_path / "slow" / k).read_bytes() for k in ply)
+
+
 def _copy_run(config_path: Path, dest: Path) -> Path:
     shutil.copytree(config_path.parent, dest)
     return dest / "config.yml"

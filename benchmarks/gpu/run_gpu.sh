@@ -327,7 +327,7 @@ case "${1:-kernels}" in
         --outputs mass --overwrite > "$OUT/mass_export_$i.log" 2>&1; tail -2 "$OUT/mass_export_$i.log"
     done
     cp /tmp/pm/report.json "$OUT/mass_report.json" 2>/dev/null
-    CUDA_LAUNCH_BLOCKING=1 python3 -m cProfile -o /tmp/mass.prof -m physgs_nerfstudio.cli export --load-config "$CFG" \
+    PHYSGS_NO_FAST_EXIT=1 CUDA_LAUNCH_BLOCKING=1 python3 -m cProfile -o /tmp/mass.prof -m physgs_nerfstudio.cli export --load-config "$CFG" \
       --output-dir /tmp/pm --outputs mass --overwrite > /dev/null 2>&1
     python3 -c "import pstats; p = pstats.Stats('/tmp/mass.prof'); p.sort_stats('cumulative').print_stats(90); \
 p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
@@ -351,7 +351,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     if [ -n "$CFG" ]; then  # the maps cases of bench_export (this tree), then the mass export under cProfile
       python3 benchmarks/gpu/bench_export.py --config "$CFG" --tree "after=$PWD" --views 10 --cases maps1 mapsN \
         --out "$OUT/export_maps.json" 2>&1 | grep -v Warning > "$OUT/export_maps.log"; tail -8 "$OUT/export_maps.log"
-      CUDA_LAUNCH_BLOCKING=1 python3 -m cProfile -o /tmp/mass.prof -m physgs_nerfstudio.cli export --load-config "$CFG" \
+      PHYSGS_NO_FAST_EXIT=1 CUDA_LAUNCH_BLOCKING=1 python3 -m cProfile -o /tmp/mass.prof -m physgs_nerfstudio.cli export --load-config "$CFG" \
         --output-dir /tmp/pm --outputs mass --overwrite > /dev/null 2>&1
       python3 -c "import pstats; p = pstats.Stats('/tmp/mass.prof'); p.sort_stats('cumulative').print_stats(120)" \
         > "$OUT/mass_profile.txt" 2>&1

@@ -12,7 +12,7 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import torch
 
@@ -247,6 +247,9 @@ _DEPRECATED = "(deprecated spelling of --mass.{}; kept for existing scripts)"
 @dataclass
 class ExportCommand:
     """Export a trained PhysGS run: property PLY, voxel grid, property maps and the mass (mean, interval)."""
+
+    fast_exit: ClassVar[bool] = True
+    """the console script ends the process at once when the export is complete (:func:`physgs_nerfstudio.cli.main`)"""
 
     load_config: Path
     """config.yml of the `ns-train physgs` / `physgs-lite` run"""
