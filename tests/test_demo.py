@@ -10,7 +10,7 @@ from physgs_nerfstudio.demo import DemoCommand
 
 
 @pytest.mark.slow
-def test_demo_end_to_end(tmp_path, capsys):
+def test_demo_end_to_end(tmp_path, capsys, monkeypatch):
     cmd = DemoCommand(output_dir=tmp_path / "demo", views=8, resolution=48, iterations=30, export_resolution=48,
                       n_samples=500)  # fmt: skip
     cmd.main()
@@ -46,3 +46,50 @@ def test_demo_end_to_end(tmp_path, capsys):
     again = json.loads((tmp_path / "demo" / "demo_summary.json").read_text())
     assert again["predicted_kg"] == pytest.approx(summary["predicted_kg"])
     assert "skipped" in capsys.readouterr().out
+    _check_geometry_cache(cmd, tmp_path, report, monkeypatch)
+
+
+def _check_geometry_cache(cmd: DemoCommand, tmp_path, report: dict, monkeypatch) -> None:
+    """The geometry cache (export/geometry_cache.py) on the demo's run: the demo's export stored its geometry, an
+    export of the same run and settings reads it instead of carving (the same mass, bit for bit), and the training
+    pipeline's precompute stores the default export's geometry, which a default `physgs export` then reads."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    import torch
+
+    from physgs_nerfstudio.export import command as export_command
+    from physgs_nerfstudio.mass import MassConfig
+    from physgs_nerfstudio.nerfstudio.pipeline import PhysGSPipeline
+
+    run_cfg = next((tmp_path / "demo" / "runs").rglob("config.yml"))
+    cache_dir = run_cfg.parent / "physgs_cache"
+    assert len(list(cache_dir.glob("geometry-*.pt"))) == 1
+    # the pipeline's precompute: "auto" does nothing on a CPU, "on" stores the default export's geometry
+    fake = SimpleNamespace(config=SimpleNamespace(precompute_geometry="auto"),
+                           model=SimpleNamespace(device=torch.device("cpu")))  # fmt: skip
+    PhysGSPipeline._precompute_geometry(fake, run_cfg, 29)
+    assert len(list(cache_dir.glob("geometry-*.pt"))) == 1
+    fake.config.precompute_geometry = "on"
+    PhysGSPipeline._precompute_geometry(fake, run_cfg, 29)
+    assert len(list(cache_dir.glob("geometry-*.pt"))) == 2
+
+    def no_carving(*args, **kwargs):
+        raise AssertionError("the geometry was computed again instead of read from the cache")
+
+    monkeypatch.setattr(export_command, "object_geometry", no_carving)
+    base = MassConfig()
+    mass = replace(base, geometry=replace(base.geometry, resolution=cmd.export_resolution), n_samples=cmd.n_samples,
+                   seed=cmd.seed)  # fmt: skip
+    again = export_command.ExportCommand(load_config=run_cfg, output_dir=tmp_path / "again", mass=mass, views=(0,),
+                                         device="cpu").main()  # fmt: skip
+    first = report["mass"]
+    assert again.mass.mean_kg == first["mean_kg"] and list(again.mass.interval_kg) == first["interval_kg"]
+    default = export_command.ExportCommand(load_config=run_cfg, output_dir=tmp_path / "default", outputs=("mass",),
+                                           device="cpu").main()  # fmt: skip
+    assert default.mass is not None and default.mass.mean_kg > 0
+    # --no-geometry-cache computes it (the patched carving is called)
+    with pytest.raises(AssertionError, match="computed again"):
+        export_command.ExportCommand(load_config=run_cfg, output_dir=tmp_path / "cold", outputs=("mass",),
+                                     device="cpu", geometry_cache=False).main()  # fmt: skip
+

@@ -6,7 +6,9 @@
 Every case is one whole process (`python -m physgs_nerfstudio.cli export ...`, what a user runs), timed from
 outside; the trees alternate case by case. Cases: ``load`` (import and load the run, write nothing: the fixed
 cost of any export), ``ply``, ``maps1`` (one view), ``mapsN`` (``--views`` views; per view beyond the fixed
-cost = (mapsN - maps1) / (N - 1)), ``mass``, ``all`` (the default outputs). Each process's gsplat build is
+cost = (mapsN - maps1) / (N - 1)), ``mass``, ``all`` (the default outputs), ``mass_cold`` and ``all_cold`` (the same
+with ``--no-geometry-cache`` in a tree that has the geometry cache: the geometry computed, not read from the run's
+``physgs_cache/``; each row says whether its export read the geometry from there). Each process's gsplat build is
 watched: a changed ``gsplat_cuda.so`` means that the process rebuilt it. ``--touch-gsplat`` then gives every
 gsplat source the current time, as a reinstall of the wheel does, and times the last tree's ``maps1`` again
 (the gsplat stamp must keep it from rebuilding; ninja's dry run says whether it would have). ``--breakdown``
@@ -43,14 +45,22 @@ def _mtime(p: Path | None) -> float | None:
     return p.stat().st_mtime if p is not None and p.exists() else None
 
 
-def _command(case: str, config: Path, out: Path, views: int) -> list[str]:
+def _has_geometry_cache(tree: Path) -> bool:
+    """Whether ``tree``'s export has the geometry cache (physgs_nerfstudio/export/geometry_cache.py)."""
+    return (Path(tree) / "physgs_nerfstudio" / "export" / "geometry_cache.py").exists()
+
+
+def _command(case: str, config: Path, out: Path, views: int, tree: Path | None = None) -> list[str]:
     if case == "load":
         return [sys.executable, "-c", LOAD, str(config)]
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "export", "--load-config", str(config), "--output-dir",
            str(out)]  # fmt: skip
-    outputs = {"ply": ["ply"], "maps1": ["maps"], "mapsN": ["maps"], "mass": ["mass"], "all": []}[case]
+    outputs = {"ply": ["ply"], "maps1": ["maps"], "mapsN": ["maps"], "mass": ["mass"], "mass_cold": ["mass"],
+               "all": [], "all_cold": []}[case]  # fmt: skip
     if outputs:
         cmd += ["--outputs", *outputs]
+    if case.endswith("_cold") and tree is not None and _has_geometry_cache(tree):
+        cmd += ["--no-geometry-cache"]  # the geometry computed, whatever the run's cache holds
     if case == "mapsN":
         cmd += ["--views", *map(str, range(views))]
     return cmd
@@ -62,12 +72,13 @@ def run_case(tree: Path, case: str, config: Path, views: int) -> dict:
     before = _mtime(lib)
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        proc = subprocess.run(_command(case, config, Path(tmp), views), cwd=tree, env=env, capture_output=True,
+        proc = subprocess.run(_command(case, config, Path(tmp), views, tree), cwd=tree, env=env, capture_output=True,
                               text=True, check=False)  # fmt: skip
         wall = time.perf_counter() - t0
     after = _mtime(lib)
     row = {"case": case, "wall_s": round(wall, 3), "rc": proc.returncode,
-           "gsplat_rebuilt": before is not None and after != before}  # fmt: skip
+           "gsplat_rebuilt": before is not None and after != before,
+           "geometry_from_cache": "the run's geometry cache" in " ".join((proc.stdout + proc.stderr).split())}  # fmt: skip
     if proc.returncode != 0:
         row["tail"] = (proc.stdout + proc.stderr)[-1500:]
     return row
@@ -214,7 +225,7 @@ def summarise(rows: list[dict], trees: list[str], views: int) -> dict:
     out: dict[str, dict] = {}
     for name in trees:
         med = {}
-        for case in ("load", "ply", "maps1", "mapsN", "mass", "all"):
+        for case in ("load", "ply", "maps1", "mapsN", "mass", "all", "mass_cold", "all_cold"):
             w = [r["wall_s"] for r in rows if r["tree"] == name and r["case"] == case and r["rc"] == 0]
             if w:
                 med[case] = statistics.median(w)

@@ -9,7 +9,7 @@ still writes the plain splat of the same run. From Python: ``ExportCommand(load_
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, ClassVar, Literal
@@ -52,6 +52,8 @@ class ExportResult:
     mass: MassReport | None
     error: str | None = None
     """why mass and voxels were not written (the object's geometry failed: :class:`GeometryError`); None = all were"""
+    geometry: ObjectGeometry | None = None
+    """the object's geometry the mass and voxels were computed from (None: neither was asked for, or it failed)"""
 
 
 def views_from_cameras(cameras: Any, indices: Sequence[int], max_width: int = 480) -> list[View]:
@@ -82,6 +84,25 @@ class LoadedRun:
     """the training cameras with their object masks (:func:`physgs_nerfstudio.geometry.load_capture`)"""
     observations: list[MaskObservation]
     data_dir: Path | None
+    source: RunSource | None = None
+    """the run's files (None: a run built in memory)"""
+    capture_loader: Callable[[], tuple[list[CaptureView], list[MaskObservation]]] | None = None
+    """loads ``views`` and ``observations`` when :func:`load_run` was asked not to (``capture=False``)"""
+
+    def load_capture(self) -> None:
+        """Load the views' masks and perception's answers now if :func:`load_run` left them out."""
+        if self.capture_loader is not None and not self.views:
+            self.views, self.observations = self.capture_loader()
+        self.capture_loader = None
+
+
+@dataclass(frozen=True)
+class RunSource:
+    """The files a loaded run came from (the geometry cache's key, :mod:`.geometry_cache`)."""
+
+    config_path: Path
+    run_dir: Path
+    checkpoint: Path
 
 
 def load_run(
@@ -103,7 +124,12 @@ def load_run(
     rs = load_run_state(run_files.config, run_files.checkpoint, run_files.run_dir)
     pf = PropertyField.from_run_state(rs, run_files.run_dir, scale=scale, known_length=known_length, env=env)
     data = getattr(run_files.config.pipeline.datamanager, "data", None)
-    return _assemble_run(pf, rs.dataparser_outputs, data, max_view_width=max_view_width, capture=capture)
+    run = _assemble_run(pf, rs.dataparser_outputs, data, max_view_width=max_view_width, capture=capture)
+    run.source = RunSource(Path(config_path), Path(run_files.run_dir), Path(run_files.checkpoint))
+    if not capture:
+        dpo = rs.dataparser_outputs
+        run.capture_loader = lambda: _load_capture(dpo, run.data_dir, max_view_width)
+    return run
 
 
 def run_from_pipeline(
@@ -135,13 +161,21 @@ def _assemble_run(pf: PropertyField, dpo: Any, data: Path | None, *, max_view_wi
     data_dir = Path(data) if data else None
     if data_dir is not None and data_dir.suffix == ".json":
         data_dir = data_dir.parent
-    if capture and dpo is not None and data_dir is not None and (data_dir / "transforms.json").exists():
-        labels = dpo.metadata.get("material_filenames")
-        views = load_capture(dpo.cameras, dpo.image_filenames, data_dir, label_paths=labels,
-                             max_width=max_view_width)  # fmt: skip
-        observations = load_observations(data_dir)
-        clear_mask_cache()  # the views and observations hold what they need
+    if capture:
+        views, observations = _load_capture(dpo, data_dir, max_view_width)
     return LoadedRun(pf, cameras, views, observations, data_dir)
+
+
+def _load_capture(dpo: Any, data_dir: Path | None, max_view_width: int | None
+                  ) -> tuple[list[CaptureView], list[MaskObservation]]:  # fmt: skip
+    """The training views with their object masks and perception's per-mask answers ([] without a dataset)."""
+    if dpo is None or data_dir is None or not (data_dir / "transforms.json").exists():
+        return [], []
+    labels = dpo.metadata.get("material_filenames")
+    views = load_capture(dpo.cameras, dpo.image_filenames, data_dir, label_paths=labels, max_width=max_view_width)
+    observations = load_observations(data_dir)
+    clear_mask_cache()  # the views and observations hold what they need
+    return views, observations
 
 
 def object_geometry(run: LoadedRun, cfg: GeometryConfig, progress: Any = None) -> ObjectGeometry:
@@ -189,9 +223,11 @@ def write_export(
     title: str | None = None,
     quiet: bool = False,
     final_dir: Path | None = None,
+    geometry: ObjectGeometry | None = None,
 ) -> ExportResult:
     """Write the chosen outputs of ``run`` straight into ``output_dir`` (no staging; ``final_dir``: where the
-    report says the files are) and print the mass table."""
+    report says the files are) and print the mass table. ``geometry``: the object's geometry already computed with
+    ``mass.geometry`` (:mod:`.geometry_cache`); None = computed here."""
     from rich.console import Console
 
     console = Console(quiet=quiet)
@@ -205,13 +241,15 @@ def write_export(
     if "ply" in outputs:
         files["ply"] = [write_property_ply(pf, out / "property_field.ply", top_k=top_k)]
         console.log(f"PLY: {files['ply'][0]} ({pf.num_gaussians} Gaussians)")
-    report, error = None, None
+    report, error, geo = None, None, geometry
     if "mass" in outputs or "voxels" in outputs:
         try:
             with stage(console, "object geometry", unit="steps") as st:
-                geo = object_geometry(run, mass.geometry, progress=lambda s: st.advance(1, s))
+                if geo is None:
+                    geo = object_geometry(run, mass.geometry, progress=lambda s: st.advance(1, s))
                 st.result = (f"{geo.selection.num_selected} Gaussians selected, {int(geo.solid.sum())} solid voxels, "
-                             f"{geo.num_parts} parts, {len(geo.variant_names)} carving variants")  # fmt: skip
+                             f"{geo.num_parts} parts, {len(geo.variant_names)} carving variants"
+                             + (" (stored: the run's geometry cache)" if geometry is not None else ""))  # fmt: skip
         except GeometryError as err:  # the data's, not a bug: the outputs that need no geometry are still written
             error = " ".join(str(err).split())
             console.print(f"[bold red]mass and voxels not written:[/] {error}")
@@ -238,7 +276,7 @@ def write_export(
         files["report"] = [write_report(report, out / "report.json", extra)]
         if report is not None:
             print_mass_table(report, title=title, truth_kg=truth_kg, console=console)
-    return ExportResult(files, report, error)
+    return ExportResult(files, report, error, geo if error is None else None)
 
 
 _DEPRECATED = "(deprecated spelling of --mass.{}; kept for existing scripts)"
@@ -270,6 +308,10 @@ class ExportCommand:
     truth_kg: float | None = None
     """ground-truth mass, if known: printed and checked against the interval"""
     device: Literal["auto", "cpu", "cuda"] = "auto"
+    geometry_cache: bool = True
+    """reuse the object's geometry stored in the run's physgs_cache/ when the checkpoint, the dataset's files, these
+    settings and the code are the same (`ns-train physgs` stores it after training on CUDA), and store what this
+    export computes; False: always compute it, store nothing"""
     overwrite: bool = False
     """replace a non-empty --output-dir that is not a previous physgs export (a previous export is always
     replaced, as a unit, once the new one is complete)"""
@@ -303,18 +345,32 @@ class ExportCommand:
         return replace(m, **kw)
 
     def main(self) -> ExportResult:
+        from . import geometry_cache
+
         check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
+        needs_geometry = bool({"mass", "voxels"} & set(self.outputs))
         run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env,
-                       capture=bool({"mass", "voxels"} & set(self.outputs)))
+                       capture=False)  # fmt: skip
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
+        mass = self.mass_config()
+        cache, geo = None, None
+        if needs_geometry and self.geometry_cache:
+            load_args = geometry_cache.load_args(self.scale, self.known_length, self.env, 640)  # load_run's width
+            cache = geometry_cache.cache_for_run(run, mass.geometry, device, load_args)
+            geo = cache.load(device) if cache is not None else None
+        if needs_geometry and geo is None:
+            run.load_capture()
         run.field = run.field.to(device)
         cameras = run.cameras
         views = views_from_cameras(cameras, self.views, self.max_map_width) if cameras is not None else []
         if "maps" in self.outputs and cameras is None:
             logger.warning("no training cameras found in the run: property maps skipped")
-        result = run_export(run, self.output_dir, mass=self.mass_config(), outputs=self.outputs, views=views,
+        result = run_export(run, self.output_dir, mass=mass, outputs=self.outputs, views=views,
                             top_k=self.top_k, truth_kg=self.truth_kg, overwrite=self.overwrite,
-                            source=self.load_config, title=f"Mass of {self.load_config.parent.name}")  # fmt: skip
+                            source=self.load_config, title=f"Mass of {self.load_config.parent.name}",
+                            geometry=geo)  # fmt: skip
+        if cache is not None and geo is None and result.geometry is not None:
+            cache.save(result.geometry)
         if result.error is not None:  # the rest is written (a complete export of what could be made): say so, exit 1
             written = ", ".join(sorted(result.files)) or "nothing"
             raise PhysGSError(f"{self.output_dir}: mass and voxels not written ({result.error}); written: {written} "

@@ -25,6 +25,7 @@ from jaxtyping import Float
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
+from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor
 
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
@@ -74,6 +75,12 @@ class PhysGSPipelineConfig(VanillaPipelineConfig):
     pixels) exceeds this; below it the Gaussian is treated as unseen in that view."""
     min_evidence: float = 1e-3
     """Gaussians with less total lifted evidence than this keep the exact prior (never seen)."""
+    precompute_geometry: Literal["auto", "on", "off"] = "auto"
+    """After the final checkpoint, compute the object's geometry that `physgs export` would compute with its
+    default settings and store it in the run's physgs_cache/ (physgs_nerfstudio/export/geometry_cache.py), so that
+    the first export only loads the run and integrates the mass. "auto": on a CUDA device only (on the CPU the
+    carving of a large capture takes minutes, which an export asked for mass pays instead). A failure (no object
+    masks, say) is logged and never fails the training."""
 
 
 def _view_maps(data: dict[str, Tensor], K: int, device: torch.device) -> tuple[Float[Tensor, "1 h w c"], bool]:
@@ -176,7 +183,32 @@ class PhysGSPipeline(VanillaPipeline):
                 [TrainingCallbackLocation.AFTER_TRAIN_ITERATION], self._lift_on_schedule, args=[iterations]
             )
         )
+        if trainer is not None:
+            cbs.append(TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN], self._precompute_geometry,
+                                        args=[Path(trainer.config.get_base_dir()) / "config.yml"]))  # fmt: skip
         return cbs
+
+    def _precompute_geometry(self, config_path: Path, step: int) -> None:
+        """`precompute_geometry` (config doc), after nerfstudio saved the final checkpoint."""
+        mode = self.config.precompute_geometry
+        device = torch.device(self.model.device)
+        if mode == "off" or (mode == "auto" and device.type != "cuda") or not config_path.is_file():
+            return
+        import logging
+        import time
+
+        from physgs_nerfstudio.export.geometry_cache import precompute
+
+        t0 = time.perf_counter()
+        try:
+            path, what = precompute(config_path, device.type)
+        except Exception as err:  # noqa: BLE001 - the run is complete and saved; the export computes it instead
+            logging.getLogger(__name__).warning(
+                "PhysGS: the object's geometry was not precomputed (%s); `physgs export` computes it when asked",
+                " ".join(str(err).split())[:300])  # fmt: skip
+            return
+        CONSOLE.log(f"PhysGS geometry for `physgs export` ({what}) in {time.perf_counter() - t0:.1f} s"
+                    + (f": {path}" if path is not None else ": not stored (the run folder is not writable)"))
 
     def _lift_on_schedule(self, iterations: int | None, step: int) -> None:
         """At `lifting_step`, every `lifting_every` steps (if > 0) and, with `lift_at_end`, at the last of the
