@@ -53,3 +53,18 @@ def test_static_memory_counts_parameters_and_adam_moments(bench) -> None:
     moments = 2 * 1000 * 3 * 4  # exp_avg + exp_avg_sq (+ a scalar step)
     assert mem["optimizer_mb"] == pytest.approx(moments / mb, rel=1e-3)
     assert mem["per_gaussian_tensor"]["evidence"] == {"param_mb": 1000 * 4 * 4 / mb, "optimizer_mb": 0.0}
+
+
+def test_ratios_are_taken_within_each_round_and_their_median_reported(bench) -> None:
+    def row(ms, mb):
+        return {"iter_s_median": ms / 1000, "peak_mem_mb": mb}
+
+    rounds = [[row(10.0, 300.0), row(11.0, 360.0)],
+              [row(12.0, 300.0), row(12.6, 330.0)],
+              [row(11.0, 300.0), {"error": "died"}]]  # fmt: skip
+    out = bench.round_ratios(rounds)
+    assert out["ratio_vs_first_by_round"][0] == [1.0, 1.0, 1.0]
+    assert out["ratio_vs_first_by_round"][1][:2] == pytest.approx([1.1, 1.05])
+    assert out["ratio_vs_first_by_round"][1][2] is None  # the failed run is no ratio
+    assert out["ratio_vs_first"] == pytest.approx([1.0, 1.075])  # the median of 1.1 and 1.05, not of the times
+    assert out["peak_mem_ratio_vs_first"] == pytest.approx([1.0, 1.15])

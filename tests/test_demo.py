@@ -85,6 +85,8 @@ def _check_geometry_cache(cmd: DemoCommand, tmp_path, report: dict, monkeypatch)
                                          device="cpu").main()  # fmt: skip
     first = report["mass"]
     assert again.mass.mean_kg == first["mean_kg"] and list(again.mass.interval_kg) == first["interval_kg"]
+    assert report["geometry_source"] == "computed"
+    assert json.loads((tmp_path / "again" / "report.json").read_text())["geometry_source"] == "stored"
     default = export_command.ExportCommand(load_config=run_cfg, output_dir=tmp_path / "default", outputs=("mass",),
                                            device="cpu").main()  # fmt: skip
     assert default.mass is not None and default.mass.mean_kg > 0

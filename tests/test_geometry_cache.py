@@ -90,7 +90,7 @@ def _run_files(root: Path) -> dict:
     (data / "transforms.json").write_text("{}")
     (data / "masks" / "frame_00001.png").write_bytes(b"mask")
     return {"checkpoint": ckpt, "config_path": run / "config.yml", "run_dir": run, "data_dir": data,
-            "geometry": GeometryConfig(), "device": "cuda", "load_args": gc.DEFAULT_LOAD_ARGS}  # fmt: skip
+            "geometry": GeometryConfig(), "device": "cuda", "load_args": gc.load_args(None, None, None, 640)}  # fmt: skip
 
 
 def _bump(path: Path) -> None:
@@ -104,6 +104,20 @@ def test_every_input_of_the_key_changes_it(tmp_path):
     assert gc.cache_key(**files) == key  # nothing changed
     (files["run_dir"] / gc.CACHE_DIR).mkdir()
     (files["run_dir"] / gc.CACHE_DIR / "geometry-x.pt").write_bytes(b"x")  # the cache's own files are not inputs
+    assert gc.cache_key(**files) == key
+    # nor are a run trained with its outputs inside the dataset, an export written there, or a cache there
+    run_inside = files["data_dir"] / "outputs" / "scene" / "physgs" / "t0"
+    (run_inside / "nerfstudio_models").mkdir(parents=True)
+    (run_inside / "config.yml").write_text("x")
+    (run_inside / "events.out.tfevents.1").write_bytes(b"grows while training")
+    export_inside = files["data_dir"] / "export"
+    export_inside.mkdir()
+    (export_inside / ".physgs-export.json").write_text("{}")
+    (export_inside / "report.json").write_text("{}")
+    (files["data_dir"] / gc.CACHE_DIR).mkdir()
+    (files["data_dir"] / gc.CACHE_DIR / "geometry-y.pt").write_bytes(b"y")
+    assert gc.cache_key(**files) == key
+    (run_inside / "events.out.tfevents.1").write_bytes(b"grew")
     assert gc.cache_key(**files) == key
     changed = {
         "geometry setting": {"geometry": GeometryConfig(resolution=96)},

@@ -20,6 +20,8 @@ viewer, evaluation or checkpoint writing. Reported per method:
   time and peak), and the largest of them (`peak_mem_mb`);
 - static memory at the end: the bytes of the Gaussian parameters and of the optimizer state, per tensor;
 - the final Gaussian count;
+- with ``--rounds R``: the methods run in turn R times (A B A B ...), each ratio to the first method is taken
+  within its round, and the median over rounds is reported beside the ratios of each round;
 - on the eval views at the end (the model's `get_image_metrics_and_images`, as `ns-eval`: mean over views):
   PSNR and the material map's accuracy against the perceived label maps (physgs; the pipeline lifts at the last
   step, so the "lifted" head is read after a final lifting).
@@ -317,6 +319,8 @@ def main() -> None:
     ap.add_argument("--methods", nargs="+", default=["splatfacto-big", "physgs"])
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--device", default="cuda", help="cuda (the figures) or cpu (a smoke test of this script)")
+    ap.add_argument("--rounds", type=int, default=1, help="run the methods in turn this many times; the ratios are "
+                    "taken within each round and their median reported (one pair's ratio varies by +-5%%)")
     ap.add_argument("--one", metavar="METHOD", help=argparse.SUPPRESS)  # the child process of one method
     args = ap.parse_args()
     if args.warmup >= args.steps:
@@ -329,17 +333,31 @@ def main() -> None:
         row = time_training(args.one, args.data, args.steps, args.warmup, args.window, args.device)
         args.out.write_text(json.dumps(row, indent=2))
         return
-    rows = []
-    for method in args.methods:
-        rows.append(run_isolated(method, args))
-        print(summary(rows[-1]), flush=True)
-    base = rows[0]
-    result = {"device": base.get("device"), "data": str(args.data), "isolated_processes": True, "rows": rows,
-              "ratio_vs_first": [_ratio(r, base, "iter_s_median") for r in rows],
-              "peak_mem_ratio_vs_first": [_ratio(r, base, "peak_mem_mb") for r in rows]}  # fmt: skip
+    rounds: list[list[dict]] = []
+    for r in range(args.rounds):  # the methods in turn, round after round: pairs taken on the same machine state
+        rows = []
+        for method in args.methods:
+            rows.append({**run_isolated(method, args), "round": r})
+            print(summary(rows[-1]), flush=True)
+        rounds.append(rows)
+    result = {"device": rounds[0][0].get("device"), "data": str(args.data), "isolated_processes": True,
+              "rows": [row for rows in rounds for row in rows], **round_ratios(rounds)}  # fmt: skip
     args.out.write_text(json.dumps(result, indent=2))
-    print("iteration ratios vs", base["method"], result["ratio_vs_first"])
-    print("peak memory ratios vs", base["method"], result["peak_mem_ratio_vs_first"])
+    first = args.methods[0]
+    print("iteration ratios vs", first, result["ratio_vs_first"], "by round:", result["ratio_vs_first_by_round"])
+    print("peak memory ratios vs", first, result["peak_mem_ratio_vs_first"])
+
+
+def round_ratios(rounds: list[list[dict]]) -> dict[str, list]:
+    """Per method (in ``--methods`` order) its ratio to the first method of the same round, per round, and the
+    median over rounds (None where a run failed): iteration time and peak memory."""
+    out: dict[str, list] = {}
+    for key, name in (("iter_s_median", "ratio_vs_first"), ("peak_mem_mb", "peak_mem_ratio_vs_first")):
+        by_round = [[_ratio(row, rows[0], key) for row in rows] for rows in rounds]
+        per_method = list(zip(*by_round)) if by_round else []
+        out[f"{name}_by_round"] = [list(r) for r in per_method]
+        out[name] = [statistics.median(v) if (v := [x for x in r if x is not None]) else None for r in per_method]
+    return out
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # One GPU session's measurements, in two parts that each fit a 10-minute command (see benchmarks/README.md).
 #   bash benchmarks/gpu/run_gpu.sh kernels   # rasterizer parity, lifting, mass integration, GPU tests
-#   bash benchmarks/gpu/run_gpu.sh training  # physgs vs splatfacto-big, then a full ns-train physgs run
+#   [ROUNDS=3] bash benchmarks/gpu/run_gpu.sh training  # physgs vs splatfacto-big (ROUNDS pairs, A B A B ...)
 #   BASE=../other_checkout bash benchmarks/gpu/run_gpu.sh perf  # issue 13: exports before/after
 #   bash benchmarks/gpu/run_gpu.sh perf-training                  # issue 13: training cost on the same scene
 #   SEEDS="404 505" bash benchmarks/gpu/run_gpu.sh suite          # issue 12: CPU mass suite + gsplat build
@@ -54,7 +54,7 @@ case "${1:-kernels}" in
   training)
     make_scene 2>&1 | tail -20 | tee "$OUT/scene.log"
     python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps 1500 --warmup 300 ${METHODS:+--methods $METHODS} \
-      --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -20
+      --rounds "${ROUNDS:-1}" --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -20
     ;;
   profile)
     make_scene 2>&1 | tail -3
@@ -137,7 +137,10 @@ case "${1:-kernels}" in
     tar czf "$OUT/gsplat_cuda.tgz" -C .gsplat_build gsplat_cuda/gsplat_cuda.so gsplat_cuda/physgs_build_stamp.json 2>/dev/null
     python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
       --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
-      --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -4 | tee "$OUT/full_train.log"
+      --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning > /tmp/physgs_full_train.log
+    # the last lines, and the geometry that ns-train stored for `physgs export` (its time: the precompute's cost)
+    { tail -4 /tmp/physgs_full_train.log; grep -A1 "PhysGS geometry\|geometry was not precomputed" /tmp/physgs_full_train.log; } \
+      | tee "$OUT/full_train.log"
     CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml)
     if [ -z "${SKIP_USER_EXPORT:-}" ]; then  # SKIP_USER_EXPORT=1: only the benchmark below
       echo "[$(elapsed) s] trained; physgs export (all outputs)"

@@ -29,6 +29,7 @@ from ..geometry import (
 )
 from ..geometry.capture import clear_mask_cache, viewmat_from_c2w
 from ..mass import MassConfig, MassReport, integrate_mass, library_thickness
+from . import geometry_cache
 from .field import PropertyField
 from .maps import View, save_property_maps
 from .ply import write_property_ply
@@ -40,8 +41,8 @@ from .voxel import write_voxel_grid
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ExportCommand", "ExportResult", "LoadedRun", "load_run", "object_geometry", "run_export", "run_from_pipeline",
-           "views_from_cameras", "write_export"]
+__all__ = ["ExportCommand", "ExportResult", "LoadedRun", "load_run", "object_geometry", "precompute_geometry",
+           "run_export", "run_from_pipeline", "views_from_cameras", "write_export"]
 
 Output = Literal["ply", "voxels", "maps", "mass"]
 
@@ -105,13 +106,17 @@ class RunSource:
     checkpoint: Path
 
 
+MAX_VIEW_WIDTH = 640
+"""the widest mask an export carves with (:func:`load_run`); wider views are downscaled"""
+
+
 def load_run(
     config_path: Path,
     *,
     scale: float | None = None,
     known_length: Sequence[float] | None = None,
     env: str | None = None,
-    max_view_width: int | None = 640,
+    max_view_width: int | None = MAX_VIEW_WIDTH,
     capture: bool = True,
 ) -> LoadedRun:
     """Load a trained run after the run checks (:func:`.runcheck.check_run`: safe YAML, method, checkpoint beside
@@ -188,6 +193,26 @@ def object_geometry(run: LoadedRun, cfg: GeometryConfig, progress: Any = None) -
                               material_names=pf.material_names, alpha=pf.alpha,
                               material_weights=pf.material_weights, dirichlet_prior=pf.dirichlet_prior,
                               progress=progress)  # fmt: skip
+
+
+def precompute_geometry(config_path: Path, device: str, geometry: GeometryConfig | None = None
+                        ) -> tuple[Path | None, str]:  # fmt: skip
+    """Compute and store (:mod:`.geometry_cache`) the geometry that ``physgs export`` with its default settings
+    would compute for the run of ``config_path`` (its latest checkpoint): what ``ns-train physgs`` does after
+    its final checkpoint. Returns (the entry's path, or None when it could not be stored; what happened)."""
+    geometry = GeometryConfig() if geometry is None else geometry
+    run = load_run(config_path, capture=False)
+    cache = geometry_cache.cache_for_run(run, geometry, device,
+                                         geometry_cache.load_args(None, None, None, MAX_VIEW_WIDTH))  # fmt: skip
+    if cache is None:
+        return None, "the run has no source files"
+    if cache.path.is_file():
+        return cache.path, "already stored"
+    run.load_capture()
+    run.field = run.field.to(device)
+    geo = object_geometry(run, geometry)
+    return cache.save(geo), (f"{geo.selection.num_selected} Gaussians selected, {int(geo.solid.sum())} solid "
+                             f"voxels, {geo.num_parts} parts")  # fmt: skip
 
 
 def run_export(run: LoadedRun, output_dir: Path, *, overwrite: bool = False, source: Path | None = None,
@@ -269,6 +294,8 @@ def write_export(
                                  "legend": pf.legend(), "simulated": pf.simulated}  # fmt: skip
         if error is not None:
             extra["mass_error"] = error
+        else:
+            extra["geometry_source"] = "stored" if geometry is not None else "computed"  # the run's physgs_cache/
         if truth_kg is not None:
             extra["ground_truth_kg"] = truth_kg
             if report is not None:
@@ -345,8 +372,6 @@ class ExportCommand:
         return replace(m, **kw)
 
     def main(self) -> ExportResult:
-        from . import geometry_cache
-
         check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
         needs_geometry = bool({"mass", "voxels"} & set(self.outputs))
         run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env,
@@ -355,7 +380,7 @@ class ExportCommand:
         mass = self.mass_config()
         cache, geo = None, None
         if needs_geometry and self.geometry_cache:
-            load_args = geometry_cache.load_args(self.scale, self.known_length, self.env, 640)  # load_run's width
+            load_args = geometry_cache.load_args(self.scale, self.known_length, self.env, MAX_VIEW_WIDTH)
             cache = geometry_cache.cache_for_run(run, mass.geometry, device, load_args)
             geo = cache.load(device) if cache is not None else None
         if needs_geometry and geo is None:

@@ -6,8 +6,8 @@ export's geometry settings and the code, so it is stored once computed, in ``RUN
 by every later export whose inputs are the same:
 
 - ``ns-train physgs`` computes it right after its final checkpoint on a CUDA device
-  (``--pipeline.precompute-geometry``, :func:`precompute`), where CUDA, gsplat and SciPy are already loaded, so a
-  user's first ``physgs export`` only loads the run and integrates the mass;
+  (``--pipeline.precompute-geometry``, :func:`.command.precompute_geometry`), where CUDA, gsplat and SciPy are
+  already loaded, so a user's first ``physgs export`` only loads the run and integrates the mass;
 - ``physgs export`` reads it (``--geometry-cache``, default on), and stores what it computes on a miss, so a
   second export of the same run and settings (other outputs, another Monte Carlo) skips the carving.
 
@@ -43,7 +43,7 @@ import torch
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["GeometryCache", "cache_key", "decode_geometry", "encode_geometry", "precompute"]
+__all__ = ["GeometryCache", "cache_for_run", "cache_key", "decode_geometry", "encode_geometry", "load_args"]
 
 FORMAT = 1
 """version of the file's layout (a change makes every older entry a miss)"""
@@ -168,13 +168,21 @@ def _stat(path: Path | None) -> list[Any] | None:
     return [str(Path(path).resolve()), st.st_size, st.st_mtime_ns]
 
 
+def _not_input(folder: Path) -> bool:
+    """Folders under a dataset that no export reads: this cache's, a physgs export's (its marker file) and a
+    nerfstudio run's (config.yml beside nerfstudio_models/: a run trained with its outputs inside the dataset)."""
+    return (folder.name == CACHE_DIR or (folder / ".physgs-export.json").is_file()
+            or ((folder / "nerfstudio_models").is_dir() and (folder / "config.yml").is_file()))  # fmt: skip
+
+
 def _tree_stats(folder: Path | None) -> list[Any]:
-    """(relative path, size, mtime) of every file under ``folder`` (sorted), skipping this cache's own folder."""
+    """(relative path, size, mtime) of every file under ``folder`` (sorted), skipping the folders that are no
+    export's input (:func:`_not_input`)."""
     if folder is None or not Path(folder).is_dir():
         return []
     rows = []
     for root, dirs, files in os.walk(folder):
-        dirs[:] = sorted(d for d in dirs if d != CACHE_DIR)
+        dirs[:] = sorted(d for d in dirs if not _not_input(Path(root) / d))
         for name in sorted(files):
             p = Path(root) / name
             try:
@@ -267,8 +275,13 @@ class GeometryCache:
         return path
 
     def _prune(self) -> None:
-        entries = sorted(self.folder.glob("geometry-*.pt"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
-        for old in entries[KEEP:]:
+        def mtime(p: Path) -> int:
+            try:
+                return p.stat().st_mtime_ns
+            except OSError:  # pruned by another export meanwhile
+                return -1
+
+        for old in sorted(self.folder.glob("geometry-*.pt"), key=mtime, reverse=True)[KEEP:]:
             old.unlink(missing_ok=True)
 
 
@@ -283,32 +296,9 @@ def cache_for_run(run: Any, geometry: Any, device: str, load_args: dict[str, Any
     return GeometryCache(Path(src.run_dir) / CACHE_DIR, key)
 
 
-def precompute(config_path: Path, device: str, geometry: Any = None) -> tuple[Path | None, str]:
-    """Compute and store the geometry that ``physgs export`` with default settings would compute for the run of
-    ``config_path`` (its final checkpoint). Returns (the entry's path or None, what happened in words)."""
-    from ..geometry import GeometryConfig
-    from .command import load_run, object_geometry
-
-    geometry = GeometryConfig() if geometry is None else geometry
-    run = load_run(config_path, capture=False)
-    cache = cache_for_run(run, geometry, device, DEFAULT_LOAD_ARGS)
-    if cache is None:
-        return None, "the run has no source files"
-    if cache.path.is_file():
-        return cache.path, "already stored"
-    run.load_capture()
-    run.field = run.field.to(device)
-    geo = object_geometry(run, geometry)
-    return cache.save(geo), (f"{geo.selection.num_selected} Gaussians selected, {int(geo.solid.sum())} solid "
-                             f"voxels, {geo.num_parts} parts")  # fmt: skip
-
-
 def load_args(scale: float | None, known_length: Sequence[float] | None, env: str | None,
               max_view_width: int | None) -> dict[str, Any]:  # fmt: skip
     """The loading arguments that enter the key (module doc)."""
     return {"scale": scale, "known_length": None if known_length is None else list(known_length), "env": env,
             "max_view_width": max_view_width}
 
-
-DEFAULT_LOAD_ARGS = load_args(None, None, None, 640)
-"""those of a ``physgs export`` without --scale, --known-length or --env (:func:`.command.load_run`'s defaults)"""

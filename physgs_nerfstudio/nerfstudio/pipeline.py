@@ -197,11 +197,11 @@ class PhysGSPipeline(VanillaPipeline):
         import logging
         import time
 
-        from physgs_nerfstudio.export.geometry_cache import precompute
+        from physgs_nerfstudio.export.command import precompute_geometry
 
         t0 = time.perf_counter()
         try:
-            path, what = precompute(config_path, device.type)
+            path, what = precompute_geometry(config_path, device.type)
         except Exception as err:  # noqa: BLE001 - the run is complete and saved; the export computes it instead
             logging.getLogger(__name__).warning(
                 "PhysGS: the object's geometry was not precomputed (%s); `physgs export` computes it when asked",
