@@ -17,7 +17,6 @@ import argparse
 import json
 import subprocess
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +36,6 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("/tmp/physgs_indoor_room"))
     ap.add_argument("--near-m", type=float, default=0.02)
     ap.add_argument("--demo-args", nargs="*", default=[])
-    ap.add_argument("--open-fraction", type=float, default=None, help="CarveConfig.open_fraction (default: its own)")
     a = ap.parse_args()
     d = a.out / f"indoor_room_s{a.seed}"
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "demo", "--object", "indoor_room", "--seed", str(a.seed),
@@ -50,10 +48,7 @@ def main() -> None:
     from physgs_nerfstudio.demo import DemoCommand
 
     run = load_run(cfg_path)
-    cfg = GeometryConfig(resolution=DemoCommand().export_resolution)
-    if a.open_fraction is not None:
-        cfg = replace(cfg, carve=replace(cfg.carve, open_fraction=a.open_fraction))
-    geo = object_geometry(run, cfg)
+    geo = object_geometry(run, GeometryConfig(resolution=DemoCommand().export_resolution))
     pf = run.field
     T, s = _transform(cfg_path.parent)
     truth = json.loads((run.data_dir / "ground_truth.json").read_text())
@@ -78,9 +73,7 @@ def main() -> None:
         "mass_kg": json.loads((d / "export" / "report.json").read_text())["mass"]["mean_kg"]
         if (d / "export" / "report.json").is_file() else None,
     }  # fmt: skip
-    res["open_fraction"] = cfg.carve.open_fraction
-    tag = "" if a.open_fraction is None else f"_open{a.open_fraction:g}"
-    (a.out / f"indoor_room{tag}.json").write_text(json.dumps(res, indent=1))
+    (a.out / "indoor_room.json").write_text(json.dumps(res, indent=1))
     print(json.dumps(res, indent=1))
 
 

@@ -95,7 +95,6 @@ evidence (a depth rendered too deep through a semi-transparent wall), never seen
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -186,12 +185,6 @@ class CarveConfig:
     frames its object in every view, so space out of frame in most views is not the object (left solid, as unseen
     space inside the object is, it filled a domain that outliers of the selection had stretched); lower it for a
     capture whose views each show only part of the object"""
-    open_fraction: float = 2.0
-    """a voxel that no view sees directly (hidden behind the rendered surface in every view that frames it) is
-    carved when the rays from it along at least this fraction of the 26 grid directions leave the solid's box
-    without meeting a voxel that some view sees directly (:func:`open_space`): space that the object hides but does
-    not enclose, such as the space under a table's top shot from above; a closed object's inside meets its seen
-    skin in most directions. > 1 (the default): off"""
     min_component: float = 0.02
     """drop solid components smaller than this fraction of the largest one"""
     fill_cavities: bool = True
@@ -737,9 +730,6 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
     if votes.direct is not None and votes.depth_empty is not None and cfg.min_direct_fraction <= 1:
         d = votes.direct.float()
         carved |= (e >= cfg.min_votes) & (d > 0) & (votes.depth_empty.float() >= cfg.min_direct_fraction * d)
-    if votes.direct is not None and cfg.open_fraction <= 1:
-        kept = (~carved).reshape(grid.shape)
-        carved |= open_space(kept, kept & (votes.direct > 0).reshape(grid.shape), cfg.open_fraction).reshape(-1)
     full = (~carved).reshape(grid.shape).cpu().numpy()
     if not full.any():
         return full
@@ -757,55 +747,6 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
         solid = fill_holes(solid)
     out = np.zeros_like(full)
     out[crop] = solid
-    return out
-
-
-DIRECTIONS = [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)]
-"""the 26 directions of :func:`open_space`'s rays: the faces', edges' and corners' of a voxel"""
-
-
-def _shifted(a: Tensor, step: tuple[int, int, int]) -> Tensor:
-    """``out[x] = a[x + step]``, False where ``x + step`` leaves the array."""
-    out = torch.zeros_like(a)
-    dst, src = [], []
-    for n, s in zip(a.shape, step):
-        if abs(s) >= n:
-            return out
-        dst.append(slice(max(-s, 0), n - max(s, 0)))
-        src.append(slice(max(s, 0), n + min(s, 0)))
-    out[tuple(dst)] = a[tuple(src)]
-    return out
-
-
-def ray_hits(skin: Tensor, direction: tuple[int, int, int]) -> Tensor:
-    """bool like ``skin``: whether the ray from each voxel along ``direction`` (a step of -1, 0 or 1 per axis)
-    meets a ``skin`` voxel before it leaves the array (the voxel itself not counted). By doubling: after the m-th
-    pass ``hit[x]`` is the OR of ``skin[x + k d]`` for k = 1 .. 2^m."""
-    hit = _shifted(skin, direction)
-    reach = 1
-    while reach < max(skin.shape):
-        hit = hit | _shifted(hit, tuple(reach * c for c in direction))
-        reach *= 2
-    return hit
-
-
-def open_space(kept: Tensor, skin: Tensor, fraction: float) -> Tensor:
-    """bool [X, Y, Z]: the voxels of ``kept`` outside ``skin`` (kept voxels that no view sees directly) whose rays
-    along at least ``fraction`` of the 26 :data:`DIRECTIONS` leave the kept voxels' box without meeting ``skin``
-    (:attr:`CarveConfig.open_fraction`). A closed object's inside meets its seen skin in most directions (only
-    the face that no camera sees, such as the bottom of an object shot from above, lets its rays through); the
-    space under a table's top, hidden behind the top in every view, sees out sideways and downwards."""
-    out = torch.zeros_like(kept)
-    idx = kept.nonzero()
-    if idx.shape[0] == 0:
-        return out
-    lo, hi = idx.min(0).values.tolist(), (idx.max(0).values + 1).tolist()
-    box = tuple(slice(a, b) for a, b in zip(lo, hi))
-    k, s = kept[box], skin[box]
-    escapes = torch.zeros(k.shape, dtype=torch.int16, device=k.device)
-    for d in DIRECTIONS:
-        escapes += ~ray_hits(s, d)
-    out[box] = k & ~s & (escapes >= math.ceil(fraction * len(DIRECTIONS) - 1e-9))
     return out
 
 
