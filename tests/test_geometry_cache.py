@@ -193,3 +193,69 @@ def test_only_the_newest_entries_are_kept(floor_geometry, tmp_path):
     kept = sorted(p.name for p in tmp_path.glob("geometry-*.pt"))
     assert len(kept) == gc.KEEP and ("geometry-" + "ff" * 12 + ".pt") in kept
     assert not paths[0].exists() and not paths[1].exists()
+
+
+def test_a_full_disk_leaves_the_stored_entries_whole(floor_geometry, tmp_path, monkeypatch):
+    """The cache writes through the project's write layer (fusion.transaction.write_file, which a full disk makes
+    fail): a failed store leaves no partial file, and the entries stored before still load, bit for bit."""
+    import errno
+
+    from physgs_nerfstudio.fusion import transaction
+
+    _, geo = floor_geometry
+    kept = gc.GeometryCache(tmp_path, "aa" * 32)
+    kept.save(geo)
+    before = kept.path.read_bytes()
+
+    def full(path, data):
+        Path(path).write_bytes(data[: len(data) // 2])  # half written, then the disk is full
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(transaction, "write_file", full)
+    assert gc.GeometryCache(tmp_path, "bb" * 32).save(geo) is None
+    assert sorted(p.name for p in tmp_path.iterdir()) == [kept.path.name]
+    assert kept.path.read_bytes() == before
+    _assert_same(geo, kept.load("cpu"))
+
+
+def test_a_killed_writer_s_temporary_file_is_removed_once_stale(floor_geometry, tmp_path):
+    _, geo = floor_geometry
+    old = tmp_path / ".geometry-dead.1234abcd.tmp"
+    fresh = tmp_path / ".geometry-busy.5678abcd.tmp"  # another export writing right now
+    for f in (old, fresh):
+        f.write_bytes(b"partial")
+    hours_ago = (os.stat(old).st_mtime_ns - 2 * gc.STALE_TMP_S * 10**9)
+    os.utime(old, ns=(hours_ago, hours_ago))
+    gc.GeometryCache(tmp_path, "cc" * 32).save(geo)
+    assert not old.exists() and fresh.exists()
+
+
+def test_a_failed_precompute_never_fails_the_training(tmp_path, monkeypatch, capsys):
+    """ns-train's AFTER_TRAIN hook: an error of the geometry (no masks, say) is one line in the log, not an
+    exception out of the trainer; "off" and "auto" on a CPU do not compute at all."""
+    from types import SimpleNamespace
+
+    from physgs_nerfstudio.export import run as export_run
+    from physgs_nerfstudio.geometry import GeometryError
+    from physgs_nerfstudio.nerfstudio.pipeline import PhysGSPipeline
+
+    calls = []
+
+    def fail(config_path, device):
+        calls.append(device)
+        raise GeometryError("no training view has an object mask")
+
+    monkeypatch.setattr(export_run, "precompute_geometry", fail)
+    config = tmp_path / "config.yml"
+    config.write_text("x")
+    for mode, device in (("off", "cuda"), ("auto", "cpu")):
+        fake = SimpleNamespace(config=SimpleNamespace(precompute_geometry=mode),
+                               model=SimpleNamespace(device=torch.device(device)))  # fmt: skip
+        PhysGSPipeline._precompute_geometry(fake, config, 99)
+    assert calls == []
+    fake = SimpleNamespace(config=SimpleNamespace(precompute_geometry="on"),
+                           model=SimpleNamespace(device=torch.device("cpu")))  # fmt: skip
+    PhysGSPipeline._precompute_geometry(fake, config, 99)
+    assert calls == ["cpu"]
+    out = " ".join(capsys.readouterr().out.split())
+    assert "not precomputed (no training view has an object mask)" in out

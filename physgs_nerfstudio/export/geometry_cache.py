@@ -6,7 +6,7 @@ export's geometry settings and the code, so it is stored once computed, in ``RUN
 by every later export whose inputs are the same:
 
 - ``ns-train physgs`` computes it right after its final checkpoint on a CUDA device
-  (``--pipeline.precompute-geometry``, :func:`.command.precompute_geometry`), where CUDA, gsplat and SciPy are
+  (``--pipeline.precompute-geometry``, :func:`.run.precompute_geometry`), where CUDA, gsplat and SciPy are
   already loaded, so a user's first ``physgs export`` only loads the run and integrates the mass;
 - ``physgs export`` reads it (``--geometry-cache``, default on), and stores what it computes on a miss, so a
   second export of the same run and settings (other outputs, another Monte Carlo) skips the carving.
@@ -30,9 +30,11 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import io
 import json
 import logging
 import os
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +51,8 @@ FORMAT = 1
 """version of the file's layout (a change makes every older entry a miss)"""
 KEEP = 4
 """entries kept per run (the newest)"""
+STALE_TMP_S = 3600
+"""a temporary file this old is a killed writer's (removed when the next entry is stored)"""
 CACHE_DIR = "physgs_cache"
 _PACKAGE = Path(__file__).resolve().parents[1]
 
@@ -101,7 +105,12 @@ def _decode(x: Any, classes: dict[str, type], device: torch.device) -> Any:
     if not isinstance(x, dict):
         return x
     if "__np__" in x:
-        return x["__np__"].numpy().astype(np.dtype(x["dtype"])) if "dtype" in x else x["__np__"].numpy()
+        if "dtype" not in x:
+            return x["__np__"].numpy()
+        dtype = np.dtype(x["dtype"])
+        if dtype.kind not in "iu":
+            raise ValueError(f"geometry cache: an integer array stored as {dtype}")
+        return x["__np__"].numpy().astype(dtype)
     if "__pt__" in x:
         return x["__pt__"].to(device)
     if "__tuple__" in x:
@@ -193,23 +202,11 @@ def _tree_stats(folder: Path | None) -> list[Any]:
     return rows
 
 
-def _jsonable(x: Any) -> Any:
-    if dataclasses.is_dataclass(x) and not isinstance(x, type):
-        return {f.name: _jsonable(getattr(x, f.name)) for f in dataclasses.fields(x)}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, Path):
-        return str(x)
-    if x is None or isinstance(x, (bool, int, float, str)):
-        return x
-    return repr(x)
-
-
 def cache_key(*, checkpoint: Path, config_path: Path, run_dir: Path, data_dir: Path | None, geometry: Any,
               device: str, load_args: dict[str, Any]) -> str:  # fmt: skip
     """The SHA-256 key of one geometry (module doc)."""
+    from ..fusion.writer import jsonable
+
     record = {
         "format": FORMAT,
         "code": code_fingerprint(),
@@ -220,8 +217,8 @@ def cache_key(*, checkpoint: Path, config_path: Path, run_dir: Path, data_dir: P
         "transforms": _stat(Path(run_dir) / "dataparser_transforms.json"),
         "data_dir": str(Path(data_dir).resolve()) if data_dir is not None else None,
         "data": _tree_stats(data_dir),
-        "load": _jsonable(load_args),
-        "geometry": _jsonable(geometry),
+        "load": jsonable(load_args),
+        "geometry": jsonable(geometry),
     }
     return hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()
 
@@ -259,17 +256,18 @@ class GeometryCache:
         return geo
 
     def save(self, geo: Any) -> Path | None:
-        """Store ``geo`` (atomically: a temporary file renamed into place); None when the folder is not writable
-        (a read-only run: the export works as without the cache)."""
+        """Store ``geo`` in one rename (:func:`physgs_nerfstudio.fusion.transaction.atomic_write_bytes`, the
+        project's write layer: a full disk or a kill leaves the old entry or none, never half of one); None when
+        the folder is not writable (a read-only run: the export works as without the cache)."""
+        from ..fusion.transaction import atomic_write_bytes
+
         path = self.path
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
-            self.folder.mkdir(parents=True, exist_ok=True)
-            torch.save({"format": FORMAT, "key": self.key, "geometry": encode_geometry(geo)}, tmp)
-            os.replace(tmp, path)
+            buffer = io.BytesIO()
+            torch.save({"format": FORMAT, "key": self.key, "geometry": encode_geometry(geo)}, buffer)
+            atomic_write_bytes(path, buffer.getvalue())
         except (OSError, RuntimeError) as err:
             logger.info("geometry cache not written to %s (%s)", path, err)
-            tmp.unlink(missing_ok=True)
             return None
         self._prune()
         return path
@@ -283,6 +281,10 @@ class GeometryCache:
 
         for old in sorted(self.folder.glob("geometry-*.pt"), key=mtime, reverse=True)[KEEP:]:
             old.unlink(missing_ok=True)
+        stale = time.time_ns() - STALE_TMP_S * 10**9  # a writer killed mid-write left its temporary file
+        for tmp in self.folder.glob(".geometry-*.tmp"):
+            if 0 <= mtime(tmp) < stale:
+                tmp.unlink(missing_ok=True)
 
 
 def cache_for_run(run: Any, geometry: Any, device: str, load_args: dict[str, Any]) -> GeometryCache | None:

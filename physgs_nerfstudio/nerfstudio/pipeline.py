@@ -194,18 +194,16 @@ class PhysGSPipeline(VanillaPipeline):
         device = torch.device(self.model.device)
         if mode == "off" or (mode == "auto" and device.type != "cuda") or not config_path.is_file():
             return
-        import logging
         import time
 
-        from physgs_nerfstudio.export.command import precompute_geometry
+        from physgs_nerfstudio.export.run import precompute_geometry
 
         t0 = time.perf_counter()
         try:
             path, what = precompute_geometry(config_path, device.type)
         except Exception as err:  # noqa: BLE001 - the run is complete and saved; the export computes it instead
-            logging.getLogger(__name__).warning(
-                "PhysGS: the object's geometry was not precomputed (%s); `physgs export` computes it when asked",
-                " ".join(str(err).split())[:300])  # fmt: skip
+            CONSOLE.log(f"[yellow]PhysGS: the object's geometry was not precomputed ({' '.join(str(err).split())[:300]});"
+                        " `physgs export` computes it when asked[/yellow]")  # fmt: skip
             return
         CONSOLE.log(f"PhysGS geometry for `physgs export` ({what}) in {time.perf_counter() - t0:.1f} s"
                     + (f": {path}" if path is not None else ": not stored (the run folder is not writable)"))
