@@ -253,6 +253,50 @@ def test_small_training_images_are_not_downscaled_into_splitting_every_gaussian(
     assert model.strategy.refine_scale2d_stop_iter == 0 and d == 4  # split off; the schedule is then harmless
 
 
+@pytest.mark.parametrize("size", [(32, 32), (513, 301), (1297, 731), (4032, 3024)])
+@pytest.mark.parametrize("d", [1, 2, 4, 8])
+def test_render_size_from_the_host_matches_nerfstudios_rescale(blob_dm, size, d, monkeypatch) -> None:
+    """The training step computes the downscaled render size on the host (no `.item()` synchronisation); it must be
+    the size that nerfstudio's `rescale_output_resolution` gives the camera, for odd sizes too."""
+    model = make_model(blob_dm)
+    monkeypatch.setattr(model, "_get_downscale_factor", lambda: d)
+
+    def camera():  # a fresh camera of this size for each call (nerfstudio's rescale back floors odd sizes)
+        from nerfstudio.cameras.cameras import Cameras
+
+        cam, _ = blob_dm.next_train(0)
+        return Cameras(camera_to_worlds=cam.camera_to_worlds.clone(), fx=cam.fx.clone(), fy=cam.fy.clone(),
+                       cx=cam.cx.clone(), cy=cam.cy.clone(), width=torch.full_like(cam.width, size[0]),
+                       height=torch.full_like(cam.height, size[1]), camera_type=cam.camera_type.clone())  # fmt: skip
+
+    Ks_host, W, H = model._render_intrinsics(camera(), size)
+    Ks_dev, W_dev, H_dev = model._render_intrinsics(camera())
+    assert (W, H) == (W_dev, H_dev) == (size[0] // d, size[1] // d)
+    assert torch.equal(Ks_host, Ks_dev)
+
+
+def test_a_training_cameras_size_is_read_from_the_device_once(blob_dm, monkeypatch) -> None:
+    model = make_model(blob_dm)
+    model.train()
+    reads = []
+    real_item = torch.Tensor.item
+
+    def counting_item(t):
+        reads.append(t.shape)
+        return real_item(t)
+
+    cams = [blob_dm.next_train(i)[0] for i in range(3)]
+    monkeypatch.setattr(torch.Tensor, "item", counting_item)
+    for cam in cams + cams:
+        assert model._camera_size(cam) == (int(real_item(cam.width)), int(real_item(cam.height)))
+    assert len(reads) == 2 * len({c.metadata["cam_idx"] for c in cams})  # width and height, once per camera
+    no_idx = cams[0].reshape(cams[0].shape)
+    no_idx.metadata = None  # a camera from outside the training set (viewer) is read every time
+    model._camera_size(no_idx)
+    model._camera_size(no_idx)
+    assert len(reads) == 2 * len({c.metadata["cam_idx"] for c in cams}) + 4
+
+
 @pytest.mark.parametrize("per_call", [2, 3])
 def test_lifting_several_views_per_call_gives_the_same_evidence(blob_dm, per_call) -> None:
     model = make_model(blob_dm)

@@ -5,6 +5,8 @@
 #   BASE=../other_checkout bash benchmarks/gpu/run_gpu.sh perf  # issue 13: exports before/after
 #   bash benchmarks/gpu/run_gpu.sh perf-training                  # issue 13: training cost on the same scene
 #   SEEDS="404 505" bash benchmarks/gpu/run_gpu.sh suite          # issue 12: CPU mass suite + gsplat build
+#   [REPEAT=2] [ROUNDS=0] bash benchmarks/gpu/run_gpu.sh interleaved  # issue 13: the training ratio, one process
+#   [ROUNDS=2] bash benchmarks/gpu/run_gpu.sh variants  # issue 13: the training step, physgs's pieces swapped one at a time
 #   bash benchmarks/gpu/run_gpu.sh mem       # issue 13: memory and iteration cost of the material heads (chair)
 #   HEAD=lifted bash benchmarks/gpu/run_gpu.sh full   # the full run with another material head
 #   BASE=.export_base bash benchmarks/gpu/run_gpu.sh export  # issues 12+13: full chair run, its mass, exports before/after
@@ -36,7 +38,7 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
-case "${1:-}" in perf|suite|mem|export|batch|geometry|gsuite|mprofile|msuite) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
+case "${1:-}" in perf|suite|mem|variants|export|batch|geometry|gsuite|mprofile|msuite) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -56,9 +58,9 @@ case "${1:-kernels}" in
     python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps 1500 --warmup 300 ${METHODS:+--methods $METHODS} \
       --rounds "${ROUNDS:-1}" --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -20
     ;;
-  profile)
+  profile)  # [WARMUP=N] [METHODS="..."]: the profiled 40 steps start at step N
     make_scene 2>&1 | tail -3
-    (cd benchmarks/gpu && python3 profile_training.py --data "$SCENE" ${METHODS:+--methods $METHODS}) 2>&1 | grep -v Warning \
+    (cd benchmarks/gpu && python3 profile_training.py --data "$SCENE" --warmup "${WARMUP:-300}" ${METHODS:+--methods $METHODS}) 2>&1 | grep -v Warning \
       > "$OUT/profile.txt"; tail -5 "$OUT/profile.txt"
     ;;
   perf)
@@ -107,6 +109,33 @@ case "${1:-kernels}" in
     echo "[$(elapsed) s] suite done; waiting for gsplat"; wait
     tar czf "$OUT/gsplat_cuda.tgz" -C .gsplat_build gsplat_cuda/gsplat_cuda.so gsplat_cuda/physgs_build_stamp.json 2>/dev/null
     cat "$OUT/gsplat_build.txt" 2>/dev/null; echo "[$(elapsed) s] done"
+    ;;
+  interleaved)
+    # issue 13: physgs vs splatfacto-big trained in one process, blocks of steps in turn (bench_interleaved.py);
+    # REPEAT processes of it, then (ROUNDS > 0) bench_training.py's isolated pairs for comparison
+    make_scene 2>&1 | tail -3 | tee "$OUT/scene.log"
+    for i in $(seq "${REPEAT:-2}"); do
+      python3 benchmarks/gpu/bench_interleaved.py --data "$SCENE" --warmup 300 --steps "${TRAIN_STEPS:-1500}" \
+        --methods ${METHODS:-splatfacto-big physgs physgs+device_sizes} --out "$OUT/interleaved_$i.json" 2>&1 \
+        | grep -v Warning | tee "$OUT/interleaved_$i.log" | tail -4
+      echo "[$(elapsed) s] interleaved $i"
+    done
+    if [ "${ROUNDS:-0}" -gt 0 ]; then
+      python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps 1500 --warmup 300 --rounds "$ROUNDS" \
+        --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -3
+    fi
+    echo "[$(elapsed) s] done"
+    ;;
+  variants)
+    # issue 13: where physgs's training step loses time against splatfacto-big (step_variants.py), on the chair scene
+    make_scene 2>&1 | tail -3 | tee "$OUT/scene.log"
+    wait  # the gsplat build (setup_env.sh with GSPLAT_BUILD_LATER=1), beside the scene
+    echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
+    tar czf "$OUT/gsplat_cuda.tgz" -C .gsplat_build gsplat_cuda/gsplat_cuda.so gsplat_cuda/physgs_build_stamp.json 2>/dev/null
+    python3 benchmarks/gpu/step_variants.py --data "$SCENE" --rounds "${ROUNDS:-2}" --warmup 300 \
+      --steps "${TRAIN_STEPS:-700}" ${VARIANTS:+--variants $VARIANTS} --out "$OUT/step_variants.json" 2>&1 \
+      | grep -v Warning | tee "$OUT/step_variants.log" | tail -8
+    echo "[$(elapsed) s] done"
     ;;
   mem)
     # issue 13 (about 5-8 minutes on an H100 with a carried gsplat build): each method in its own process on the

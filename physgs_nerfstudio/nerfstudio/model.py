@@ -524,10 +524,23 @@ class PhysGSModel(SplatfactoModel):
         on = self.step < self.strategy.refine_scale2d_stop_iter  # the strategy's: the guard below may switch it off
         return training_downscale(d, long_side, self.config.split_screen_size, on)
 
-    def _screen_split_guard(self, camera: Cameras) -> None:
+    def _camera_size(self, camera: Cameras) -> tuple[int, int]:
+        """Full-resolution (width, height) of a one-camera batch. A training camera's size is read from the device
+        once and then kept by its `cam_idx`: each `.item()` on a CUDA camera is a host-device synchronisation,
+        and four of them per step left the GPU idle between them (benchmarks/README.md, issue 13)."""
+        idx = camera.metadata.get("cam_idx") if camera.metadata else None
+        sizes: dict[int, tuple[int, int]] = self.__dict__.setdefault("_camera_sizes", {})
+        if isinstance(idx, int) and idx in sizes:
+            return sizes[idx]
+        size = (int(camera.width.item()), int(camera.height.item()))
+        if isinstance(idx, int):
+            sizes[idx] = size
+        return size
+
+    def _screen_split_guard(self, size: tuple[int, int]) -> None:
         """Record the training image size; below the size where any Gaussian is "large on screen" even at full
         resolution (:data:`MIN_SPLIT_RADIUS_PX`), switch the screen-size split off, once, with a note."""
-        long_side = int(max(camera.width.item(), camera.height.item()))
+        long_side = max(size)
         self._train_long_side = long_side
         c = self.config
         if (long_side * c.split_screen_size < MIN_SPLIT_RADIUS_PX and self.strategy.refine_scale2d_stop_iter > 0
@@ -548,9 +561,10 @@ class PhysGSModel(SplatfactoModel):
             return {}
         assert camera.shape[0] == 1, "PhysGSModel renders one camera at a time"
         if self.training:
-            self._screen_split_guard(camera)
+            size = self._camera_size(camera)
+            self._screen_split_guard(size)
             c2w = self.camera_optimizer.apply_to_camera(camera)
-            Ks, W, H = self._render_intrinsics(camera)
+            Ks, W, H = self._render_intrinsics(camera, size)
             return self._training_outputs(camera, c2w, Ks, W, H)
         crop_ids = None
         if self.crop_box is not None:
@@ -562,12 +576,19 @@ class PhysGSModel(SplatfactoModel):
         Ks, W, H = self._render_intrinsics(camera)
         return self._eval_outputs(camera.camera_to_worlds, Ks, W, H, crop_ids)
 
-    def _render_intrinsics(self, camera: Cameras) -> tuple[Float[Tensor, "1 3 3"], int, int]:
-        """Intrinsics, width and height of the render (splatfacto's training downscale applied)."""
+    def _render_intrinsics(
+        self, camera: Cameras, size: tuple[int, int] | None = None
+    ) -> tuple[Float[Tensor, "1 3 3"], int, int]:
+        """Intrinsics, width and height of the render (splatfacto's training downscale applied). With the camera's
+        full-resolution `size` known on the host, the downscaled size is computed there as nerfstudio does
+        (`Cameras.rescale_output_resolution`: the size times 1/d, truncated; d is a power of 2, so exact)."""
         d = self._get_downscale_factor()
         camera.rescale_output_resolution(1 / d)
         Ks = camera.get_intrinsics_matrices().to(self.device)
-        W, H = int(camera.width.item()), int(camera.height.item())
+        if size is None:
+            W, H = int(camera.width.item()), int(camera.height.item())
+        else:
+            W, H = int(size[0] * (1 / d)), int(size[1] * (1 / d))
         self.last_size = (H, W)
         camera.rescale_output_resolution(d)
         return Ks, W, H
