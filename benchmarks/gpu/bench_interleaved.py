@@ -30,26 +30,12 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_training import build_trainer
+from bench_training import build_trainer, stepper
 
 
 def _sync(device: str) -> None:
     if device == "cuda":
         torch.cuda.synchronize()
-
-
-def _stepper(trainer):
-    from nerfstudio.engine.callbacks import TrainingCallbackLocation as Loc
-
-    def step_fn(step: int) -> None:
-        trainer.pipeline.train()
-        for cb in trainer.callbacks:
-            cb.run_callback_at_location(step, location=Loc.BEFORE_TRAIN_ITERATION)
-        trainer.train_iteration(step)
-        for cb in trainer.callbacks:
-            cb.run_callback_at_location(step, location=Loc.AFTER_TRAIN_ITERATION)
-
-    return step_fn
 
 
 def _build(method: str, data: Path, iterations: int, out: Path, device: str):
@@ -75,7 +61,7 @@ def interleave(methods: list[str], data: Path, warmup: int, steps: int, block: i
     with tempfile.TemporaryDirectory() as tmp:
         trainers = [_build(m, data, warmup + steps + 10_000, Path(tmp) / f"m{i}", device)
                     for i, m in enumerate(methods)]  # fmt: skip
-        steppers = [_stepper(t) for t in trainers]
+        steppers = [stepper(t) for t in trainers]
         for step in range(warmup):
             for fn in steppers:
                 fn(step)

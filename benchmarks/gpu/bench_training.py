@@ -148,6 +148,22 @@ def build_trainer(method: str, data: Path, steps: int, output_dir: Path, device:
     return trainer
 
 
+def stepper(trainer):
+    """One training step of `trainer` as nerfstudio's Trainer.train takes it: the callbacks before the iteration, the
+    iteration, the callbacks after it (densification, physgs's lifting). Returns ``step_fn(step)``."""
+    from nerfstudio.engine.callbacks import TrainingCallbackLocation as Loc
+
+    def step_fn(step: int) -> None:
+        trainer.pipeline.train()
+        for cb in trainer.callbacks:
+            cb.run_callback_at_location(step, location=Loc.BEFORE_TRAIN_ITERATION)
+        trainer.train_iteration(step)
+        for cb in trainer.callbacks:
+            cb.run_callback_at_location(step, location=Loc.AFTER_TRAIN_ITERATION)
+
+    return step_fn
+
+
 def static_memory(model: Any, optimizers: dict[str, torch.optim.Optimizer]) -> dict[str, Any]:
     """Bytes (MB) of the model's parameters and of the optimizers' state, per Gaussian tensor and in total."""
 

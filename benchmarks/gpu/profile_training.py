@@ -12,25 +12,14 @@ import time
 from pathlib import Path
 
 import torch
+from bench_training import build_trainer, stepper  # same directory
 from torch.profiler import ProfilerActivity, profile
-
-from bench_training import build_trainer  # same directory
 
 
 def run(method: str, data: Path, warmup: int, steps: int, rows: int) -> None:
-    from nerfstudio.engine.callbacks import TrainingCallbackLocation
-
     with tempfile.TemporaryDirectory() as tmp:
         trainer = build_trainer(method, data, warmup + steps + 10_000, Path(tmp))  # no last-step lifting
-
-        def step_fn(step: int) -> None:
-            trainer.pipeline.train()
-            for cb in trainer.callbacks:
-                cb.run_callback_at_location(step, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
-            trainer.train_iteration(step)
-            for cb in trainer.callbacks:
-                cb.run_callback_at_location(step, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
-
+        step_fn = stepper(trainer)
         for step in range(warmup):
             step_fn(step)
         torch.cuda.synchronize()

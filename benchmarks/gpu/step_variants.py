@@ -29,7 +29,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_training import build_trainer
+from bench_training import build_trainer, stepper
 
 VARIANTS = ("splatfacto-big", "physgs", "physgs-no-guard", "physgs-splatfacto-outputs", "physgs-no-callbacks",
             "physgs-no-maps")  # fmt: skip
@@ -76,21 +76,12 @@ def _patch(variant: str, trainer) -> None:
 
 
 def time_variant(variant: str, data: Path, warmup: int, steps: int, device: str = "cuda") -> dict:
-    from nerfstudio.engine.callbacks import TrainingCallbackLocation as Loc
-
     method = "splatfacto-big" if variant == "splatfacto-big" else "physgs"
     with tempfile.TemporaryDirectory() as tmp:
         trainer = build_trainer(method, data, warmup + steps + 10_000, Path(tmp), device)  # no last-step lifting
         _patch(variant, trainer)
 
-        def step_fn(step: int) -> None:
-            trainer.pipeline.train()
-            for cb in trainer.callbacks:
-                cb.run_callback_at_location(step, location=Loc.BEFORE_TRAIN_ITERATION)
-            trainer.train_iteration(step)
-            for cb in trainer.callbacks:
-                cb.run_callback_at_location(step, location=Loc.AFTER_TRAIN_ITERATION)
-
+        step_fn = stepper(trainer)
         for step in range(warmup):
             step_fn(step)
         _sync()
