@@ -185,7 +185,7 @@ case "${1:-kernels}" in
     tail -30 "$OUT/export.log"
     for i in $(seq 1 "${TIMELINE:-0}"); do  # TIMELINE=N: N fresh mass exports, function by function (export_timeline.py)
       TIMELINE_JSON="$OUT/mass_timeline_$i.json" python3 benchmarks/export_timeline.py --load-config "$CFG" \
-        --output-dir /tmp/physgs_tl --outputs mass --overwrite 2>&1 | grep -v Warning > "$OUT/mass_timeline_$i.txt"
+        --output-dir /tmp/physgs_tl --outputs mass --overwrite ${TIMELINE_ARGS:-} 2>&1 | grep -v Warning > "$OUT/mass_timeline_$i.txt"
       grep -A200 "^import torch" "$OUT/mass_timeline_$i.txt" | head -70
     done
     if [ $(elapsed) -lt $((LIMIT - 40)) ]; then
