@@ -288,7 +288,7 @@ class GeometryCache:
 
 
 def cache_for_run(run: Any, geometry: Any, device: str, load_args: dict[str, Any]) -> GeometryCache | None:
-    """The cache entry of a loaded run (:class:`.command.LoadedRun` with its ``source``) for these settings;
+    """The cache entry of a loaded run (:class:`.run.LoadedRun` with its ``source``) for these settings;
     None when the run has no source files (an in-memory run)."""
     src = getattr(run, "source", None)
     if src is None:

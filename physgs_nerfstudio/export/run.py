@@ -97,7 +97,7 @@ def run_from_pipeline(
     scale: float | None = None,
     known_length: Sequence[float] | None = None,
     env: str | None = None,
-    max_view_width: int | None = 640,
+    max_view_width: int | None = MAX_VIEW_WIDTH,
 ) -> LoadedRun:
     """:func:`load_run` on a pipeline already loaded (e.g. the viewer's); ``run_dir``: the folder of its
     config.yml and dataparser_transforms.json."""
