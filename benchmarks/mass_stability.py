@@ -43,11 +43,11 @@ SETTINGS: dict[str, list[str]] = {
 }
 
 
-def export(run: Path, name: str, flags: list[str]) -> dict:
+def export(run: Path, name: str, flags: list[str], base: list[str] = (), tag: str = "") -> dict:
     cfg = next((run / "runs").glob("**/config.yml"))
-    out = run / "stability" / name.replace("=", "_").replace("+", "p")
+    out = run / f"stability{tag}" / name.replace("=", "_").replace("+", "p")
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "export", "--load-config", str(cfg), "--output-dir",
-           str(out), "--outputs", "mass", "--overwrite", *flags]  # fmt: skip
+           str(out), "--outputs", "mass", "--overwrite", *base, *flags]  # fmt: skip
     proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
     if proc.returncode != 0:
         return {"setting": name, "error": (proc.stderr.strip().splitlines() or ["failed"])[-1]}
@@ -60,10 +60,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", type=Path, help="physgs demo output folders")
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--base-args", default="", help="extra `physgs export` flags for every setting, one quoted "
+                    "string (a geometry option's stability under another default); results then go to "
+                    "stability_NAME/ and mass_stability_NAME.json")
+    ap.add_argument("--name", default="", help="NAME for --base-args")
     a = ap.parse_args()
+    base, tag = a.base_args.split(), f"_{a.name}" if a.name else ""
     for run in a.runs:
         with ThreadPoolExecutor(max(1, a.jobs)) as pool:
-            rows = list(pool.map(lambda kv: export(run, *kv), SETTINGS.items()))
+            rows = list(pool.map(lambda kv: export(run, *kv, base=base, tag=tag), SETTINGS.items()))
         base = rows[0].get("mean_kg")
         for r in rows:
             if base and "mean_kg" in r:
@@ -72,7 +77,7 @@ def main() -> None:
         ok = [abs(r["relative_to_default"] - 1) for r in rows if "relative_to_default" in r]
         worst = max(ok) if ok else float("nan")
         print(f"{run.name}: largest change {worst:.1%} over {len(ok) - 1} settings (target <= 20%)")
-        (run / "mass_stability.json").write_text(json.dumps({"rows": rows, "largest_change": worst}, indent=2))
+        (run / f"mass_stability{tag}.json").write_text(json.dumps({"rows": rows, "largest_change": worst}, indent=2))
 
 
 if __name__ == "__main__":
