@@ -67,9 +67,15 @@ def voxel_truth(vx: dict, transform: np.ndarray, scale: float, parts: list, prof
         rows.append(row)
     false = flat_occ & ~in_any
     export_parts = vx["meta"].get("parts", [])
+    false_by_part = {}
+    for k in sorted(set(flat_pid[false].tolist())):
+        m = false & (flat_pid == k)
+        false_by_part[int(k)] = {"voxels": int(m.sum()),
+                                 "world_z_m_5_50_95": [round(float(z), 4) for z in np.percentile(world[m, 2], [5, 50, 95])]}
     return {
         "voxel_size_m": h * mpu, "solid_m3": float(flat_occ.sum() * cell), "parts": rows,
         "false_solid_m3": float(false.sum() * cell), "false_share": float(false.sum() / max(int(flat_occ.sum()), 1)),
+        "false_by_export_part": false_by_part,
         "export_parts": [{"voxels": int((pid == i).sum()), "p_hollow": q.get("p_hollow"), "thickness_m": q.get("thickness_m")}
                          for i, q in enumerate(export_parts)],
     }  # fmt: skip
@@ -106,6 +112,8 @@ def main() -> None:
             print(f"    kept along local axis {ax}: {prof}")
     for i, q in enumerate(res["export_parts"]):
         print(f"  export part {i}: {q}")
+    for k, f in res["false_by_export_part"].items():
+        print(f"  false solid in export part {k}: {f['voxels']} voxels, world height 5/50/95%: {f['world_z_m_5_50_95']} m")
 
 
 if __name__ == "__main__":
