@@ -14,6 +14,7 @@ import argparse
 import json
 import subprocess
 import sys
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -43,11 +44,11 @@ SETTINGS: dict[str, list[str]] = {
 }
 
 
-def export(run: Path, name: str, flags: list[str], base: list[str] = (), tag: str = "") -> dict:
+def export(run: Path, name: str, flags: list[str], extra: Sequence[str] = (), tag: str = "") -> dict:
     cfg = next((run / "runs").glob("**/config.yml"))
     out = run / f"stability{tag}" / name.replace("=", "_").replace("+", "p")
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "export", "--load-config", str(cfg), "--output-dir",
-           str(out), "--outputs", "mass", "--overwrite", *base, *flags]  # fmt: skip
+           str(out), "--outputs", "mass", "--overwrite", *extra, *flags]  # fmt: skip
     proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
     if proc.returncode != 0:
         return {"setting": name, "error": (proc.stderr.strip().splitlines() or ["failed"])[-1]}
@@ -65,10 +66,11 @@ def main() -> None:
                     "stability_NAME/ and mass_stability_NAME.json")
     ap.add_argument("--name", default="", help="NAME for --base-args")
     a = ap.parse_args()
-    base, tag = a.base_args.split(), f"_{a.name}" if a.name else ""
+    extra, tag = a.base_args.split(), f"_{a.name}" if a.name else ""
     for run in a.runs:
         with ThreadPoolExecutor(max(1, a.jobs)) as pool:
-            rows = list(pool.map(lambda kv: export(run, *kv, base=base, tag=tag), SETTINGS.items()))
+            rows = list(pool.map(export, [run] * len(SETTINGS), SETTINGS, SETTINGS.values(), [extra] * len(SETTINGS),
+                                 [tag] * len(SETTINGS)))
         base = rows[0].get("mean_kg")
         for r in rows:
             if base and "mean_kg" in r:
