@@ -13,7 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
-from physgs_nerfstudio.geometry.extent import support_directions, support_excess, within_support
+from physgs_nerfstudio.geometry.extent import support_directions, support_excess, support_heights, within_support
+from physgs_nerfstudio.render.projection import quat_to_rotmat
 from physgs_nerfstudio.geometry.grid import VoxelGrid
 from physgs_nerfstudio.geometry.parts import concavities, part_areas
 
@@ -100,6 +101,51 @@ def test_within_support_cuts_the_unseen_slab_under_an_object():
     box = carved & (x[..., 2] > 0)
     assert kept[box].all()
     assert not kept[carved & (x[..., 2] < -0.5 * grid.voxel_size - 1e-9)].any()
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), skip=st.integers(0, 12), chunk=st.sampled_from([7, 64, 1 << 16]),
+       ellipsoids=st.booleans())
+def test_support_heights_skip_is_the_kth_largest_by_sorting(seed, skip, chunk, ellipsoids):
+    """h(u) with ``skip`` = the (skip + 1)-th largest support value of the Gaussians along u (all but one when there
+    are fewer), whatever the chunking: against a sort of the per-Gaussian values computed from the covariances."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 40))
+    mu = rng.normal(size=(n, 3))
+    s = rng.uniform(0.01, 0.3, size=(n, 3))
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    d = support_directions(20)
+    kw = {"scales": torch.from_numpy(s), "quats": torch.from_numpy(q)} if ellipsoids else {}
+    got = support_heights(torch.from_numpy(mu), d, chunk=chunk, skip=skip, **kw).numpy()
+    vals = mu @ d.numpy().T  # [n, D]
+    if ellipsoids:
+        R = quat_to_rotmat(torch.from_numpy(q)).numpy()
+        cov = np.einsum("nij,nj,nkj->nik", R, s**2, R)
+        vals = vals + np.sqrt(np.einsum("di,nij,dj->nd", d.numpy(), cov, d.numpy()))
+    want = -np.sort(-vals, axis=0)[min(skip, n - 1)]
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+
+
+def test_within_support_skip_ignores_a_few_strays_under_the_object():
+    """Five stray means 0.2 under a box's bottom face: with every Gaussian counted the carved slab under the box is
+    kept down to them; with the five skipped it is cut at the face, and the box is kept either way."""
+    rng = np.random.default_rng(1)
+    u = rng.uniform(size=(2000, 2))
+    pts = np.concatenate([np.insert(u, axis, v, axis=1) for axis in range(3) for v in (0.0, 1.0)])
+    strays = np.column_stack([rng.uniform(0.2, 0.8, 5), rng.uniform(0.2, 0.8, 5), np.full(5, -0.2)])
+    pts = torch.from_numpy(np.concatenate([pts, strays])).float()
+    grid = VoxelGrid.from_bounds(torch.tensor([-0.3, -0.3, -0.3]), torch.tensor([1.3, 1.3, 1.3]), 32)
+    ijk = np.argwhere(np.ones(grid.shape, bool))
+    x = grid.centres(torch.from_numpy(ijk)).double().numpy().reshape(*grid.shape, 3)
+    carved = ((x[..., 0] > 0) & (x[..., 0] < 1) & (x[..., 1] > 0) & (x[..., 1] < 1) & (x[..., 2] < 1))
+    box = carved & (x[..., 2] > 0)
+    slab = carved & (x[..., 2] < -0.5 * grid.voxel_size - 1e-9) & (x[..., 2] > -0.15)
+    every = within_support(grid, pts, carved, pad_voxels=0.5)
+    robust = within_support(grid, pts, carved, pad_voxels=0.5, skip=5)
+    assert every[box].all() and robust[box].all()
+    assert every[slab].mean() > 0.5
+    assert not robust[slab].any()
 
 
 def _cup(n: int, r_out: float, r_in: float, h: float, bottom: float) -> tuple[VoxelGrid, np.ndarray, np.ndarray]:

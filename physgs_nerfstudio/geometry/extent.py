@@ -43,31 +43,38 @@ def support_directions(n_fibonacci: int = 100) -> Float[Tensor, "D 3"]:
 
 
 def support_heights(means: Float[Tensor, "N 3"], d: Float[Tensor, "D 3"], scales: Tensor | None = None,
-                    quats: Tensor | None = None, chunk: int = 1 << 16) -> Float[Tensor, "D"]:  # fmt: skip
+                    quats: Tensor | None = None, chunk: int = 1 << 16, skip: int = 0) -> Float[Tensor, "D"]:  # fmt: skip
     """h(u) = max_i u . mu_i (+ sigma_i(u), the Gaussian's standard deviation along u, when ``scales`` [N, 3] and
-    ``quats`` [N, 4] are given: the support function of the Gaussians' one-sigma ellipsoids), float64."""
+    ``quats`` [N, 4] are given: the support function of the Gaussians' one-sigma ellipsoids), float64. ``skip``: the
+    (skip + 1)-th largest instead of the largest (the ``skip`` outermost Gaussians along u do not count; all but one
+    when there are no more), so that a few strays beyond the surface do not set the object's extent."""
     d = d.double()
-    h = torch.full((len(d),), -torch.inf, dtype=torch.float64, device=means.device)
+    k = max(0, int(skip)) + 1
+    top = torch.full((0, len(d)), -torch.inf, dtype=torch.float64, device=means.device)
     for i in range(0, len(means), chunk):
         hi = means[i:i + chunk].double() @ d.T
         if scales is not None and quats is not None:
             R = quat_to_rotmat(quats[i:i + chunk].double())  # columns: the Gaussian's axes
             along = torch.einsum("nji,dj->nid", R, d)  # [n, 3, D]: u on each axis
             hi = hi + (along * scales[i:i + chunk].double()[:, :, None]).norm(dim=1)
-        h = torch.maximum(h, hi.amax(0))
-    return h
+        both = torch.cat([top, hi])
+        top = both.topk(min(k, len(both)), dim=0).values if k > 1 else both.amax(0, keepdim=True)
+    if not len(top):
+        return torch.full((len(d),), -torch.inf, dtype=torch.float64, device=means.device)
+    return top[-1]
 
 
 @torch.no_grad()
 def support_excess(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.ndarray, n_fibonacci: int = 100,
-                   scales: Tensor | None = None, quats: Tensor | None = None) -> np.ndarray:  # fmt: skip
+                   scales: Tensor | None = None, quats: Tensor | None = None, skip: int = 0) -> np.ndarray:  # fmt: skip
     """float64 [C]: for each of the ``candidates`` voxels (``np.argwhere`` order), how far its centre lies beyond
     the support polytope of ``means`` (of the Gaussians' one-sigma ellipsoids with ``scales`` and ``quats``), in
     voxels: ``max_u (u . x - h(u)) / voxel`` (<= 0 inside). A voxel lies within the polytope grown by ``pad``
-    voxels when its excess is at most ``pad``, so one call answers every pad. Computed on the means' device."""
+    voxels when its excess is at most ``pad``, so one call answers every pad. Computed on the means' device.
+    ``skip``: the polytope of all but the ``skip`` outermost Gaussians along each direction (:func:`support_heights`)."""
     idx = np.argwhere(candidates)
     d = support_directions(n_fibonacci).to(means.device)
-    h = support_heights(means, d, scales, quats)
+    h = support_heights(means, d, scales, quats, skip=skip)
     out = []
     for c in torch.from_numpy(idx).to(means.device).split(1 << 18):
         x = grid.centres(c).double().to(means.device)
@@ -76,14 +83,15 @@ def support_excess(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.
 
 
 def within_support(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.ndarray, pad_voxels: float = 1.0,
-                   n_fibonacci: int = 100, scales: Tensor | None = None, quats: Tensor | None = None) -> np.ndarray:  # fmt: skip
+                   n_fibonacci: int = 100, scales: Tensor | None = None, quats: Tensor | None = None,
+                   skip: int = 0) -> np.ndarray:  # fmt: skip
     """bool [X, Y, Z]: the ``candidates`` voxels whose centres lie inside the support polytope of ``means`` (of the
     Gaussians' one-sigma ellipsoids with ``scales`` and ``quats``) grown by ``pad_voxels`` voxels (module doc);
-    ``candidates`` itself when there are no means."""
+    ``candidates`` itself when there are no means; ``skip``: as in :func:`support_heights`."""
     if len(means) == 0 or not candidates.any():
         return candidates.copy()
     out = np.zeros_like(candidates)
     idx = np.argwhere(candidates)
-    k = support_excess(grid, means, candidates, n_fibonacci, scales, quats) <= pad_voxels
+    k = support_excess(grid, means, candidates, n_fibonacci, scales, quats, skip) <= pad_voxels
     out[tuple(idx[k].T)] = True
     return out

@@ -22,7 +22,7 @@ from ..render.backend import resolve_backend
 from ..render.projection import quat_to_rotmat
 from .capture import CaptureView
 
-__all__ = ["ViewRender", "depth_spread", "lift_masks", "ray_extent", "render_depth"]
+__all__ = ["ViewRender", "depth_spread", "lift_masks", "ray_extent", "render_depth", "surface_views"]
 
 logger = logging.getLogger(__name__)
 _T = TypeVar("_T")
@@ -153,6 +153,36 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
 
     for group in _view_groups(views, _views_per_call(backend, dev, means.shape[0])):
         out += _grouped(render, group)
+    return out
+
+
+@torch.no_grad()
+def surface_views(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], renders: Sequence[ViewRender],
+                  band: float, min_alpha: float = 0.5) -> Float[Tensor, " N"]:  # fmt: skip
+    """For each Gaussian, how many of ``views`` see its centre on their rendered surface: it projects into the image
+    on a pixel at least ``min_alpha`` opaque (nearest pixel), in front of the camera, and its camera depth lies at most
+    ``band`` (scene units) behind that pixel's rendered depth. A Gaussian under the surface that every view sees
+    (inside a solid, under a shell) scores 0, however its lifted labels came to it (a sliver of blending weight
+    through the surface in front of it counts a view in the lifting, :mod:`physgs_nerfstudio.nerfstudio.pipeline`)."""
+    out = torch.zeros(len(means), dtype=torch.float32, device=means.device)
+    if not len(means):
+        return out
+    x = means.float()
+    for v, r in zip(views, renders):
+        vm = v.viewmat.to(x)
+        K = v.K.to(x)
+        c = x @ vm[:3, :3].T + vm[:3, 3]
+        z = c[:, 2]
+        zs = z.clamp_min(1e-9)
+        u = K[0, 0] * c[:, 0] / zs + K[0, 2]
+        w = K[1, 1] * c[:, 1] / zs + K[1, 2]
+        H, W = r.alpha.shape
+        ok = (z > 0) & (u >= 0) & (u < W) & (w >= 0) & (w < H)
+        ui = u.floor().long().clamp(0, W - 1)
+        vi = w.floor().long().clamp(0, H - 1)
+        a = r.alpha.to(x.device)[vi, ui]
+        d = r.depth.to(x.device)[vi, ui].float()
+        out += (ok & (a >= min_alpha) & (z <= d + band)).float()
     return out
 
 

@@ -34,7 +34,7 @@ from .carve import (
 )
 from .errors import GeometryError
 from .extent import support_excess
-from .gaussians import ViewRender, render_depth
+from .gaussians import ViewRender, render_depth, surface_views
 from .grid import VoxelGrid
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .parts import (
@@ -90,6 +90,11 @@ class GeometryConfig:
     along each direction: a flat Gaussian on a face adds nothing across it, and on a curved surface sampled by a
     few Gaussians their extent spans the gaps between them) or only their means (inscribed in a curved surface
     between the means: a 4 cm rod at 8 mm voxels kept 0.81 of its volume)"""
+    extent_outlier_fraction: float = 0.0
+    """the polytope of all but this fraction of the object's Gaussians along each of its directions (the outermost
+    ones, :func:`.extent.support_heights`): a few strays under an object's unseen bottom face (a lamp's base, where
+    the lowest of 21,535 Gaussians lay 10 mm below it and the 50th 2.5 mm) otherwise set where its solid ends; 0 = every
+    Gaussian counts"""
     extent_variant_voxels: float | None = 1.0
     """the mass interval also samples the nominal carving cut to the polytope grown by this many more voxels: where
     the polytope ends the solid (an underside no view sees past), the surface is placed by the scatter of a few
@@ -128,6 +133,12 @@ class GeometryConfig:
     min_voxel_evidence: float = 0.5
     """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
     (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
+    evidence_surface_voxels: float | None = None
+    """a Gaussian gives its voxel material evidence (``min_voxel_evidence``) only where at least one view sees its
+    centre on the rendered surface, at most this many voxels behind the object's rendered depth
+    (:func:`.gaussians.surface_views`): Gaussians under the surface carry labels that a sliver of blending weight through
+    the surface in front of them gave them in the lifting (a shoe's sole under its upper took the upper's leather);
+    None = every labelled Gaussian counts"""
     interior_up_weight: float = 10.0
     """in the nearest-evidence rule of the solid's inside (:func:`.parts.voxel_mixture`), a vertical distance counts
     this many times a horizontal one, so that an inside voxel takes the material of the observed surface nearest at
@@ -155,6 +166,9 @@ class GeometryConfig:
     def __post_init__(self) -> None:
         if self.resolution < 8:
             raise ValueError(f"GeometryConfig.resolution must be >= 8, got {self.resolution}.")
+        if not 0.0 <= self.extent_outlier_fraction < 0.5:
+            raise ValueError("GeometryConfig.extent_outlier_fraction must be in [0, 0.5), got "
+                             f"{self.extent_outlier_fraction}.")
 
 
 @dataclass
@@ -309,7 +323,8 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
                     variants: list[tuple[str, CarveConfig]], sdf: list[torch.Tensor], device: Any,
                     means: torch.Tensor | None = None, extent_pad_voxels: float | None = None,
                     extent_variant_voxels: float | None = None, scales: torch.Tensor | None = None,
-                    quats: torch.Tensor | None = None) -> tuple[list[np.ndarray], np.ndarray]:  # fmt: skip
+                    quats: torch.Tensor | None = None, extent_skip: int = 0
+                    ) -> tuple[list[np.ndarray], np.ndarray]:  # fmt: skip
     """The solid of every variant, from one voting pass per distinct (mask margin, depth margin), cut to the
     support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
@@ -330,7 +345,8 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     candidates = np.logical_or.reduce(solids) | hull
     # how far beyond the polytope each candidate lies, once for both pads (no means: no cut)
     idx = tuple(np.argwhere(candidates).T)
-    excess = (support_excess(grid, means, candidates, scales=scales, quats=quats) if len(means) and len(idx[0])
+    excess = (support_excess(grid, means, candidates, scales=scales, quats=quats, skip=extent_skip)
+              if len(means) and len(idx[0])
               else np.full(len(idx[0]), -np.inf))  # fmt: skip
     inside = np.zeros_like(candidates)
     inside[idx] = excess <= extent_pad_voxels
@@ -458,6 +474,7 @@ def reconstruct_object(
     wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
     ext = {"scales": g.scales[selection.selected], "quats": g.quats[selection.selected]} \
         if cfg.extent_of == "ellipsoids" else {}
+    ext["extent_skip"] = int(cfg.extent_outlier_fraction * int(selection.selected.sum()))
     solids, hull = _carve_variants(grid, obj_views, renders, variants, sdf, device, g.means[selection.selected],
                                    cfg.extent_pad_voxels, wider, **ext)
     lo, hi = _solid_bounds(grid, np.logical_or.reduce(solids))
@@ -481,9 +498,12 @@ def reconstruct_object(
     sel = selection.selected
     labelled = getattr(g, "labelled", None)
     pi_sel = pi(sel) if callable(pi) else pi[sel]
-    mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi_sel,
-                            labelled[sel] if labelled is not None else None, min_evidence=cfg.min_voxel_evidence,
-                            up_weight=_up_weight(views, cfg.interior_up_weight))  # fmt: skip
+    observed = labelled[sel] if labelled is not None else None
+    if cfg.evidence_surface_voxels is not None:
+        on_surface = surface_views(g.means[sel], obj_views, renders, cfg.evidence_surface_voxels * grid.voxel_size) > 0
+        observed = on_surface.to(g.means.dtype) * (observed.reshape(-1) if observed is not None else 1.0)
+    mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi_sel, observed,
+                            min_evidence=cfg.min_voxel_evidence, up_weight=_up_weight(views, cfg.interior_up_weight))
     parts = part_labels(union, mixture, cfg.min_part_fraction)
     K = pi_sel.shape[1]
     mat_names = material_names if material_names is not None else [str(k) for k in range(K)]
@@ -523,7 +543,7 @@ def reconstruct_object(
         levels = material_quantiles(parts, mixture, P, pm)
     else:
         pooled, support = pooled_part_alpha(grid, parts, P, g.means[sel], g.opacities[sel], alpha[sel],
-                                            labelled[sel] if labelled is not None else None)
+                                            observed)
         has = support > 0
         if by_views and shares:
             fused, seen = fuse_part_materials(shares, observations, mat_names, P, a0, lam)
