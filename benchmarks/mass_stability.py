@@ -40,6 +40,10 @@ SETTINGS: dict[str, list[str]] = {
     "depth_consensus=0.35": ["--mass.geometry.carve.depth-consensus", "0.35"],
     "depth_consensus=0.65": ["--mass.geometry.carve.depth-consensus", "0.65"],
     "extent_pad_voxels=1": ["--mass.geometry.extent-pad-voxels", "1"],
+    "extent_outlier_fraction=0": ["--mass.geometry.extent-outlier-fraction", "0"],
+    "extent_outlier_fraction=0.003": ["--mass.geometry.extent-outlier-fraction", "0.003"],
+    "evidence_surface_voxels=0.5": ["--mass.geometry.evidence-surface-voxels", "0.5"],
+    "evidence_surface_voxels=2": ["--mass.geometry.evidence-surface-voxels", "2"],
     "no_variants": ["--mass.geometry.no-variants"],
 }
 

@@ -90,11 +90,12 @@ class GeometryConfig:
     along each direction: a flat Gaussian on a face adds nothing across it, and on a curved surface sampled by a
     few Gaussians their extent spans the gaps between them) or only their means (inscribed in a curved surface
     between the means: a 4 cm rod at 8 mm voxels kept 0.81 of its volume)"""
-    extent_outlier_fraction: float = 0.0
+    extent_outlier_fraction: float = 0.001
     """the polytope of all but this fraction of the object's Gaussians along each of its directions (the outermost
-    ones, :func:`.extent.support_heights`): a few strays under an object's unseen bottom face (a lamp's base, where
-    the lowest of 21,535 Gaussians lay 10 mm below it and the 50th 2.5 mm) otherwise set where its solid ends; 0 = every
-    Gaussian counts"""
+    ones, :func:`.extent.support_heights`): a few strays under an object's unseen bottom face otherwise set where its
+    solid ends (the GPU lamp at seed 5757: the lowest of 21,535 Gaussians near it 10 mm under its base, the 20th 4.4
+    mm, the 50th 2.5 mm, and its steel base carved 1.3x its volume). 0 = every Gaussian counts; documented range
+    0-0.003 (benchmarks/README.md, session 21)"""
     extent_variant_voxels: float | None = 1.0
     """the mass interval also samples the nominal carving cut to the polytope grown by this many more voxels: where
     the polytope ends the solid (an underside no view sees past), the surface is placed by the scatter of a few
@@ -133,12 +134,14 @@ class GeometryConfig:
     min_voxel_evidence: float = 0.5
     """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
     (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
-    evidence_surface_voxels: float | None = None
+    evidence_surface_voxels: float | None = 1.0
     """a Gaussian gives its voxel material evidence (``min_voxel_evidence``) only where at least one view sees its
     centre on the rendered surface, at most this many voxels behind the object's rendered depth
-    (:func:`.gaussians.surface_views`): Gaussians under the surface carry labels that a sliver of blending weight through
-    the surface in front of them gave them in the lifting (a shoe's sole under its upper took the upper's leather);
-    None = every labelled Gaussian counts"""
+    (:func:`.gaussians.surface_views`). Gaussians under the surface carry the labels that a sliver of blending weight
+    through the surface in front of them gave them in the lifting (each view that sees a Gaussian at all counts as one
+    observation, :mod:`physgs_nerfstudio.nerfstudio.pipeline`): the GPU shoe's rubber sole, under its leather upper,
+    held leather evidence 5-8 mm below the seam, and its top third was weighed as the upper's hollow inside. None =
+    every labelled Gaussian counts; documented range 0.5-2"""
     interior_up_weight: float = 10.0
     """in the nearest-evidence rule of the solid's inside (:func:`.parts.voxel_mixture`), a vertical distance counts
     this many times a horizontal one, so that an inside voxel takes the material of the observed surface nearest at
