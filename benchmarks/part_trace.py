@@ -95,7 +95,7 @@ def _read(a: argparse.Namespace) -> None:
     tr = json.loads(a.transforms.read_text()) if a.transforms else json.loads(
         (a.read / "export" / "dataparser_transforms.json").read_text())  # fmt: skip
     T, s = np.asarray(tr["transform"], float), float(tr["scale"])
-    legend = vx["meta"].get("legend")
+    legend = ", ".join(f"{m['index']} {m['name']}" for m in vx["meta"].get("legend", []))
     union = t["union"]
     shape = union.shape
     centres = t["origin"] + (np.indices(shape).reshape(3, -1).T + 0.5) * float(t["voxel_size"])
