@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -68,3 +69,15 @@ def test_surface_views_sees_a_solid_boxs_outer_layer_and_not_its_inside():
     depth_in = 0.3 - means.abs().amax(1)  # distance inside the box's faces: 0.05 on the outer layer
     assert bool((seen[depth_in < 0.06] >= 1).all())
     assert bool((depth_in > 0.14).sum() == 64) and not bool((seen[depth_in > 0.14] > 0).any())
+
+
+def test_geometry_config_rejects_out_of_range_stray_fraction_and_surface_band():
+
+    from physgs_nerfstudio.geometry import GeometryConfig
+
+    for bad in (-0.1, 0.5, 1.0):
+        with pytest.raises(ValueError, match="extent_outlier_fraction"):
+            GeometryConfig(extent_outlier_fraction=bad)
+    with pytest.raises(ValueError, match="evidence_surface_voxels"):
+        GeometryConfig(evidence_surface_voxels=-1.0)
+    assert GeometryConfig(evidence_surface_voxels=None).evidence_surface_voxels is None

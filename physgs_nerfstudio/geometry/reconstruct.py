@@ -172,6 +172,9 @@ class GeometryConfig:
         if not 0.0 <= self.extent_outlier_fraction < 0.5:
             raise ValueError("GeometryConfig.extent_outlier_fraction must be in [0, 0.5), got "
                              f"{self.extent_outlier_fraction}.")
+        if self.evidence_surface_voxels is not None and not self.evidence_surface_voxels >= 0:
+            raise ValueError("GeometryConfig.evidence_surface_voxels must be >= 0 (or None: every labelled Gaussian "
+                             f"counts), got {self.evidence_surface_voxels}.")
 
 
 @dataclass
