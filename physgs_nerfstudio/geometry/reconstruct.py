@@ -140,7 +140,7 @@ class GeometryConfig:
     (:func:`.gaussians.surface_views`). Gaussians under the surface carry the labels that a sliver of blending weight
     through the surface in front of them gave them in the lifting (each view that sees a Gaussian at all counts as one
     observation, :mod:`physgs_nerfstudio.nerfstudio.pipeline`): the GPU shoe's rubber sole, under its leather upper,
-    held leather evidence 5-8 mm below the seam, and its top third was weighed as the upper's hollow inside. None =
+    held leather evidence 5-8 mm below the seam, and 22% of its voxels were weighed as the upper's hollow inside. None =
     every labelled Gaussian counts; documented range 0.5-2"""
     interior_up_weight: float = 10.0
     """in the nearest-evidence rule of the solid's inside (:func:`.parts.voxel_mixture`), a vertical distance counts
