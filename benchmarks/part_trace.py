@@ -49,14 +49,18 @@ def _record(out: Path) -> None:
         conf = opacities.double().reshape(-1)
         if observed is not None:
             conf = conf * observed.double().reshape(-1).clamp(0.0, 1.0)
-        strength = np.bincount(flat, conf[ok].cpu().numpy(), minlength=grid.num_voxels).reshape(grid.shape)
-        own = np.zeros((grid.num_voxels, pi.shape[1]))
-        np.add.at(own, flat, (conf[:, None] * pi.double())[ok].cpu().numpy())
+        occ, row = np.unique(flat, return_inverse=True)  # the occupied voxels, as voxel_mixture sums them
+        strength = np.zeros(grid.num_voxels)
+        strength[occ] = np.bincount(row, conf[ok].cpu().numpy(), minlength=len(occ))
+        own = np.zeros((len(occ), pi.shape[1]))
+        np.add.at(own, row, (conf[:, None] * pi.double())[ok].cpu().numpy())
+        material = np.full(grid.num_voxels, -1, np.int16)
+        material[occ] = np.argmax(own, -1)
+        evidence = (strength >= min_evidence).reshape(grid.shape)
         rec.update(origin=np.asarray(grid.origin, float), voxel_size=np.float64(grid.voxel_size),
-                   union=solid.astype(bool), evidence=strength >= min_evidence, up_weight=np.float64(up_weight),
+                   union=solid.astype(bool), evidence=evidence, up_weight=np.float64(up_weight),
                    dominant=np.where(solid, np.argmax(mix, -1), -1).astype(np.int16),
-                   evidence_material=np.where(strength >= min_evidence, np.argmax(own.reshape(*grid.shape, -1), -1),
-                                              -1).astype(np.int16))  # fmt: skip
+                   evidence_material=np.where(evidence, material.reshape(grid.shape), -1).astype(np.int16))
         save()
         return mix
 

@@ -480,7 +480,7 @@ def reconstruct_object(
     wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
     ext = {"scales": g.scales[selection.selected], "quats": g.quats[selection.selected]} \
         if cfg.extent_of == "ellipsoids" else {}
-    ext["extent_skip"] = int(cfg.extent_outlier_fraction * int(selection.selected.sum()))
+    ext["extent_skip"] = int(cfg.extent_outlier_fraction * selection.num_selected)
     solids, hull = _carve_variants(grid, obj_views, renders, variants, sdf, device, g.means[selection.selected],
                                    cfg.extent_pad_voxels, wider, **ext)
     lo, hi = _solid_bounds(grid, np.logical_or.reduce(solids))
