@@ -46,6 +46,16 @@
   :func:`concavities`) but not the ordinary outside counts 0: it is the inner face of a wall carved thicker than
   a sheet, whose outer face is counted (a pan's inside, a vase's at low resolution: both faces counted in full
   doubled the wall), or the top of the fill that no view saw past (inside a cup below its rim), which is no wall.
+* **Wall curvature per part** (:func:`face_mean_curvature`). A hollow part's wall lies *inside* its fully counted
+  faces: a wall of thickness ``t`` under a face of area ``dA`` and mean curvature ``H`` holds
+  ``dA (t - H t^2 + K t^3 / 3)``, less than ``dA t`` on a convex face (a bottle's glass 3 mm thick inside a 35 mm
+  radius: 4% less; a 20 mm tube's 2 mm wall: 10% less). Each part records the area of its fully counted faces and
+  their integrated mean curvature ``M = sum |e| theta_e / 2`` over the mesh's edges (dihedral angles, each edge's
+  share split between its two faces), which the mass turns into the wall's volume
+  (:func:`physgs_nerfstudio.mass.integrate.wall_volume`). On voxelised shapes (smoothed as above) ``M`` is within
+  1% of a cylinder's, 3% of a box's and 5-6% of a sphere's (whose area is 4-10% high too, so that ``M / A``
+  is within 1-3%). Sheet faces need no term: the two sides of a wall enclose its middle surface, their half areas
+  add up to it, and the middle surface times ``t`` is the wall's volume.
 """
 
 from __future__ import annotations
@@ -60,7 +70,7 @@ from torch import Tensor
 from .carve import bounding_box
 from .grid import VoxelGrid
 
-__all__ = ["PartGeometry", "concavities", "material_quantiles", "part_areas", "part_labels", "pooled_part_alpha",
+__all__ = ["PartGeometry", "concavities", "face_mean_curvature", "material_quantiles", "part_areas", "part_labels", "pooled_part_alpha",
            "sum_rows", "voxel_mixture"]
 
 
@@ -191,6 +201,46 @@ class PartGeometry:
     surface: np.ndarray
     """[P] whole surface area per part (scene units^2): every face counted once, the volume that moving the
     part's surface out by one unit of length adds (the mass's surface offset, :mod:`physgs_nerfstudio.mass`)"""
+    full_area: np.ndarray | None = None
+    """[P] area of the fully counted faces per part (scene units^2): those whose wall lies inside them"""
+    curvature: np.ndarray | None = None
+    """[P] integrated mean curvature of those faces per part (scene units; module doc, "Wall curvature")"""
+
+
+def face_mean_curvature(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """float64 [T]: each triangle's share of the mesh's integrated mean curvature ``sum_e |e| theta_e / 2``
+    (``theta_e``: the signed angle between the normals of the two faces at edge ``e``, positive where the surface
+    is convex; each edge's term split equally between its two faces). Edges not shared by exactly two faces give
+    nothing. ``faces`` are wound as scikit-image's marching cubes winds them around a field that is larger inside
+    (its winding's normals point inwards). Units: those of ``verts``."""
+    verts = np.asarray(verts, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    T = len(faces)
+    out = np.zeros(T)
+    if T == 0:
+        return out
+    tri = verts[faces]
+    n = -np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # outward for this winding
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    a = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]])  # directed edges a -> b of face fid
+    b = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
+    fid = np.tile(np.arange(T), 3)
+    key = np.minimum(a, b) * len(verts) + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    start = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+    count = np.diff(np.r_[start, len(ks)])
+    first = start[count == 2]
+    i, j = order[first], order[first + 1]
+    e = verts[b[i]] - verts[a[i]]
+    length = np.linalg.norm(e, axis=1)
+    n1, n2 = n[fid[i]], n[fid[j]]
+    sin = -np.einsum("ij,ij->i", np.cross(n1, n2), e) / np.maximum(length, 1e-300)
+    theta = np.arctan2(sin, np.einsum("ij,ij->i", n1, n2))
+    half = 0.25 * length * theta  # |e| theta / 2, half of it to each face
+    out += np.bincount(fid[i], half, minlength=T)
+    out += np.bincount(fid[j], half, minlength=T)
+    return out
 
 
 def concavities(hull: np.ndarray, solid: np.ndarray, depth_voxels: float = 2.0) -> np.ndarray:
@@ -230,7 +280,8 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     h = grid.voxel_size
     vol = np.bincount(parts[solid], minlength=num_parts).astype(np.float64) * h**3
     if not solid.any():
-        return PartGeometry(vol, np.zeros(num_parts), np.zeros(num_parts), np.zeros(num_parts))
+        zero = np.zeros(num_parts)
+        return PartGeometry(vol, zero, zero.copy(), zero.copy(), zero.copy(), zero.copy())
     m = int(np.floor(sheet_voxels)) + 2  # empty voxels kept around the solid: the sheet test's ball fits inside
     if min_plate > 0:
         m = max(m, _plate_window(sheet_voxels))
@@ -262,10 +313,13 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
         factor[~sheet & inner[nv] & ~outer[nv]] = 0.0
     ok = pid >= 0
     # per part, the faces' areas added in their order (np.add.at's sums, bit for bit)
-    area, sheet_area, total_area = (np.bincount(pid[ok], x[ok], minlength=num_parts).astype(np.float64, copy=False)
-                                    for x in (fa * factor, fa * sheet, fa))  # fmt: skip
+    full = factor == 1.0
+    curv = face_mean_curvature(verts, faces) * h
+    area, sheet_area, total_area, full_area, curvature = (
+        np.bincount(pid[ok], x[ok], minlength=num_parts).astype(np.float64, copy=False)
+        for x in (fa * factor, fa * sheet, fa, fa * full, curv * full))  # fmt: skip
     share = np.divide(sheet_area, total_area, out=np.zeros_like(area), where=total_area > 0)
-    return PartGeometry(vol, area, share, total_area)
+    return PartGeometry(vol, area, share, total_area, full_area, curvature)
 
 
 def _nearest_solid(solid: np.ndarray, at: np.ndarray, radius: int = 3) -> tuple[np.ndarray, ...]:

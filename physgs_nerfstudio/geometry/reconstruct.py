@@ -208,6 +208,12 @@ class ObjectGeometry:
     (:func:`physgs_nerfstudio.geometry.parts.material_quantiles`); None = each part one material"""
     pixel_voxels: float = 1.0
     """the views' median pixel footprint at the grid's centre, in voxels (the masks' resolution)"""
+    full_areas: np.ndarray | None = None
+    """[G, P] area of the fully counted wall faces per variant and part, scene units^2 (the rest of ``areas`` is
+    sheet faces at half weight)"""
+    curvatures: np.ndarray | None = None
+    """[G, P] integrated mean curvature of those faces, scene units (:mod:`physgs_nerfstudio.geometry.parts`,
+    "Wall curvature"); None: walls of area x thickness"""
 
     @property
     def num_parts(self) -> int:
@@ -583,5 +589,6 @@ def reconstruct_object(
         volumes=np.stack([gm.volume for gm in geos]), areas=np.stack([gm.area for gm in geos]),
         sheet_share=geos[0].sheet_share, structure=structure, selection=selection, views_used=len(views),
         mask_sources=sources, material_levels=levels, surface_areas=np.stack([gm.surface for gm in geos]),
-        pixel_voxels=pixel_voxels,
+        pixel_voxels=pixel_voxels, full_areas=np.stack([gm.full_area for gm in geos]),
+        curvatures=np.stack([gm.curvature for gm in geos]),
     )  # fmt: skip

@@ -24,7 +24,10 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   demo's settings, 0.67 on 60-view GPU runs). It is off by default because of what it costs (benchmarks/README.md,
   "The surface offset"): at 0.47 the demo's intervals cover the truth more often but are about twice as wide, and
   on a thin part carved 2-3 resolution units thick (a table's top) they reach from near zero to 1.6-1.9x.
-* Part mass: ``rho x V_p`` (solid) or ``rho x min(V_p, A_p t_p)`` (hollow); the object's mass is the sum.
+* Part mass: ``rho x V_p`` (solid) or ``rho x min(V_p, W_p(t_p))`` (hollow); the object's mass is the sum. The
+  wall's volume ``W_p`` (:func:`wall_volume`) is ``A_p t_p`` where the faces are sheets (both sides of the wall
+  reconstructed: their half areas add up to its middle surface) and shrinks with the mean curvature where the wall
+  lies inside a fully counted face (a closed bottle's glass, a tube's wall; ``wall_curvature``).
 
 The reported mean, median and central ``level`` interval all come from these same samples.
 """
@@ -40,7 +43,7 @@ import torch
 
 from ..geometry import GeometryConfig, ObjectGeometry
 
-__all__ = ["MassConfig", "MassReport", "MaterialMass", "integrate_mass"]
+__all__ = ["MassConfig", "MassReport", "MaterialMass", "integrate_mass", "wall_volume"]
 
 
 @dataclass
@@ -56,6 +59,9 @@ class MassConfig:
     """central interval probability"""
     n_samples: int = 4000
     seed: int = 0
+    wall_curvature: bool = True
+    """a hollow part's wall inside a curved face holds less than area x thickness (:func:`wall_volume`); False:
+    area x thickness everywhere"""
     surface_offset_voxels: float = 0.0
     """spread (one standard deviation) of the carved surface's offset, in units of the carving's resolution (the
     larger of the voxel and the pixel footprint), one draw per sample shared by every part (module doc, "Surface
@@ -141,6 +147,22 @@ def _density_draws(pf: Any, cfg: MassConfig, rng: np.random.Generator) -> np.nda
     return np.clip(x, 0.0, None)
 
 
+def wall_volume(area: np.ndarray, full_area: np.ndarray, curvature: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Volume of a wall of thickness ``t`` (arrays broadcast; any consistent length unit). ``area``: the part's wall
+    area (sheet faces at half weight); ``full_area`` of it lies on fully counted faces, whose wall lies inside them,
+    with integrated mean curvature ``curvature`` (:mod:`physgs_nerfstudio.geometry.parts`). Under those faces the
+    area at depth ``s`` is taken as ``A (1 - s / R)^2`` with ``R = A / M``, which gives ``A t - M t^2 + ...``, the
+    first two terms of the wall's exact volume for any surface, and is exact for a sphere:
+    ``A t (1 - x + x^2 / 3)`` with ``x = t M / A``, and ``A^2 / (3 M)`` (the whole inside) once ``x >= 1``. Where
+    ``M <= 0`` (a concave face) the wall holds more than ``A t``. The rest of the area holds ``area x t``."""
+    area, full_area, curvature, t = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64)
+                                                          for v in (area, full_area, curvature, t)))  # fmt: skip
+    full = np.clip(full_area, 0.0, area)
+    x = np.divide(t * curvature, full, out=np.zeros_like(t), where=full > 0)
+    g = np.where(x <= 1.0, 1.0 - x + x * x / 3.0, 1.0 / (3.0 * np.maximum(x, 1.0)))
+    return (area - full) * t + full * t * g
+
+
 def _structure_draws(geo: ObjectGeometry, cfg: MassConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """(hollow bool [S, P], thickness metres [S, P])."""
     S, P = cfg.n_samples, geo.num_parts
@@ -189,7 +211,11 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
         unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)  # the carving's resolution, scene units
         d = cfg.surface_offset_voxels * unit * rng.standard_normal(S)
         V_solid = np.maximum(geo.volumes[gi] + geo.surface_areas[gi] * d[:, None], 0.0) * mpu**3
-    vol = np.where(hollow, np.minimum(V, A * thick), V_solid)
+    if cfg.wall_curvature and geo.curvatures is not None and geo.full_areas is not None:
+        wall = wall_volume(A, geo.full_areas[gi] * mpu**2, geo.curvatures[gi] * mpu, thick)
+    else:
+        wall = A * thick
+    vol = np.where(hollow, np.minimum(V, wall), V_solid)
     m_pk = share * rho[:, None, :] * vol[:, :, None]  # [S, P, K]
     m = m_pk.sum(-1)  # [S, P]
     total = m.sum(1)
@@ -226,6 +252,7 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
                                   if geo.part_mixture[p, i] > 1e-3},
                       "volume_m3": float(Vn[p]), "volume_interval_m3": q(V_solid[:, p]), "area_m2": float(An[p]),
                       "surface_area_m2": float(Sn[p]),
+                      "wall_mean_curvature_per_m": _mean_curvature(geo, p, mpu),
                       "sheet_share": float(geo.sheet_share[p]), "structure": s,
                       "mass_mean_kg": float(m[:, p].mean()), "mass_interval_kg": q(m[:, p])})  # fmt: skip
     info = {**geo.summary(), "voxel_size_m": geo.grid.voxel_size * mpu, "structure_mode": cfg.structure,
@@ -239,6 +266,13 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
         metres_per_unit=mpu, scale_source=pf.scale_source, simulated=pf.simulated, geometry=info, parts=parts,
         samples=total if keep_samples else None,
     )  # fmt: skip
+
+
+def _mean_curvature(geo: ObjectGeometry, p: int, mpu: float) -> float | None:
+    """Part ``p``'s mean curvature over its fully counted faces (1/m, nominal solid); None where it has none."""
+    if geo.curvatures is None or geo.full_areas is None or geo.full_areas[0, p] <= 0:
+        return None
+    return float(geo.curvatures[0, p] / geo.full_areas[0, p] / mpu)
 
 
 def library_thickness(pf: Any) -> list[float | None]:
