@@ -207,6 +207,15 @@ class PartGeometry:
     """[P] integrated mean curvature of those faces per part (scene units; module doc, "Wall curvature")"""
 
 
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of [N, 3] arrays (np.cross, about 3x faster on many rows)."""
+    out = np.empty(np.broadcast_shapes(u.shape, v.shape))
+    out[:, 0] = u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1]
+    out[:, 1] = u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2]
+    out[:, 2] = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    return out
+
+
 def face_mean_curvature(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """float64 [T]: each triangle's share of the mesh's integrated mean curvature ``sum_e |e| theta_e / 2``
     (``theta_e``: the signed angle between the normals of the two faces at edge ``e``, positive where the surface
@@ -220,8 +229,8 @@ def face_mean_curvature(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     if T == 0:
         return out
     tri = verts[faces]
-    n = -np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # outward for this winding
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    n = _cross(tri[:, 2] - tri[:, 0], tri[:, 1] - tri[:, 0])  # outward for this winding
+    n /= np.maximum(np.sqrt(np.einsum("ij,ij->i", n, n)), 1e-300)[:, None]
     a = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]])  # directed edges a -> b of face fid
     b = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
     fid = np.tile(np.arange(T), 3)
@@ -233,9 +242,9 @@ def face_mean_curvature(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     first = start[count == 2]
     i, j = order[first], order[first + 1]
     e = verts[b[i]] - verts[a[i]]
-    length = np.linalg.norm(e, axis=1)
+    length = np.sqrt(np.einsum("ij,ij->i", e, e))
     n1, n2 = n[fid[i]], n[fid[j]]
-    sin = -np.einsum("ij,ij->i", np.cross(n1, n2), e) / np.maximum(length, 1e-300)
+    sin = np.einsum("ij,ij->i", _cross(n2, n1), e) / np.maximum(length, 1e-300)
     theta = np.arctan2(sin, np.einsum("ij,ij->i", n1, n2))
     half = 0.25 * length * theta  # |e| theta / 2, half of it to each face
     out += np.bincount(fid[i], half, minlength=T)
