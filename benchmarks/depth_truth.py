@@ -1,0 +1,145 @@
+"""The depth that carves against the generator's true depth, per part and by the angle at which the view sees it.
+
+    python benchmarks/depth_truth.py --load-config RUN/config.yml [--out F.json] [--voxel-m 0.0103]
+
+For a trained run on a generated scene (`physgs synth` writes the true z-depth and part of every pixel in
+``gt/depth`` and ``gt/part``): the object's Gaussians are selected and rendered as `physgs export` renders them
+for carving (expected depth, median depth, along-ray extent), and on each true part's pixels (away from its edge in
+the image by ``--inset-px``, opaque in the render) the rendered depth is compared with the true one. The error is
+reported as the offset along the surface's normal, ``(rendered - true) x cos(incidence)`` (positive: the rendered
+surface lies *inside* the part, under its face), in millimetres and in voxels, for the carving's depth (expected
+minus the front extent, the GPU default; and the median, the CPU default) and by the incidence angle (from the true
+depth map's normals). A positive offset of about a voxel on both faces of a plate carves a layer off each.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from physgs_nerfstudio.export.command import load_run  # noqa: E402
+from physgs_nerfstudio.geometry import reconstruct  # noqa: E402
+from physgs_nerfstudio.geometry.gaussians import render_depth  # noqa: E402
+from physgs_nerfstudio.geometry.select import select_object  # noqa: E402
+
+BINS = (0.0, 0.25, 0.5, 0.75, 1.0001)
+"""cos(incidence) bins: grazing ... head-on"""
+
+
+def true_normals_cos(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """float [H, W]: |cos| of the angle between each pixel's ray and the surface normal of the true depth map
+    (normals from the back-projected points' finite differences; NaN where a neighbour is background)."""
+    H, W = depth.shape
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    x = (u + 0.5 - K[0, 2]) / K[0, 0]
+    y = (v + 0.5 - K[1, 2]) / K[1, 1]
+    P = np.stack([x * depth, y * depth, depth], -1)
+    du = np.full_like(P, np.nan)
+    dv = np.full_like(P, np.nan)
+    du[:, 1:-1] = P[:, 2:] - P[:, :-2]
+    dv[1:-1] = P[2:] - P[:-2]
+    n = np.cross(du, dv)
+    ray = np.stack([x, y, np.ones_like(x)], -1)
+    c = np.abs((n * ray).sum(-1)) / (np.linalg.norm(n, axis=-1) * np.linalg.norm(ray, axis=-1) + 1e-30)
+    bad = (depth <= 0) | np.isnan(c)
+    edge = np.zeros_like(bad)
+    edge[:, 1:-1] |= (depth[:, 2:] <= 0) | (depth[:, :-2] <= 0)
+    edge[1:-1] |= (depth[2:] <= 0) | (depth[:-2] <= 0)
+    c[bad | edge] = np.nan
+    return c
+
+
+def _erode(m: np.ndarray, r: int) -> np.ndarray:
+    from scipy import ndimage
+
+    return ndimage.binary_erosion(m, iterations=r) if r > 0 else m
+
+
+def _stats(x: np.ndarray) -> dict:
+    if len(x) == 0:
+        return {"n": 0}
+    q = np.percentile(x, [10, 50, 90])
+    return {"n": int(len(x)), "p10": round(float(q[0]), 3), "median": round(float(q[1]), 3),
+            "p90": round(float(q[2]), 3)}  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--load-config", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--inset-px", type=int, default=2, help="pixels kept away from each part's edge in the image")
+    ap.add_argument("--voxel-m", type=float, default=None, help="voxel size (m) to express the offsets in voxels")
+    ap.add_argument("--max-view-width", type=int, default=640)
+    a = ap.parse_args()
+    from PIL import Image
+
+    run = load_run(a.load_config, max_view_width=a.max_view_width)
+    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")
+    pf, views, data_dir = run.field, run.views, run.data_dir
+    meta = json.loads((a.load_config.parent / "dataparser_transforms.json").read_text())
+    s = float(meta["scale"])
+    truth = json.loads((data_dir / "ground_truth.json").read_text())
+    names = [p["name"] for p in truth["parts"]]
+    by_name = {f["file_path"]: f for f in truth.get("frames", [])}
+    cfg = reconstruct.GeometryConfig()
+    sel = select_object(pf, views, cfg.select, backend=cfg.backend)
+    sub = reconstruct._Subset(pf, sel.selected)
+    renders = render_depth(sub, views, backend=cfg.backend, depth="both", extent=True)
+    k = float(cfg.carve.front_extent) if cfg.carve.front_extent is not None else 1.0  # gsplat's default
+    rows: dict[str, dict[str, list]] = {n: {"front": [], "expected": [], "median": [], "cos": []} for n in names}
+    for v, r in zip(views, renders):
+        f = by_name.get(v.name)
+        if f is None:
+            continue
+        depth_true = np.load(data_dir / f["depth_path"]).astype(np.float64)
+        part = np.asarray(Image.open(data_dir / f["part_path"]))
+        if part.ndim == 3:
+            part = part[..., 0]
+        if depth_true.shape != (v.height, v.width):
+            continue  # only views at the dataset's own size (no rescaled views)
+        K = v.K.double().cpu().numpy()
+        cos = true_normals_cos(depth_true, K)
+        alpha = r.alpha.double().cpu().numpy()
+        exp_d = r.depth.double().cpu().numpy() / s
+        med = (r.median if r.median is not None else r.depth).double().cpu().numpy() / s
+        ext = r.extent.double().cpu().numpy() / s if r.extent is not None else np.zeros_like(exp_d)
+        for i, n in enumerate(names):
+            m = _erode(part == i + 1, a.inset_px) & (alpha >= 0.5) & np.isfinite(cos) & np.isfinite(exp_d)
+            if not m.any():
+                continue
+            c = cos[m]
+            rows[n]["cos"].append(c)
+            rows[n]["expected"].append((exp_d[m] - depth_true[m]) * c)
+            rows[n]["front"].append((exp_d[m] - k * ext[m] - depth_true[m]) * c)
+            rows[n]["median"].append((med[m] - depth_true[m]) * c)
+    out: dict = {"config": str(a.load_config), "front_extent_multiple": k, "voxel_m": a.voxel_m,
+                 "unit": "mm along the normal, + = inside the part", "parts": {}}  # fmt: skip
+    for n, d in rows.items():
+        if not d["cos"]:
+            continue
+        c = np.concatenate(d["cos"])
+        res: dict = {}
+        for key in ("front", "expected", "median"):
+            x = np.concatenate(d[key]) * 1000
+            res[key] = {f"cos {lo:.2f}-{min(hi, 1):.2f}": _stats(x[(c >= lo) & (c < hi)]) for lo, hi in zip(BINS[:-1], BINS[1:])}
+            res[key]["all"] = _stats(x)
+        out["parts"][n] = res
+        for key in ("front", "expected", "median"):
+            f = res[key]["all"]
+            vox = f" ({f['median'] / 1000 / a.voxel_m:+.2f} voxel)" if a.voxel_m and f.get("n") else ""
+            print(f"{n:10s} {key:8s} median {f.get('median')} mm{vox}; by cos: "
+                  + ", ".join(f"{b[4:]}: {res[key][b].get('median')} (n={res[key][b]['n']})"
+                              for b in res[key] if b != "all"))
+    if a.out:
+        a.out.write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
