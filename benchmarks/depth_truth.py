@@ -15,6 +15,7 @@ depth map's normals). A positive offset of about a voxel on both faces of a plat
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 from pathlib import Path
@@ -24,10 +25,10 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from physgs_nerfstudio.export.command import load_run  # noqa: E402
-from physgs_nerfstudio.geometry import reconstruct  # noqa: E402
-from physgs_nerfstudio.geometry.gaussians import render_depth  # noqa: E402
-from physgs_nerfstudio.geometry.select import select_object  # noqa: E402
+from physgs_nerfstudio.export.command import load_run
+from physgs_nerfstudio.geometry import reconstruct
+from physgs_nerfstudio.geometry.gaussians import render_depth
+from physgs_nerfstudio.geometry.select import select_object
 
 BINS = (0.0, 0.25, 0.5, 0.75, 1.0001)
 """cos(incidence) bins: grazing ... head-on"""
@@ -66,7 +67,7 @@ def _stats(x: np.ndarray) -> dict:
     if len(x) == 0:
         return {"n": 0}
     q = np.percentile(x, [10, 50, 90])
-    return {"n": int(len(x)), "p10": round(float(q[0]), 3), "median": round(float(q[1]), 3),
+    return {"n": len(x), "p10": round(float(q[0]), 3), "median": round(float(q[1]), 3),
             "p90": round(float(q[2]), 3)}  # fmt: skip
 
 
@@ -128,7 +129,8 @@ def main() -> None:
         res: dict = {}
         for key in ("front", "expected", "median"):
             x = np.concatenate(d[key]) * 1000
-            res[key] = {f"cos {lo:.2f}-{min(hi, 1):.2f}": _stats(x[(c >= lo) & (c < hi)]) for lo, hi in zip(BINS[:-1], BINS[1:])}
+            res[key] = {f"cos {lo:.2f}-{min(hi, 1):.2f}": _stats(x[(c >= lo) & (c < hi)])
+                        for lo, hi in itertools.pairwise(BINS)}
             res[key]["all"] = _stats(x)
         out["parts"][n] = res
         for key in ("front", "expected", "median"):
