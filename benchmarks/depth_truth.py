@@ -34,9 +34,10 @@ BINS = (0.0, 0.25, 0.5, 0.75, 1.0001)
 """cos(incidence) bins: grazing ... head-on"""
 
 
-def true_normals_cos(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """float [H, W]: |cos| of the angle between each pixel's ray and the surface normal of the true depth map
-    (normals from the back-projected points' finite differences; NaN where a neighbour is background)."""
+def true_normals(depth: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(float [H, W, 3] unit normals of the true depth map in camera axes, turned to face the camera; float [H, W]
+    |cos| of the angle between each pixel's ray and its normal): from the back-projected points' central
+    differences; NaN where the pixel or a neighbour is background."""
     H, W = depth.shape
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     x = (u + 0.5 - K[0, 2]) / K[0, 0]
@@ -47,14 +48,28 @@ def true_normals_cos(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     du[:, 1:-1] = P[:, 2:] - P[:, :-2]
     dv[1:-1] = P[2:] - P[:-2]
     n = np.cross(du, dv)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True) + 1e-30
     ray = np.stack([x, y, np.ones_like(x)], -1)
-    c = np.abs((n * ray).sum(-1)) / (np.linalg.norm(n, axis=-1) * np.linalg.norm(ray, axis=-1) + 1e-30)
+    dot = (n * ray).sum(-1)
+    n *= np.where(dot > 0, -1.0, 1.0)[..., None]  # facing the camera
+    c = np.abs(dot) / np.linalg.norm(ray, axis=-1)
     bad = (depth <= 0) | np.isnan(c)
-    edge = np.zeros_like(bad)
-    edge[:, 1:-1] |= (depth[:, 2:] <= 0) | (depth[:, :-2] <= 0)
-    edge[1:-1] |= (depth[2:] <= 0) | (depth[:-2] <= 0)
-    c[bad | edge] = np.nan
-    return c
+    bad[:, 1:-1] |= (depth[:, 2:] <= 0) | (depth[:, :-2] <= 0)
+    bad[1:-1] |= (depth[2:] <= 0) | (depth[:-2] <= 0)
+    c[bad] = np.nan
+    n[bad] = np.nan
+    return n, c
+
+
+def true_normals_cos(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """float [H, W]: the |cos| of :func:`true_normals`."""
+    return true_normals(depth, K)[1]
+
+
+def face_of(n_world: np.ndarray) -> np.ndarray:
+    """str [N]: "up" / "down" where the generator-world normal is within 45 degrees of +z / -z, else "side"."""
+    z = n_world[..., 2]
+    return np.where(z > np.sqrt(0.5), "up", np.where(z < -np.sqrt(0.5), "down", "side"))
 
 
 def _erode(m: np.ndarray, r: int) -> np.ndarray:
@@ -86,6 +101,7 @@ def main() -> None:
     pf, views, data_dir = run.field, run.views, run.data_dir
     meta = json.loads((a.load_config.parent / "dataparser_transforms.json").read_text())
     s = float(meta["scale"])
+    R_T = np.asarray(meta["transform"], float)[:, :3]  # scene = s (R_T world + t)
     truth = json.loads((data_dir / "ground_truth.json").read_text())
     names = [p["name"] for p in truth["parts"]]
     by_name = {f["file_path"]: f for f in truth.get("frames", [])}
@@ -94,7 +110,8 @@ def main() -> None:
     sub = reconstruct._Subset(pf, sel.selected)
     renders = render_depth(sub, views, backend=cfg.backend, depth="both", extent=True)
     k = float(cfg.carve.front_extent) if cfg.carve.front_extent is not None else 1.0  # gsplat's default
-    rows: dict[str, dict[str, list]] = {n: {"front": [], "expected": [], "median": [], "cos": []} for n in names}
+    rows: dict[str, dict[str, list]] = {n: {"front": [], "expected": [], "median": [], "cos": [], "face": []}
+                                      for n in names}  # fmt: skip
     for v, r in zip(views, renders):
         f = by_name.get(v.name)
         if f is None:
@@ -106,7 +123,9 @@ def main() -> None:
         if depth_true.shape != (v.height, v.width):
             continue  # only views at the dataset's own size (no rescaled views)
         K = v.K.double().cpu().numpy()
-        cos = true_normals_cos(depth_true, K)
+        normal, cos = true_normals(depth_true, K)
+        R_view = v.viewmat[:3, :3].double().cpu().numpy()
+        face = face_of(normal @ R_view @ R_T)  # camera -> scene -> generator world
         alpha = r.alpha.double().cpu().numpy()
         exp_d = r.depth.double().cpu().numpy() / s
         med = (r.median if r.median is not None else r.depth).double().cpu().numpy() / s
@@ -117,6 +136,7 @@ def main() -> None:
                 continue
             c = cos[m]
             rows[n]["cos"].append(c)
+            rows[n]["face"].append(face[m])
             rows[n]["expected"].append((exp_d[m] - depth_true[m]) * c)
             rows[n]["front"].append((exp_d[m] - k * ext[m] - depth_true[m]) * c)
             rows[n]["median"].append((med[m] - depth_true[m]) * c)
@@ -132,13 +152,17 @@ def main() -> None:
             res[key] = {f"cos {lo:.2f}-{min(hi, 1):.2f}": _stats(x[(c >= lo) & (c < hi)])
                         for lo, hi in itertools.pairwise(BINS)}
             res[key]["all"] = _stats(x)
+            fc = np.concatenate(d["face"])
+            res[key]["by_face"] = {f: _stats(x[fc == f]) for f in ("up", "down", "side")}
         out["parts"][n] = res
         for key in ("front", "expected", "median"):
             f = res[key]["all"]
             vox = f" ({f['median'] / 1000 / a.voxel_m:+.2f} voxel)" if a.voxel_m and f.get("n") else ""
             print(f"{n:10s} {key:8s} median {f.get('median')} mm{vox}; by cos: "
                   + ", ".join(f"{b[4:]}: {res[key][b].get('median')} (n={res[key][b]['n']})"
-                              for b in res[key] if b != "all"))
+                              for b in res[key] if b not in ("all", "by_face"))
+                  + "; by face: " + ", ".join(f"{f}: {st.get('median')} (n={st['n']})"
+                                               for f, st in res[key]["by_face"].items()))
     if a.out:
         a.out.write_text(json.dumps(out, indent=1))
 

@@ -38,6 +38,13 @@ def test_plane_incidence_matches_the_ray_normal_angle(dt, tilt_deg):
     inner = np.isfinite(got)
     assert inner[2:-2, 2:-2].all() and not inner[0].any() and not inner[:, 0].any()
     np.testing.assert_allclose(got[inner], want[inner], atol=1e-9)
+    normal, _ = dt.true_normals(z, K)
+    np.testing.assert_allclose(normal[inner], np.broadcast_to(n, normal[inner].shape), atol=1e-9)  # faces the camera
+
+
+def test_faces_by_the_world_normal(dt):
+    n = np.array([[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0], [0.6, 0, 0.8], [0.8, 0, -0.6]])
+    assert dt.face_of(n).tolist() == ["up", "down", "side", "up", "side"]
 
 
 def test_background_neighbours_give_no_angle(dt):
