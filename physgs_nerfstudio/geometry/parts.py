@@ -49,12 +49,12 @@
 * **Wall curvature per part** (:func:`face_mean_curvature`). A hollow part's wall lies *inside* its fully counted
   faces: a wall of thickness ``t`` under a face of area ``dA`` and mean curvature ``H`` holds
   ``dA (t - H t^2 + K t^3 / 3)``, less than ``dA t`` on a convex face (a bottle's glass 3 mm thick inside a 35 mm
-  radius: 4% less; a 20 mm tube's 2 mm wall: 10% less). Each part records the area of its fully counted faces and
+  radius: 4% less; a tube of 10 mm radius with a 2 mm wall: 10% less). Each part records the area of its fully counted faces and
   their integrated mean curvature ``M = sum |e| theta_e / 2`` over the mesh's edges (dihedral angles, each edge's
   share split between its two faces), which the mass turns into the wall's volume
   (:func:`physgs_nerfstudio.mass.integrate.wall_volume`). On voxelised shapes (smoothed as above) ``M`` is within
-  1% of a cylinder's, 3% of a box's and 5-6% of a sphere's (whose area is 4-10% high too, so that ``M / A``
-  is within 1-3%). Sheet faces need no term: the two sides of a wall enclose its middle surface, their half areas
+  1% of a cylinder's, 3% of a box's and 5-7% of a sphere's (whose area is 4-10% high too, so that ``M / A``
+  is within 4%). Sheet faces need no term: the two sides of a wall enclose its middle surface, their half areas
   add up to it, and the middle surface times ``t`` is the wall's volume.
 """
 
