@@ -24,6 +24,9 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from geometry_diag import _transform
 
 from physgs_nerfstudio.export.command import load_run
 from physgs_nerfstudio.geometry import reconstruct
@@ -99,9 +102,8 @@ def main() -> None:
     run = load_run(a.load_config, max_view_width=a.max_view_width)
     run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")
     pf, views, data_dir = run.field, run.views, run.data_dir
-    meta = json.loads((a.load_config.parent / "dataparser_transforms.json").read_text())
-    s = float(meta["scale"])
-    R_T = np.asarray(meta["transform"], float)[:, :3]  # scene = s (R_T world + t)
+    T, s = _transform(a.load_config.parent)
+    R_T = T[:, :3]  # scene = s (R_T world + t)
     truth = json.loads((data_dir / "ground_truth.json").read_text())
     names = [p["name"] for p in truth["parts"]]
     by_name = {f["file_path"]: f for f in truth.get("frames", [])}
