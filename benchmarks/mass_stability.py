@@ -31,6 +31,7 @@ SETTINGS: dict[str, list[str]] = {
     "mask_margin_px=+0.5": ["--mass.geometry.carve.mask-margin-px", "0.5"],
     "depth_margin_voxels=-0.5": ["--mass.geometry.carve.depth-margin-voxels", "-0.5"],
     "depth_margin_voxels=1": ["--mass.geometry.carve.depth-margin-voxels", "1"],
+    "hidden_skin_voxels=3": ["--mass.geometry.hidden-skin-voxels", "3"],
     "min_voxel_evidence=0.25": ["--mass.geometry.min-voxel-evidence", "0.25"],
     "min_voxel_evidence=1": ["--mass.geometry.min-voxel-evidence", "1"],
     "hull_vote_fraction=0.35": ["--mass.geometry.select.hull-vote-fraction", "0.35"],

@@ -36,6 +36,7 @@ from .errors import GeometryError
 from .extent import support_excess
 from .gaussians import ViewRender, render_depth, surface_views
 from .grid import VoxelGrid
+from .hidden import hidden_open_space, skin_from_points
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .parts import (
     PartGeometry,
@@ -100,6 +101,15 @@ class GeometryConfig:
     """the mass interval also samples the nominal carving cut to the polytope grown by this many more voxels: where
     the polytope ends the solid (an underside no view sees past), the surface is placed by the scatter of a few
     Gaussians, to about a voxel; None = no such variant"""
+    hidden_skin_voxels: int | None = 2
+    """the solid loses its *hidden open space* (:mod:`.hidden`): voxels that no view could carve (under a table top
+    shot from above, under a chair's seat) and that, in most directions, no seen surface encloses. The seen surface
+    is the voxels within this many 6-connected steps of the means of the Gaussians that some view sees on its
+    rendered surface (the Gaussians sample a surface with gaps; undilated, rays leak out of solid parts). None = keep
+    all the space no view sees past (the carving alone); documented range 2-3"""
+    hidden_min_open_fraction: float = 0.5
+    """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
+    than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall,
@@ -172,6 +182,12 @@ class GeometryConfig:
         if not 0.0 <= self.extent_outlier_fraction < 0.5:
             raise ValueError("GeometryConfig.extent_outlier_fraction must be in [0, 0.5), got "
                              f"{self.extent_outlier_fraction}.")
+        if self.hidden_skin_voxels is not None and self.hidden_skin_voxels < 0:
+            raise ValueError("GeometryConfig.hidden_skin_voxels must be >= 0 (or None: keep the hidden space), got "
+                             f"{self.hidden_skin_voxels}.")
+        if not 0.0 <= self.hidden_min_open_fraction < 1.0:
+            raise ValueError("GeometryConfig.hidden_min_open_fraction must be in [0, 1), got "
+                             f"{self.hidden_min_open_fraction}.")
         if self.evidence_surface_voxels is not None and not self.evidence_surface_voxels >= 0:
             raise ValueError("GeometryConfig.evidence_surface_voxels must be >= 0 (or None: every labelled Gaussian "
                              f"counts), got {self.evidence_surface_voxels}.")
@@ -336,12 +352,12 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
                     means: torch.Tensor | None = None, extent_pad_voxels: float | None = None,
                     extent_variant_voxels: float | None = None, scales: torch.Tensor | None = None,
                     quats: torch.Tensor | None = None, extent_skip: int = 0
-                    ) -> tuple[list[np.ndarray], np.ndarray]:  # fmt: skip
+                    ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None]:  # fmt: skip
     """The solid of every variant, from one voting pass per distinct (mask margin, depth margin), cut to the
     support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
-    that much more, as one more variant; and the first variant's visual hull (:func:`.carve.hull_from_votes`).
-    ``scales`` and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
+    that much more, as one more variant; the first variant's visual hull (:func:`.carve.hull_from_votes`); and the
+    voxels that the views kept (in a solid or the hull) and the polytope cut (None without a cut). ``scales`` and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
     def key(cc: CarveConfig) -> tuple[float, float, float]:  # the votes depend on these settings only
         return cc.mask_margin_px, cc.depth_margin_voxels, cc.extent_multiple()
 
@@ -353,7 +369,7 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     hull = hull_from_votes(cache[key(variants[0][1])], grid, variants[0][1])
     solids = [solid_from_votes(cache[key(cc)], grid, cc) for _, cc in variants]
     if means is None or extent_pad_voxels is None:
-        return solids, hull
+        return solids, hull, None
     candidates = np.logical_or.reduce(solids) | hull
     # how far beyond the polytope each candidate lies, once for both pads (no means: no cut)
     idx = tuple(np.argwhere(candidates).T)
@@ -367,7 +383,7 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
         wider = np.zeros_like(candidates)
         wider[idx] = excess <= extent_pad_voxels + extent_variant_voxels
         cut.append(solids[0] & wider)
-    return cut, hull & inside
+    return cut, hull & inside, candidates & ~inside
 
 
 def _resting_plane(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
@@ -397,6 +413,30 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
         return solids, hull
     above = plane.above_voxels(grid)
     return [s & above for s in solids], hull & above
+
+
+def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface_means: torch.Tensor, beyond: np.ndarray | None,
+                    plane: SupportPlane | None, cfg: GeometryConfig) -> list[np.ndarray]:  # fmt: skip
+    """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is the voxels around the
+    means of the Gaussians some view sees on its surface; rays that leave the solid below the support plane or
+    into space that the views kept and the Gaussians' polytope cut (``beyond``) are enclosed (the object's unseen
+    underside)."""
+    dev = surface_means.device
+    skin = skin_from_points(surface_means, np.asarray(grid.origin), grid.voxel_size, grid.shape,
+                            int(cfg.hidden_skin_voxels or 0))  # fmt: skip
+    closed = np.zeros(grid.shape, bool) if beyond is None else beyond.copy()
+    if plane is not None:
+        closed |= ~plane.above_voxels(grid)
+    closed_t = torch.from_numpy(closed).to(dev)
+    out = []
+    for s in solids:
+        hidden = hidden_open_space(torch.from_numpy(s).to(dev), skin, closed_t, cfg.hidden_min_open_fraction)
+        out.append(s & ~hidden.cpu().numpy())
+    removed = int(solids[0].sum() - out[0].sum())
+    if removed:
+        logger.info("hidden open space: %d of %d solid voxels that no seen surface encloses removed", removed,
+                    int(solids[0].sum()))  # fmt: skip
+    return out
 
 
 def _up_weight(views: Sequence[CaptureView], weight: float) -> float:
@@ -487,8 +527,8 @@ def reconstruct_object(
     ext = {"scales": g.scales[selection.selected], "quats": g.quats[selection.selected]} \
         if cfg.extent_of == "ellipsoids" else {}
     ext["extent_skip"] = int(cfg.extent_outlier_fraction * selection.num_selected)
-    solids, hull = _carve_variants(grid, obj_views, renders, variants, sdf, device, g.means[selection.selected],
-                                   cfg.extent_pad_voxels, wider, **ext)
+    solids, hull, beyond = _carve_variants(grid, obj_views, renders, variants, sdf, device,
+                                           g.means[selection.selected], cfg.extent_pad_voxels, wider, **ext)
     lo, hi = _solid_bounds(grid, np.logical_or.reduce(solids))
     if lo is not None and float((hi - lo).max()) < cfg.refit_fraction * float(np.max(grid.shape)) * grid.voxel_size:
         # the solid fills a small part of a domain that outliers of the selection stretched: carve again on a grid
@@ -498,21 +538,24 @@ def reconstruct_object(
         grid = VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad), cfg.resolution)
         logger.info("the carved object spans %.0f%% of the selection's box: carved again on a grid fitted to it",
                     100 * share)
-        solids, hull = _carve_variants(grid, obj_views, renders, variants, sdf, device, g.means[selection.selected],
-                                       cfg.extent_pad_voxels, wider, **ext)
+        solids, hull, beyond = _carve_variants(grid, obj_views, renders, variants, sdf, device,
+                                               g.means[selection.selected], cfg.extent_pad_voxels, wider, **ext)
     solids, hull = _cut_below(grid, solids, hull, selection.plane)
+    sel = selection.selected
+    band = (cfg.evidence_surface_voxels if cfg.evidence_surface_voxels is not None else 1.0) * grid.voxel_size
+    on_surface = surface_views(g.means[sel], obj_views, renders, band) > 0
+    if cfg.hidden_skin_voxels is not None:
+        solids = _without_hidden(grid, solids, g.means[sel][on_surface], beyond, selection.plane, cfg)
     names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else [])
     union = np.logical_or.reduce(solids)
     if not solids[0].any():
         raise GeometryError("carving left no solid voxel: the object masks and the views disagree (check poses and "
                          "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
     step("materials and parts")
-    sel = selection.selected
     labelled = getattr(g, "labelled", None)
     pi_sel = pi(sel) if callable(pi) else pi[sel]
     observed = labelled[sel] if labelled is not None else None
     if cfg.evidence_surface_voxels is not None:
-        on_surface = surface_views(g.means[sel], obj_views, renders, cfg.evidence_surface_voxels * grid.voxel_size) > 0
         observed = on_surface.to(g.means.dtype) * (observed.reshape(-1) if observed is not None else 1.0)
     mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi_sel, observed,
                             min_evidence=cfg.min_voxel_evidence, up_weight=_up_weight(views, cfg.interior_up_weight))
