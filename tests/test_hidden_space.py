@@ -192,7 +192,7 @@ def test_a_table_shot_from_above_loses_the_space_under_its_top():
     v = geo.volumes[0].sum()
     print("truth", truth, "carving alone", kept, "without hidden space", v)
     assert kept > 3.0 * truth  # the hidden space the rule is for
-    # most of it goes; what stays is the skin's reach (2 voxels, 2.6 cm here) under the 4 cm top (module doc)
+    # most of it goes; what stays is the skin's reach (2 voxels, about 3 cm here) under the 4 cm top (module doc)
     assert 0.8 * truth <= v <= 0.55 * kept
     # the top itself stays: the solid's voxels at the top's height cover its footprint
     z = np.asarray(geo.grid.origin)[2] + (np.arange(geo.grid.shape[2]) + 0.5) * geo.grid.voxel_size
