@@ -185,7 +185,14 @@ def _box_on_floor():
     """A 0.3 m oak box standing on a 2 m tile floor 1 mm below it: (the field, the box's field alone, the box's
     Gaussians)."""
     obj = box_surface((0.3, 0.3, 0.3), 0.02, centre=(0.0, 0.0, 0.15))
-    g = torch.arange(-1.0, 1.0, 0.04) + 0.02
+    pf, only_obj = on_tile_floor(obj, 1.0)
+    return pf, only_obj, obj
+
+
+def on_tile_floor(obj, half: float):
+    """(an oak object's Gaussians ``obj`` on a tile floor 1 mm below z = 0 spanning [-half, half]^2, the object's
+    field alone)."""
+    g = torch.arange(-half, half, 0.04) + 0.02
     X, Y = torch.meshgrid(g, g, indexing="ij")
     fp = torch.stack([X, Y, torch.zeros_like(X) - 1e-3], -1).reshape(-1, 3).double()
     floor = _flat(fp, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(fp), 0.032)
@@ -193,8 +200,7 @@ def _box_on_floor():
     labels = torch.cat([torch.zeros(len(obj[0])), torch.ones(len(floor[0]))]).long()
     pf = field_from(means, scales, quats, densities=[700.0, 1500.0], labels=labels, names=["oak", "tile"],
                     thickness_m=[None, None])  # fmt: skip
-    only_obj = field_from(*obj, densities=[700.0], names=["oak"])
-    return pf, only_obj, obj
+    return pf, field_from(*obj, densities=[700.0], names=["oak"])
 
 
 def test_floor_is_not_the_object():

@@ -161,22 +161,11 @@ def _table_on_floor():
     """A 0.8 x 0.5 m table (a 4 cm top at 0.5 m on four 4 cm legs) on a tile floor; the masks hold the table alone.
     (Not square: from the middle of a square table aligned with the grid, the lattice's horizontal diagonals run
     straight into its legs, and they count as enclosing; :mod:`physgs_nerfstudio.geometry.hidden`, limits.)"""
-    from test_geometry import _flat, box_surface
-
-    from physgs_nerfstudio.export.shapes import field_from
+    from test_geometry import box_surface, on_tile_floor
 
     parts = [box_surface((0.8, 0.5, 0.04), 0.02, centre=(0.0, 0.0, 0.52))]
     parts += [box_surface((0.04, 0.04, 0.5), 0.02, centre=(x, y, 0.25)) for x in (-0.37, 0.37) for y in (-0.22, 0.22)]
-    obj = [torch.cat(t) for t in zip(*parts)]
-    g = torch.arange(-1.2, 1.2, 0.04) + 0.02
-    X, Y = torch.meshgrid(g, g, indexing="ij")
-    fp = torch.stack([X, Y, torch.zeros_like(X) - 1e-3], -1).reshape(-1, 3).double()
-    floor = _flat(fp, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(fp), 0.032)
-    means, scales, quats = (torch.cat([a, b]) for a, b in zip(obj, floor))
-    labels = torch.cat([torch.zeros(len(obj[0])), torch.ones(len(floor[0]))]).long()
-    pf = field_from(means, scales, quats, densities=[700.0, 1500.0], labels=labels, names=["oak", "tile"],
-                    thickness_m=[None, None])  # fmt: skip
-    return pf, field_from(*obj, densities=[700.0], names=["oak"])
+    return on_tile_floor([torch.cat(t) for t in zip(*parts)], 1.2)
 
 
 def test_a_table_shot_from_above_loses_the_space_under_its_top():
