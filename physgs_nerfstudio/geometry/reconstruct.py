@@ -36,7 +36,7 @@ from .errors import GeometryError
 from .extent import support_excess
 from .gaussians import ViewRender, render_depth, surface_views
 from .grid import VoxelGrid
-from .hidden import hidden_open_space, skin_from_points
+from .hidden import gaussian_samples, hidden_open_space, skin_centred, skin_from_points
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .parts import (
     PartGeometry,
@@ -104,9 +104,21 @@ class GeometryConfig:
     hidden_skin_voxels: int | None = 2
     """the solid loses its *hidden open space* (:mod:`.hidden`): voxels that no view could carve (under a table top
     shot from above, under a chair's seat) and that, in most directions, no seen surface encloses. The seen surface
-    is the voxels within this many 6-connected steps of the means of the Gaussians that some view sees on its
-    rendered surface (the Gaussians sample a surface with gaps; undilated, rays leak out of solid parts). None = keep
-    all the space no view sees past (the carving alone); documented range 2-3"""
+    (the *skin*) is sampled by the Gaussians that some view sees on its rendered surface; this is how far, in voxels,
+    the skin closes the gaps between their samples (``hidden_skin``). None = keep all the space no view sees past
+    (the carving alone); documented range 2-3"""
+    hidden_skin: Literal["centred", "grown"] = "centred"
+    """how the skin closes its gaps (:mod:`.hidden`, "The skin"): "centred", a voxel is skin when the samples within
+    ``hidden_skin_voxels`` of it each way are centred on it, to ``hidden_skin_tolerance`` (gaps close, edges and faces
+    do not grow); "grown", the samples' voxels grown by ``hidden_skin_voxels`` 6-connected steps (session 23: faces
+    grow too, and the skin under a seen top encloses that many layers of hidden space)"""
+    hidden_skin_tolerance: float = 1.5
+    """"centred" skin: the largest distance, in voxels, between a voxel's centre and the centroid of the samples
+    around it (half the skin's thickness across a surface); documented range 1.25-2"""
+    hidden_skin_sigmas: float = 1.0
+    """the skin's samples are the surface Gaussians' means and the ends of their axes at this many standard
+    deviations (:func:`.hidden.gaussian_samples`: a few large Gaussians cover a surface their means alone leave
+    gappy); 0 = the means only"""
     hidden_min_open_fraction: float = 0.5
     """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
     than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""
@@ -185,6 +197,9 @@ class GeometryConfig:
         if self.hidden_skin_voxels is not None and self.hidden_skin_voxels < 0:
             raise ValueError("GeometryConfig.hidden_skin_voxels must be >= 0 (or None: keep the hidden space), got "
                              f"{self.hidden_skin_voxels}.")
+        if not self.hidden_skin_tolerance > 0 or not self.hidden_skin_sigmas >= 0:
+            raise ValueError("GeometryConfig.hidden_skin_tolerance must be > 0 and hidden_skin_sigmas >= 0, got "
+                             f"{self.hidden_skin_tolerance} and {self.hidden_skin_sigmas}.")
         if not 0.0 <= self.hidden_min_open_fraction < 1.0:
             raise ValueError("GeometryConfig.hidden_min_open_fraction must be in [0, 1), got "
                              f"{self.hidden_min_open_fraction}.")
@@ -416,15 +431,20 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
     return [s & above for s in solids], hull & above
 
 
-def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface_means: torch.Tensor, beyond: np.ndarray | None,
+def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, beyond: np.ndarray | None,
                     plane: SupportPlane | None, cfg: GeometryConfig) -> list[np.ndarray]:  # fmt: skip
-    """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is the voxels around the
-    means of the Gaussians some view sees on its surface; rays that leave the solid below the support plane or
-    into space that the views kept and the Gaussians' polytope cut (``beyond``) are enclosed (the object's unseen
-    underside)."""
-    dev = surface_means.device
-    skin = skin_from_points(surface_means, np.asarray(grid.origin), grid.voxel_size, grid.shape,
-                            int(cfg.hidden_skin_voxels or 0))  # fmt: skip
+    """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is sampled by ``surface``, the
+    Gaussians some view sees on its surface (``means``, ``scales``, ``quats``); rays that leave the solid below the
+    support plane or into space that the views kept and the Gaussians' polytope cut (``beyond``) are enclosed (the
+    object's unseen underside)."""
+    dev = surface.means.device
+    reach = int(cfg.hidden_skin_voxels or 0)
+    origin = np.asarray(grid.origin)
+    if cfg.hidden_skin == "grown":
+        skin = skin_from_points(surface.means, origin, grid.voxel_size, grid.shape, reach)
+    else:
+        samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, cfg.hidden_skin_sigmas)
+        skin = skin_centred(samples, origin, grid.voxel_size, grid.shape, reach, cfg.hidden_skin_tolerance)
     closed = np.zeros(grid.shape, bool) if beyond is None else beyond.copy()
     if plane is not None:
         closed |= ~plane.above_voxels(grid)
@@ -546,7 +566,8 @@ def reconstruct_object(
     band = (cfg.evidence_surface_voxels if cfg.evidence_surface_voxels is not None else 1.0) * grid.voxel_size
     on_surface = surface_views(g.means[sel], obj_views, renders, band) > 0
     if cfg.hidden_skin_voxels is not None:
-        solids = _without_hidden(grid, solids, g.means[sel][on_surface], beyond, selection.plane, cfg)
+        surf = _Subset(g, torch.nonzero(sel).squeeze(1)[on_surface])
+        solids = _without_hidden(grid, solids, surf, beyond, selection.plane, cfg)
     names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else [])
     union = np.logical_or.reduce(solids)
     if not solids[0].any():
