@@ -273,3 +273,13 @@ def test_a_table_shot_from_above_loses_the_space_under_its_top():
     assert at_top.sum() * geo.grid.voxel_size**2 >= 0.9 * 0.4
     legs = geo.solid[:, :, np.abs(z - 0.25) < 0.01].any(2)
     assert legs.sum() * geo.grid.voxel_size**2 >= 0.9 * 4 * 0.04**2
+
+
+@pytest.mark.parametrize("bad", [{"hidden_skin": "dilated"}, {"hidden_skin_tolerance": 0.0},
+                                 {"hidden_skin_sigmas": -1.0}, {"hidden_skin_voxels": -1},
+                                 {"hidden_min_open_fraction": 1.0}])  # fmt: skip
+def test_hidden_space_settings_are_checked(bad):
+    from physgs_nerfstudio.geometry.reconstruct import GeometryConfig
+
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        GeometryConfig(**bad)

@@ -152,11 +152,14 @@ def skin_centred(points: Float[Tensor, "N 3"], origin: Tensor | np.ndarray, voxe
     skin = acc[..., 0] > 0
     if window_voxels > 0:
         box = _box_sum(acc, int(window_voxels))
-        centre = torch.stack(torch.meshgrid(*[torch.arange(n, device=dev, dtype=torch.float64) + 0.5 for n in shape],
-                                            indexing="ij"), -1)  # fmt: skip
         count = box[..., 0]
-        off = box[..., 1:] / count.clamp_min(1e-12)[..., None] - centre
-        skin |= (count > 0) & (off.norm(dim=-1) <= tolerance_voxels)
+        dist2 = torch.zeros(shape, dtype=torch.float64, device=dev)
+        for axis in range(3):  # the centroid's offset from the voxel's centre, one axis at a time
+            centre = torch.arange(shape[axis], device=dev, dtype=torch.float64) + 0.5
+            view = [1, 1, 1]
+            view[axis] = shape[axis]
+            dist2 += (box[..., 1 + axis] / count.clamp_min(1e-12) - centre.reshape(view)) ** 2
+        skin |= (count > 0) & (dist2 <= tolerance_voxels**2)
     return skin
 
 

@@ -197,6 +197,8 @@ class GeometryConfig:
         if self.hidden_skin_voxels is not None and self.hidden_skin_voxels < 0:
             raise ValueError("GeometryConfig.hidden_skin_voxels must be >= 0 (or None: keep the hidden space), got "
                              f"{self.hidden_skin_voxels}.")
+        if self.hidden_skin not in ("centred", "grown"):
+            raise ValueError(f"GeometryConfig.hidden_skin must be 'centred' or 'grown', got {self.hidden_skin!r}.")
         if not self.hidden_skin_tolerance > 0 or not self.hidden_skin_sigmas >= 0:
             raise ValueError("GeometryConfig.hidden_skin_tolerance must be > 0 and hidden_skin_sigmas >= 0, got "
                              f"{self.hidden_skin_tolerance} and {self.hidden_skin_sigmas}.")
