@@ -158,8 +158,8 @@ def skin_centred(points: Float[Tensor, "N 3"], origin: Tensor | np.ndarray, voxe
             centre = torch.arange(shape[axis], device=dev, dtype=torch.float64) + 0.5
             view = [1, 1, 1]
             view[axis] = shape[axis]
-            dist2 += (box[..., 1 + axis] / count.clamp_min(1e-12) - centre.reshape(view)) ** 2
-        skin |= (count > 0) & (dist2 <= tolerance_voxels**2)
+            dist2 += (box[..., 1 + axis] / count.clamp_min(0.5) - centre.reshape(view)) ** 2
+        skin |= (count > 0.5) & (dist2 <= tolerance_voxels**2)  # counts are whole numbers; the sums subtract
     return skin
 
 
