@@ -61,6 +61,8 @@ import torch
 from jaxtyping import Bool, Float
 from torch import Tensor
 
+from ..render.projection import quat_to_rotmat
+
 __all__ = ["LATTICE_DIRECTIONS", "gaussian_samples", "hidden_open_space", "open_fraction", "skin_centred",
            "skin_from_points"]
 
@@ -81,16 +83,22 @@ def _shift(a: Tensor, d: tuple[int, ...], fill: int | bool) -> Tensor:
     return out
 
 
+def _in_grid(points: Float[Tensor, "N 3"], origin: Tensor | np.ndarray, voxel_size: float,
+             shape: tuple[int, int, int]) -> tuple[Float[Tensor, "M 3"], Tensor]:  # fmt: skip
+    """The points inside the grid, in voxel units (voxel v spans [v, v + 1)), float64, and their voxels [M, 3]."""
+    o = torch.as_tensor(np.asarray(origin, dtype=np.float64), device=points.device)
+    p = (points.double() - o) / voxel_size
+    ij = torch.floor(p).long()
+    ok = ((ij >= 0) & (ij < torch.as_tensor(shape, device=points.device))).all(1)
+    return p[ok], ij[ok]
+
+
 def skin_from_points(points: Float[Tensor, "N 3"], origin: Tensor | np.ndarray, voxel_size: float,
                      shape: tuple[int, int, int], skin_voxels: int) -> Bool[Tensor, "X Y Z"]:  # fmt: skip
     """bool grid: the voxels holding one of ``points`` (scene units, on a grid of ``origin`` and ``voxel_size``),
     grown by ``skin_voxels`` 6-connected steps (the "grown" skin, module doc)."""
     skin = torch.zeros(shape, dtype=torch.bool, device=points.device)
-    if len(points):
-        o = torch.as_tensor(np.asarray(origin, dtype=np.float64), device=points.device)
-        ij = torch.floor((points.double() - o) / voxel_size).long()
-        ok = ((ij >= 0) & (ij < torch.as_tensor(shape, device=points.device))).all(1)
-        skin[tuple(ij[ok].T)] = True
+    skin[tuple(_in_grid(points, origin, voxel_size, shape)[1].T)] = True
     for _ in range(int(skin_voxels)):
         grown = skin.clone()
         for axis in range(3):
@@ -106,11 +114,9 @@ def gaussian_samples(means: Float[Tensor, "N 3"], scales: Float[Tensor, "N 3"], 
                      sigmas: float = 1.0) -> Float[Tensor, "M 3"]:  # fmt: skip
     """Each Gaussian's mean and the six ends of its axes at ``sigmas`` standard deviations: a sample of the surface
     that the Gaussians cover, denser than their means where they are large and few."""
-    from .grid import _rotmats
-
     if sigmas <= 0 or not len(means):
         return means
-    axes = _rotmats(quats.to(means.dtype)) * (sigmas * scales.to(means.dtype))[:, None, :]  # columns: scaled axes
+    axes = quat_to_rotmat(quats.to(means.dtype)) * (sigmas * scales.to(means.dtype))[:, None, :]  # columns: scaled axes
     ends = torch.cat([means[:, None, :] + axes.transpose(1, 2), means[:, None, :] - axes.transpose(1, 2)], 1)
     return torch.cat([means, ends.reshape(-1, 3)])
 
@@ -135,16 +141,9 @@ def skin_centred(points: Float[Tensor, "N 3"], origin: Tensor | np.ndarray, voxe
     closed, because the points around a gap surround it, but the skin does not grow past a surface's edge or off its
     face, where the points all lie on one side."""
     dev = points.device
-    skin = torch.zeros(shape, dtype=torch.bool, device=dev)
-    if not len(points):
-        return skin
-    o = torch.as_tensor(np.asarray(origin, dtype=np.float64), device=dev)
-    p = (points.double() - o) / voxel_size  # voxel units: voxel v spans [v, v + 1)
-    ij = torch.floor(p).long()
-    ok = ((ij >= 0) & (ij < torch.as_tensor(shape, device=dev))).all(1)
-    p, ij = p[ok], ij[ok]
+    p, ij = _in_grid(points, origin, voxel_size, shape)
     if not len(p):
-        return skin
+        return torch.zeros(shape, dtype=torch.bool, device=dev)
     flat = (ij[:, 0] * shape[1] + ij[:, 1]) * shape[2] + ij[:, 2]
     acc = torch.zeros(shape[0] * shape[1] * shape[2], 4, dtype=torch.float64, device=dev)
     acc.index_add_(0, flat, torch.cat([torch.ones_like(p[:, :1]), p], 1))
