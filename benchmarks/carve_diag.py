@@ -28,9 +28,10 @@ from geometry_diag import _part_of, _to_world, _transform
 
 from physgs_nerfstudio.export.command import load_run
 from physgs_nerfstudio.geometry import reconstruct as rc
-from physgs_nerfstudio.geometry.carve import CarveConfig, signed_mask_distance
+from physgs_nerfstudio.geometry.carve import CarveConfig, resolve_depth_render, signed_mask_distance
 from physgs_nerfstudio.geometry.gaussians import ViewRender, render_depth
 from physgs_nerfstudio.geometry.select import select_object
+from physgs_nerfstudio.render.backend import resolve_backend
 from physgs_nerfstudio.synth.objects import build_layout
 
 RULES = {
@@ -64,6 +65,7 @@ def prepare(run_dir: Path, cache: Path | None, median: bool = True) -> dict:
         return torch.load(f, weights_only=False)
     cfg_path = next((run_dir / "runs").glob("**/config.yml"))
     run = load_run(cfg_path, max_view_width=640)
+    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")  # as `physgs export` does
     pf, views = run.field, run.views
     cfg = rc.GeometryConfig()
     sel = select_object(pf, views, cfg.select, backend=cfg.backend)
@@ -79,7 +81,8 @@ def prepare(run_dir: Path, cache: Path | None, median: bool = True) -> dict:
     layout = build_layout(truth["layout"], int(truth.get("seed", 0)))
     parts = [p for p in layout.parts if p.role == "object"]
     out = {"views": obj_views, "ed": ed, "med": med, "grid": grid, "T": T, "s": s, "parts": parts,
-           "names": [p.name for p in parts], "truth": truth, "means": pf.means[sel.selected].detach().cpu()}
+           "names": [p.name for p in parts], "truth": truth, "means": pf.means[sel.selected].detach().cpu(),
+           "backend": resolve_backend(cfg.backend, pf.means.device)}
     if f is not None:
         torch.save(out, f)
     return out
@@ -87,6 +90,10 @@ def prepare(run_dir: Path, cache: Path | None, median: bool = True) -> dict:
 
 def carve(d: dict, rule: dict) -> dict:
     cc = replace(CarveConfig(), **rule)
+    # "auto" resolved for the rasterizer that rendered the depth, as the export does (`reconstruct`); caches
+    # written before the backend was kept were rendered on the GPU (gsplat) or the CPU (reference) as now
+    backend = d.get("backend") or ("gsplat" if torch.cuda.is_available() else "reference")
+    cc = replace(cc, depth_render=resolve_depth_render(cc.depth_render, backend))
     if d["med"] is None and rule.get("depth_render") in ("median", "first"):
         raise SystemExit(f"rule {rule} needs the median depth: run without --no-median")
     med = d["med"] if d["med"] is not None else [None] * len(d["ed"])
@@ -126,6 +133,7 @@ def parts_report(run_dir: Path, resolution: int | None) -> dict:
 
     cfg_path = next((run_dir / "runs").glob("**/config.yml"))
     run = load_run(cfg_path, max_view_width=640)
+    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")
     gc = rc.GeometryConfig() if resolution is None else rc.GeometryConfig(resolution=resolution)
     geo = object_geometry(run, gc)
     T, s = _transform(cfg_path.parent)

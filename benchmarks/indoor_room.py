@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -48,6 +49,7 @@ def main() -> None:
     from physgs_nerfstudio.demo import DemoCommand
 
     run = load_run(cfg_path)
+    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")  # as `physgs export` does
     geo = object_geometry(run, GeometryConfig(resolution=DemoCommand().export_resolution))
     pf = run.field
     T, s = _transform(cfg_path.parent)
