@@ -7,7 +7,8 @@ the object's views and their renders (expected depth with its spread, median dep
 with ``--cache``); then each rule's nominal carving is compared voxel by voxel with the true occupancy on the
 same grid: carved / true volume, per-part recall, false solid. Cheaper than a re-export (no materials, parts,
 structure or variants) and exact about geometry, so it screens carving rules before `mass_suite.py` measures
-them.
+them. ``--account PART ...``: for each rule, which views' votes emptied those true parts' lost voxels
+(:func:`view_account`). On a GPU machine the field is loaded on the GPU, as `physgs export` does.
 """
 
 from __future__ import annotations
@@ -15,8 +16,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -28,7 +31,12 @@ from geometry_diag import _part_of, _to_world, _transform
 
 from physgs_nerfstudio.export.command import load_run
 from physgs_nerfstudio.geometry import reconstruct as rc
-from physgs_nerfstudio.geometry.carve import CarveConfig, resolve_depth_render, signed_mask_distance
+from physgs_nerfstudio.geometry.carve import (
+    CarveConfig,
+    carve_votes,
+    resolve_depth_render,
+    signed_mask_distance,
+)
 from physgs_nerfstudio.geometry.gaussians import ViewRender, render_depth
 from physgs_nerfstudio.geometry.select import select_object
 from physgs_nerfstudio.render.backend import resolve_backend
@@ -88,7 +96,7 @@ def prepare(run_dir: Path, cache: Path | None, median: bool = True) -> dict:
     return out
 
 
-def carve(d: dict, rule: dict) -> dict:
+def carve(d: dict, rule: dict, account: Sequence[str] = ()) -> dict:
     cc = replace(CarveConfig(), **rule)
     # "auto" resolved for the rasterizer that rendered the depth, as the export does (`reconstruct`); caches
     # written before the backend was kept were rendered on the GPU (gsplat) or the CPU (reference) as now
@@ -117,11 +125,44 @@ def carve(d: dict, rule: dict) -> dict:
     centres = grid.centres(torch.from_numpy(ijk)).double().numpy()
     gt = _part_of(d["parts"], _to_world(centres, d["T"], d["s"]), 0.0).reshape(grid.shape)
     true = gt >= 0
-    return {"ratio": float(solid.sum() / max(true.sum(), 1)),
-            "iou": float((solid & true).sum() / max((solid | true).sum(), 1)),
-            "false": float((solid & ~true).sum() / max(true.sum(), 1)),
-            "recall": {n: round(float((solid & (gt == i)).sum() / max((gt == i).sum(), 1)), 3)
-                       for i, n in enumerate(d["names"])}}
+    out = {"ratio": float(solid.sum() / max(true.sum(), 1)),
+           "iou": float((solid & true).sum() / max((solid | true).sum(), 1)),
+           "false": float((solid & ~true).sum() / max(true.sum(), 1)),
+           "recall": {n: round(float((solid & (gt == i)).sum() / max((gt == i).sum(), 1)), 3)
+                      for i, n in enumerate(d["names"])}}
+    if account:
+        out["account"] = {n: view_account(d, grid, views, renders, sdf, cc, solid, gt == d["names"].index(n), dev)
+                          for n in account if n in d["names"]}
+    return out
+
+
+def view_account(d: dict, grid: Any, views: list, renders: list, sdf: list, cc: CarveConfig, solid: np.ndarray,
+                 part: np.ndarray, dev: str) -> dict:
+    """Which views empty a true part's voxels that the nominal carving lost: per view, its empty votes on them by
+    mask and by depth, how many of them it sees near its surface (its say in the depth consensus), and the angle
+    between its axis and the world's down direction (0: looking straight down); and over the lost voxels, the
+    median numbers of depth votes and of near views (the consensus compares the two)."""
+    lost = torch.from_numpy((part & ~solid).reshape(-1)).to(dev)
+    kept = torch.from_numpy((part & solid).reshape(-1)).to(dev)
+    R = np.asarray(d["T"], float)[:, :3]
+    down = R @ np.array([0.0, 0.0, -1.0])  # the world's down in scene axes (p_s = s (R p_w + t))
+    rows, n_depth, n_near = [], torch.zeros(int(lost.sum()), device=dev), torch.zeros(int(lost.sum()), device=dev)
+    for j, (v, r, sd) in enumerate(zip(views, renders, sdf)):
+        vt = carve_votes(grid, [v], [r], cc, sdf=[sd], device=dev)
+        de = vt.depth_empty.bool()
+        me = vt.empty.bool() & ~de
+        near = vt.near.bool() if vt.near is not None else torch.zeros_like(de)
+        n_depth += de[lost].float()
+        n_near += near[lost].float()
+        axis = v.axis.double().cpu().numpy()
+        ang = float(np.degrees(np.arccos(np.clip(axis @ down / np.linalg.norm(axis), -1, 1))))
+        rows.append({"view": j, "from_down_deg": round(ang, 1), "lost_depth": int(de[lost].sum()),
+                     "lost_mask": int(me[lost].sum()), "lost_near": int(near[lost].sum()),
+                     "kept_depth": int(de[kept].sum()), "kept_near": int(near[kept].sum())})
+    rows.sort(key=lambda x: -x["lost_depth"])
+    med = (lambda t: float(t.median()) if len(t) else None)
+    return {"lost": int(lost.sum()), "kept": int(kept.sum()), "median_depth_votes": med(n_depth),
+            "median_near": med(n_near), "views": rows}
 
 
 def parts_report(run_dir: Path, resolution: int | None) -> dict:
@@ -180,6 +221,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--parts", action="store_true", help="also the export's whole geometry per part (parts_report)")
     ap.add_argument("--resolution", type=int, default=None, help="--parts: the grid's resolution (export default)")
+    ap.add_argument("--account", nargs="*", default=[], metavar="PART",
+                    help="per-view account of these true parts' lost voxels under each rule (view_account)")
     ap.add_argument("--no-median", action="store_true", help="skip the median depth (slow on large runs): only "
                     "rules that carve with the expected depth")
     a = ap.parse_args()
@@ -190,10 +233,16 @@ def main() -> None:
         d = prepare(r, a.cache, median=not a.no_median)
         res[r.name] = {}
         for name in a.rules:
-            m = carve(d, RULES[name])
+            m = carve(d, RULES[name], a.account)
             res[r.name][name] = m
             print(f"{r.name:14s} {name:18s} ratio {m['ratio']:.3f} iou {m['iou']:.3f} false {m['false']:.3f} "
                   f"recall {m['recall']}", flush=True)
+            for part, acc in m.get("account", {}).items():
+                print(f"  {part}: lost {acc['lost']} kept {acc['kept']}; over the lost, median depth votes "
+                      f"{acc['median_depth_votes']} of median near views {acc['median_near']}; the views that "
+                      f"empty most: " + ", ".join(f"#{x['view']} ({x['from_down_deg']} deg from down) "
+                                                  f"{x['lost_depth']} by depth, near {x['lost_near']}"
+                                                  for x in acc["views"][:6]), flush=True)
         if a.parts:
             res[r.name]["parts"] = rep = parts_report(r, a.resolution)
             print(f"{r.name:14s} parts: " + "; ".join(f"{n} kept {t['kept']} lost {t['lost']} -> {t['to_parts']}"
