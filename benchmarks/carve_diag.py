@@ -64,6 +64,9 @@ RULES = {
     "expected_consensus0.5": {"depth_render": "expected", "depth_consensus": 0.5},
     "expected_consensus0.34": {"depth_render": "expected", "depth_consensus": 0.34},
     "expected_consensus0.5_band2": {"depth_render": "expected", "depth_consensus": 0.5, "near_band_voxels": 2.0},
+    "margin1": {"depth_margin_voxels": 1.0},
+    "margin-0.5": {"depth_margin_voxels": -0.5},
+    "median_extent1": {"depth_render": "median", "front_extent": 1.0},
 }
 
 
