@@ -99,12 +99,17 @@ def prepare(run_dir: Path, cache: Path | None, median: bool = True) -> dict:
     return out
 
 
-def carve(d: dict, rule: dict, account: Sequence[str] = ()) -> dict:
+def rule_config(rule: dict, backend: str) -> CarveConfig:
+    """The carving setting of ``rule`` (CarveConfig fields over its defaults), its ``depth_render`` "auto" resolved
+    for the rasterizer that rendered the depth, as the export does (`reconstruct_object`): an unresolved "auto"
+    would carve with the median wherever a median was rendered."""
     cc = replace(CarveConfig(), **rule)
-    # "auto" resolved for the rasterizer that rendered the depth, as the export does (`reconstruct`); caches
-    # written before the backend was kept were rendered on the GPU (gsplat) or the CPU (reference) as now
-    backend = d.get("backend") or ("gsplat" if torch.cuda.is_available() else "reference")
-    cc = replace(cc, depth_render=resolve_depth_render(cc.depth_render, backend))
+    return replace(cc, depth_render=resolve_depth_render(cc.depth_render, backend))
+
+
+def carve(d: dict, rule: dict, account: Sequence[str] = ()) -> dict:
+    # caches written before the backend was kept were rendered on the GPU (gsplat) or the CPU (reference) as now
+    cc = rule_config(rule, d.get("backend") or ("gsplat" if torch.cuda.is_available() else "reference"))
     if d["med"] is None and rule.get("depth_render") in ("median", "first"):
         raise SystemExit(f"rule {rule} needs the median depth: run without --no-median")
     med = d["med"] if d["med"] is not None else [None] * len(d["ed"])
