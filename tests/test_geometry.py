@@ -120,6 +120,53 @@ def test_box_volume_from_carving(box):
     assert np.all(np.abs(geo.volumes.sum(1) / v - 1) < 0.25)
 
 
+def test_unselected_boundary_gaussians_still_block_the_depth(box):
+    """A strict selection (object probability >= 0.9) leaves out the box's Gaussians whose footprints straddle the
+    masks' edges, as a coarse segmentation leaves out an object's rim (benchmarks/README.md, session 25). Rendered
+    alone (the default), the selected ones are see-through where those are missing, and the depth carves the box
+    away; with the others of probability >= 0.2 rendered as occluders (``occluder_min_prob``) the box keeps its
+    volume, and the selection is the same."""
+    pf, views = box
+    strict = _select(min_prob=0.9)
+    alone = _geo(pf, views, select=strict)
+    occluded = _geo(pf, views, select=strict, occluder_min_prob=0.2)
+    assert int(alone.selection.selected.sum()) == int(occluded.selection.selected.sum()) < 0.9 * len(pf.means)
+    assert alone.volumes[0].sum() < 0.9 * 0.024
+    assert 0.95 * 0.024 <= occluded.volumes[0].sum() <= 1.1 * 0.024
+
+
+def test_occluders_are_the_selection_and_the_likely_object_around_it():
+    """``_occluders``: the selected Gaussians, plus the unselected ones inside the selection's voxel domain with
+    object probability >= the setting and opacity >= the selection's floor, never the support plane's."""
+    from physgs_nerfstudio.geometry.reconstruct import _domain, _occluders
+    from physgs_nerfstudio.geometry.select import ObjectSelection
+
+    g = torch.Generator().manual_seed(3)
+    n = 400
+    means = torch.rand(n, 3, generator=g, dtype=torch.float64) * 2 - 1  # [-1, 1]^3
+    pf = field_from(means.float(), torch.full((n, 3), 0.01), torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4).contiguous(),
+                    densities=[700.0], names=["oak"])  # fmt: skip
+    pf.opacities = torch.rand(n, generator=g)  # (a plain attribute on the test field)
+    sel = (means.abs() < 0.4).all(1)  # a cube in the middle
+    prob = torch.rand(n, generator=g)
+    support = torch.rand(n, generator=g) < 0.1
+    selection = ObjectSelection(prob, sel, np.zeros(3), 1, support=support)
+    cfg = GeometryConfig(resolution=32, occluder_min_prob=0.3)
+    got = _occluders(pf, selection, cfg)
+    box = _domain(pf, sel, cfg)
+    lo = np.asarray(box.origin)
+    hi = lo + np.asarray(box.shape) * box.voxel_size
+    m = means.numpy()
+    inside = ((m >= lo) & (m <= hi)).all(1)
+    want = sel.numpy() | (inside & (prob.numpy() >= 0.3) & (pf.opacities.numpy() >= cfg.select.min_opacity)
+                          & ~support.numpy())  # fmt: skip
+    assert np.array_equal(got.numpy(), want)
+    assert want.sum() > sel.sum() and (inside & ~want).any()  # some added, some left out
+    assert torch.equal(_occluders(pf, selection, GeometryConfig(occluder_min_prob=None)), sel)
+    with pytest.raises(ValueError, match="occluder_min_prob"):
+        GeometryConfig(occluder_min_prob=0.0)
+
+
 def test_lifting_falls_back_to_one_view_per_call_when_a_group_runs_out_of_gpu_memory(box, monkeypatch, caplog):
     """A group of views in one rasterizer call that runs out of GPU memory is lifted again view by view: the same
     evidence, and a warning instead of a failed export."""
