@@ -2,21 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
-
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "gpu" / "batch_gpu_seconds.py"
+from bench_modules import load_benchmark
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("physgs_batch_gpu_seconds", _PATH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("gpu/batch_gpu_seconds.py", "physgs_batch_gpu_seconds")
 
 
 _LOG_END = """Printing profiling stats, from longest to shortest duration in seconds

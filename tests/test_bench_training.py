@@ -2,23 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 import torch
+from bench_modules import load_benchmark
 
 from method_configs.physgs_config import physgs_trainer_config
-
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "gpu" / "bench_training.py"
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("physgs_bench_training", _PATH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("gpu/bench_training.py", "physgs_bench_training")
 
 
 def test_overrides_name_model_then_pipeline_fields(bench) -> None:

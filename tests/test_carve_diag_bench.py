@@ -3,31 +3,21 @@ whose depth votes emptied a part."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
+from bench_modules import load_benchmark
 
 from physgs_nerfstudio.geometry.capture import CaptureView
 from physgs_nerfstudio.geometry.carve import signed_mask_distance
 from physgs_nerfstudio.geometry.gaussians import ViewRender
 from physgs_nerfstudio.geometry.grid import VoxelGrid
 
-_BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
-
 
 @pytest.fixture(scope="module")
 def cd():
     pytest.importorskip("nerfstudio")  # carve_diag loads runs through the export's loader
-    sys.path.insert(0, str(_BENCH))
-    spec = importlib.util.spec_from_file_location("physgs_bench_carve_diag", _BENCH / "carve_diag.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("carve_diag.py", "physgs_bench_carve_diag")
 
 
 def test_auto_resolves_per_rasterizer(cd):

@@ -2,24 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-_BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+from bench_modules import load_benchmark
 
 
 @pytest.fixture(scope="module")
 def dt():
-    spec = importlib.util.spec_from_file_location("physgs_bench_depth_truth", _BENCH / "depth_truth.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("depth_truth.py", "physgs_bench_depth_truth")
 
 
 @pytest.mark.parametrize("tilt_deg", [0.0, 30.0, 50.0])

@@ -2,26 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from bench_modules import load_benchmark
 
 from physgs_nerfstudio.synth.objects import build_layout
-
-_BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
 @pytest.fixture(scope="module")
 def vt():
-    sys.path.insert(0, str(_BENCH))
-    spec = importlib.util.spec_from_file_location("physgs_bench_voxel_truth", _BENCH / "voxel_truth.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("voxel_truth.py", "physgs_bench_voxel_truth")
 
 
 def _grid(parts, h: float, keep):
