@@ -2,6 +2,8 @@
 bottle, a chair, a crate and a lamp), against the generator's exact parts.
 
     python benchmarks/indoor_room.py --seed 1616 --out /tmp/room        # `physgs demo` settings (CPU)
+    python benchmarks/indoor_room.py --seed 3131 --out /tmp/room --views 24 --resolution 160 --iterations 600 \
+        --export-resolution 128                                         # a finer capture (about 50 min on 2 cores)
 
 Runs `physgs demo --object indoor_room` (resumable), then the export's geometry on the trained run, and reports:
 which generated object each selected Gaussian lies on (within ``--near-m`` of a part: the 27-point stencil of
@@ -37,20 +39,29 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("/tmp/physgs_indoor_room"))
     ap.add_argument("--near-m", type=float, default=0.02)
     ap.add_argument("--demo-args", nargs="*", default=[])
+    ap.add_argument("--views", type=int, default=None, help="the demo's camera views (default: the demo's)")
+    ap.add_argument("--resolution", type=int, default=None, help="the demo's image size in pixels")
+    ap.add_argument("--iterations", type=int, default=None, help="the demo's training iterations")
+    ap.add_argument("--export-resolution", type=int, default=None,
+                    help="voxels along the object's longest side, for the demo's export and this measurement "
+                         "(default: the demo's)")  # fmt: skip
     a = ap.parse_args()
+    from physgs_nerfstudio.demo import DemoCommand
+
     d = a.out / f"indoor_room_s{a.seed}"
+    settings = {"views": a.views, "resolution": a.resolution, "iterations": a.iterations,
+                "export-resolution": a.export_resolution}  # fmt: skip
+    flags = [x for k, v in settings.items() if v is not None for x in (f"--{k}", str(v))]
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "demo", "--object", "indoor_room", "--seed", str(a.seed),
-           "--output-dir", str(d), *a.demo_args]  # fmt: skip
+           "--output-dir", str(d), *flags, *a.demo_args]  # fmt: skip
     proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
     (a.out / f"indoor_room_s{a.seed}.log").write_text(proc.stdout[-20000:] + proc.stderr[-20000:])
     cfg_path = next((d / "runs").glob("**/config.yml"), None)
     if cfg_path is None:
         raise SystemExit(f"the demo did not train (see {a.out}/indoor_room_s{a.seed}.log)")
-    from physgs_nerfstudio.demo import DemoCommand
-
     run = load_run(cfg_path)
     run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")  # as `physgs export` does
-    geo = object_geometry(run, GeometryConfig(resolution=DemoCommand().export_resolution))
+    geo = object_geometry(run, GeometryConfig(resolution=a.export_resolution or DemoCommand().export_resolution))
     pf = run.field
     T, s = _transform(cfg_path.parent)
     truth = json.loads((run.data_dir / "ground_truth.json").read_text())
@@ -68,7 +79,8 @@ def main() -> None:
     mpu = float(pf.metres_per_unit)
     carved = float(geo.solid.sum()) * float(geo.grid.voxel_size) ** 3 * mpu**3
     res = {
-        "seed": a.seed, "selected_gaussians": int(sel.sum()), "selected_on": counts,
+        "seed": a.seed, "demo_settings": {k: v for k, v in settings.items() if v is not None},
+        "selected_gaussians": int(sel.sum()), "selected_on": counts,
         "selected_on_ground": int(ground.sum()), "selected_off_every_part": int((on < 0).sum()),
         "object": chosen, "carved_volume_m3": carved, "true_enclosed_volume_m3": true_vol,
         "volume_ratio": carved / true_vol if true_vol else None,
