@@ -3,7 +3,7 @@ bottle, a chair, a crate and a lamp), against the generator's exact parts.
 
     python benchmarks/indoor_room.py --seed 1616 --out /tmp/room        # `physgs demo` settings (CPU)
     python benchmarks/indoor_room.py --seed 3131 --out /tmp/room --views 24 --resolution 160 --iterations 600 \
-        --export-resolution 128                                         # a finer capture (about 50 min on 2 cores)
+        --export-resolution 128                                         # a finer capture (48 min here, sharing 2 cores)
 
 Runs `physgs demo --object indoor_room` (resumable), then the export's geometry on the trained run, and reports:
 which generated object each selected Gaussian lies on (within ``--near-m`` of a part: the 27-point stencil of
