@@ -18,7 +18,7 @@
 #   bash benchmarks/gpu/run_gpu.sh mprofile  # issue 13: profile of `physgs export --outputs mass` on the chair
 #   PHASE=scenes CPU_SEEDS="1313 1414" bash benchmarks/gpu/run_gpu.sh msuite  # issue 12: GPU suite scenes (+ CPU suite)
 #   PHASE=train OBJECTS="mug chair" bash benchmarks/gpu/run_gpu.sh msuite     # ... then train and score them
-#   PHASE=diag RULES="expected median" bash benchmarks/gpu/run_gpu.sh msuite  # ... and carving rules vs the truth
+#   PHASE=diag [RULES="expected median"] [ACCOUNT="top"] bash benchmarks/gpu/run_gpu.sh msuite  # ... carving rules vs the truth
 #   [BASE=DIR] bash benchmarks/gpu/run_gpu.sh after  # issue 13, after `export` on the same machine: mass_integration.py
 #                                            # (and BASE's beside it),
 #                                            # the run's ns-eval, physgs vs splatfacto-big
@@ -455,11 +455,12 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         echo "[$(elapsed) s] done"
         ;;
       diag)  # the trained runs of OBJECTS against the truth: carving RULES side by side and the export's parts
-        # (benchmarks/carve_diag.py --parts) -> carve_diag_gpu_s$GSEED.json
+        # (benchmarks/carve_diag.py --parts; ACCOUNT="top leg_0": the per-view account of those true parts'
+        # lost voxels; "baseline" is the export's own rule) -> carve_diag_gpu_s$GSEED.json
         RUNS=$(for o in $OBJECTS; do [ -d /tmp/ms/${o}_s$GSEED/runs ] && echo /tmp/ms/${o}_s$GSEED; done)
         PYTHONUNBUFFERED=1 timeout $((${LIMIT:-570} - $(elapsed))) python3 benchmarks/carve_diag.py $RUNS --parts \
-          ${NO_MEDIAN:+--no-median} \
-          --rules ${RULES:-expected expected_consensus0.5} --out "$OUT/carve_diag_gpu_s$GSEED.json" 2>&1 \
+          ${NO_MEDIAN:+--no-median} ${ACCOUNT:+--account $ACCOUNT} \
+          --rules ${RULES:-baseline median median_extent1 nodepth} --out "$OUT/carve_diag_gpu_s$GSEED.json" 2>&1 \
           | grep -v -i warn | cut -c1-400
         echo "[$(elapsed) s] done"
         ;;
