@@ -27,9 +27,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from geometry_diag import _part_of, _to_world, _transform
+from geometry_diag import _part_of, _to_world, _transform, load_run_on_device
 
-from physgs_nerfstudio.export.command import load_run
 from physgs_nerfstudio.geometry import reconstruct as rc
 from physgs_nerfstudio.geometry.carve import (
     CarveConfig,
@@ -75,8 +74,7 @@ def prepare(run_dir: Path, cache: Path | None, median: bool = True) -> dict:
     if f is not None and f.is_file():
         return torch.load(f, weights_only=False)
     cfg_path = next((run_dir / "runs").glob("**/config.yml"))
-    run = load_run(cfg_path, max_view_width=640)
-    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")  # as `physgs export` does
+    run = load_run_on_device(cfg_path, max_view_width=640)
     pf, views = run.field, run.views
     cfg = rc.GeometryConfig()
     sel = select_object(pf, views, cfg.select, backend=cfg.backend)
@@ -181,8 +179,7 @@ def parts_report(run_dir: Path, resolution: int | None) -> dict:
     from physgs_nerfstudio.export.command import object_geometry
 
     cfg_path = next((run_dir / "runs").glob("**/config.yml"))
-    run = load_run(cfg_path, max_view_width=640)
-    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")
+    run = load_run_on_device(cfg_path, max_view_width=640)
     gc = rc.GeometryConfig() if resolution is None else rc.GeometryConfig(resolution=resolution)
     geo = object_geometry(run, gc)
     T, s = _transform(cfg_path.parent)

@@ -21,14 +21,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from geometry_diag import _transform
+from geometry_diag import _transform, load_run_on_device
 
-from physgs_nerfstudio.export.command import load_run
 from physgs_nerfstudio.geometry import reconstruct
 from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.geometry.select import select_object
@@ -99,8 +97,7 @@ def main() -> None:
     a = ap.parse_args()
     from PIL import Image
 
-    run = load_run(a.load_config, max_view_width=a.max_view_width)
-    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")
+    run = load_run_on_device(a.load_config, max_view_width=a.max_view_width)
     pf, views, data_dir = run.field, run.views, run.data_dir
     T, s = _transform(a.load_config.parent)
     R_T = T[:, :3]  # scene = s (R_T world + t)

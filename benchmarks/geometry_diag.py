@@ -41,6 +41,14 @@ from physgs_nerfstudio.synth.objects import build_layout  # noqa: E402
 _OFFSETS = np.array([[a, b, c] for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)], float)
 
 
+def load_run_on_device(config: Path, **kw):
+    """:func:`load_run` with the field moved to the GPU where there is one, as `physgs export` does (on the CPU the
+    selection of a GPU run's million Gaussians takes minutes on the reference rasterizer)."""
+    run = load_run(config, **kw)
+    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")
+    return run
+
+
 def _transform(run_dir: Path) -> tuple[np.ndarray, float]:
     meta = json.loads((run_dir / "dataparser_transforms.json").read_text())
     return np.asarray(meta["transform"], float), float(meta["scale"])
@@ -118,8 +126,7 @@ def main() -> None:
         path.write_text(json.dumps(out, indent=1))
         print(f"[{time.time() - t0:.1f} s] {stage}", flush=True)
 
-    run = load_run(a.load_config, max_view_width=a.max_view_width)
-    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")  # as `physgs export` does
+    run = load_run_on_device(a.load_config, max_view_width=a.max_view_width)
     pf, views, data_dir = run.field, run.views, run.data_dir
     T, s = _transform(a.load_config.parent)
     truth = json.loads((data_dir / "ground_truth.json").read_text())

@@ -22,13 +22,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from geometry_diag import _part_of, _to_world, _transform  # noqa: E402
+from geometry_diag import _part_of, _to_world, _transform, load_run_on_device  # noqa: E402
 
-from physgs_nerfstudio.export.command import load_run, object_geometry  # noqa: E402
+from physgs_nerfstudio.export.command import object_geometry  # noqa: E402
 from physgs_nerfstudio.geometry.reconstruct import GeometryConfig  # noqa: E402
 from physgs_nerfstudio.synth.objects import build_layout  # noqa: E402
 
@@ -49,9 +48,9 @@ def main() -> None:
     from physgs_nerfstudio.demo import DemoCommand
 
     d = a.out / f"indoor_room_s{a.seed}"
-    settings = {"views": a.views, "resolution": a.resolution, "iterations": a.iterations,
-                "export-resolution": a.export_resolution}  # fmt: skip
-    flags = [x for k, v in settings.items() if v is not None for x in (f"--{k}", str(v))]
+    given = {k: v for k, v in {"views": a.views, "resolution": a.resolution, "iterations": a.iterations,
+                                "export-resolution": a.export_resolution}.items() if v is not None}  # fmt: skip
+    flags = [x for k, v in given.items() for x in (f"--{k}", str(v))]
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "demo", "--object", "indoor_room", "--seed", str(a.seed),
            "--output-dir", str(d), *flags, *a.demo_args]  # fmt: skip
     proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
@@ -59,8 +58,7 @@ def main() -> None:
     cfg_path = next((d / "runs").glob("**/config.yml"), None)
     if cfg_path is None:
         raise SystemExit(f"the demo did not train (see {a.out}/indoor_room_s{a.seed}.log)")
-    run = load_run(cfg_path)
-    run.field = run.field.to("cuda" if torch.cuda.is_available() else "cpu")  # as `physgs export` does
+    run = load_run_on_device(cfg_path)
     geo = object_geometry(run, GeometryConfig(resolution=a.export_resolution or DemoCommand().export_resolution))
     pf = run.field
     T, s = _transform(cfg_path.parent)
@@ -79,7 +77,7 @@ def main() -> None:
     mpu = float(pf.metres_per_unit)
     carved = float(geo.solid.sum()) * float(geo.grid.voxel_size) ** 3 * mpu**3
     res = {
-        "seed": a.seed, "demo_settings": {k: v for k, v in settings.items() if v is not None},
+        "seed": a.seed, "demo_settings": given,
         "selected_gaussians": int(sel.sum()), "selected_on": counts,
         "selected_on_ground": int(ground.sum()), "selected_off_every_part": int((on < 0).sum()),
         "object": chosen, "carved_volume_m3": carved, "true_enclosed_volume_m3": true_vol,

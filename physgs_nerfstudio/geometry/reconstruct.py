@@ -283,8 +283,8 @@ def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
     return VoxelGrid.from_bounds((lo - pad).cpu(), (hi + pad).cpu(), cfg.resolution)
 
 
-def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig
-                  ) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
+def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig,
+                  box: VoxelGrid | None = None) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
     """The object's own depth and alpha (its Gaussians rendered alone: a thin part's expected depth is not
     pulled back by the background behind it), and the foreground masks cut down to this object (foreground
     AND the dilated silhouette of its Gaussians). A view whose cut mask agrees with the silhouette at IoU below
@@ -294,7 +294,7 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     away, which the vote alone cannot prevent once several views fail."""
     import cv2
 
-    sub = _Subset(g, _occluders(g, selection, cfg))
+    sub = _Subset(g, _occluders(g, selection, cfg, box))
     spread = cfg.carve.front_spread > 0 or cfg.carve.max_spread_voxels < float("inf")
     kind = {"expected": "expected", "median": "median"}.get(cfg.carve.depth_render, "both")
     renders = render_depth(sub, views, backend=cfg.backend, spread=spread, depth=kind,  # type: ignore[arg-type]
@@ -335,14 +335,15 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     return out, renders
 
 
-def _occluders(g: Any, selection: ObjectSelection, cfg: GeometryConfig) -> torch.Tensor:
+def _occluders(g: Any, selection: ObjectSelection, cfg: GeometryConfig,
+               box: VoxelGrid | None = None) -> torch.Tensor:  # fmt: skip
     """bool [N]: the Gaussians whose render carves (``GeometryConfig.occluder_min_prob``): the selected ones, and
-    the others within the selection's box (the voxel domain's, :func:`_domain`) whose object probability reaches the
-    setting, opaque enough to be selected, off the support plane."""
+    the others within the selection's box (the voxel domain ``box``, :func:`_domain` when None) whose object
+    probability reaches the setting, opaque enough to be selected, off the support plane."""
     sel = selection.selected
     if cfg.occluder_min_prob is None or not bool(sel.any()):
         return sel
-    box = _domain(g, sel, cfg)
+    box = box if box is not None else _domain(g, sel, cfg)
     lo = torch.as_tensor(box.origin, dtype=g.means.dtype, device=g.means.device)
     hi = lo + torch.as_tensor(box.shape, dtype=g.means.dtype, device=g.means.device) * box.voxel_size
     extra = (selection.prob >= cfg.occluder_min_prob) & (g.opacities.reshape(-1) >= cfg.select.min_opacity)
@@ -567,11 +568,11 @@ def reconstruct_object(
     _within_hull(g, selection, views, cfg)
     _resting_plane(g, selection, views, cfg)
     step("rendering depth")
-    obj_views, renders = _object_views(g, selection, views, cfg)
+    grid = _domain(g, selection.selected, cfg)
+    obj_views, renders = _object_views(g, selection, views, cfg, grid)
     sources: dict[str, int] = {}
     for v in obj_views:
         sources[v.mask_source] = sources.get(v.mask_source, 0) + 1
-    grid = _domain(g, selection.selected, cfg)
     sdf = signed_mask_distances([v.mask for v in obj_views])
     device = g.means.device
     step("carving")
