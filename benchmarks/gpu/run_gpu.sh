@@ -403,7 +403,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #   PHASE=train: `ns-train physgs` (STEPS, 7000) of OBJECTS, CONC at a time on the one GPU, then
     #     `mass_suite.py --trained` (`physgs export --outputs mass` with its defaults, 4 at a time) -> mass_suite_gpu.json,
     #     and with ALT_ARGS the same runs exported with those flags too -> mass_suite_gpu_ALT_NAME.json (ALT2_ARGS,
-    #     ALT2_NAME: a second such export)
+    #     ALT2_NAME and ALT3_ARGS, ALT3_NAME: more such exports)
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
     OBJECTS=${OBJECTS:-"mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase"}
     case "${PHASE:?PHASE=scenes|train}" in
@@ -443,8 +443,8 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
           --alt-name gpu > "$OUT/gpu_mass_suite.log" 2>&1
         cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14
-        # the same runs exported with ALT_ARGS and ALT2_ARGS as well (each where set)
-        for alt in "${ALT_NAME:-alt}=${ALT_ARGS:-}" "${ALT2_NAME:-alt2}=${ALT2_ARGS:-}"; do
+        # the same runs exported with ALT_ARGS, ALT2_ARGS and ALT3_ARGS as well (each where set)
+        for alt in "${ALT_NAME:-alt}=${ALT_ARGS:-}" "${ALT2_NAME:-alt2}=${ALT2_ARGS:-}" "${ALT3_NAME:-alt3}=${ALT3_ARGS:-}"; do
           name=${alt%%=*} args=${alt#*=}
           [ -n "$args" ] || continue
           python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
