@@ -442,14 +442,14 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         wait
         python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
           --alt-name gpu > "$OUT/gpu_mass_suite.log" 2>&1
-        cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14
+        cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
         # the same runs exported with ALT_ARGS, ALT2_ARGS and ALT3_ARGS as well (each where set)
         for alt in "${ALT_NAME:-alt}=${ALT_ARGS:-}" "${ALT2_NAME:-alt2}=${ALT2_ARGS:-}" "${ALT3_NAME:-alt3}=${ALT3_ARGS:-}"; do
           name=${alt%%=*} args=${alt#*=}
           [ -n "$args" ] || continue
           python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
             --alt-name "gpu_$name" --export-args="$args" > "$OUT/gpu_mass_suite_$name.log" 2>&1
-          tail -1 "$OUT/gpu_mass_suite_$name.log"
+          tail -1 "$OUT/gpu_mass_suite_$name.log"; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null  # each as it ends
         done
         cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
         echo "[$(elapsed) s] done"
