@@ -663,3 +663,97 @@ def test_surface_offset_is_a_normal_shift_of_each_variant(box):
     assert rep.interval_kg[0] <= rep.mean_kg <= rep.interval_kg[1]
     with pytest.raises(ValueError, match="surface_offset_voxels"):
         MassConfig(surface_offset_voxels=-0.1)
+
+
+def test_seam_areas_count_the_faces_between_parts():
+    """seam_areas against a brute-force loop over voxel pairs on random labels, and the contact of two stacked
+    blocks: their shared face, exactly."""
+    from physgs_nerfstudio.geometry.parts import seam_areas
+
+    rng = np.random.default_rng(4)
+    lab = rng.integers(-1, 4, size=(5, 6, 4))
+    want = np.zeros((4, 4))
+    for x, y, z in np.ndindex(lab.shape):
+        for d in ((1, 0, 0), (0, 1, 0), (0, 0, 1)):
+            u, v, w = x + d[0], y + d[1], z + d[2]
+            if u < lab.shape[0] and v < lab.shape[1] and w < lab.shape[2]:
+                a, b = lab[x, y, z], lab[u, v, w]
+                if a >= 0 and b >= 0 and a != b:
+                    want[a, b] += 1
+                    want[b, a] += 1
+    np.testing.assert_array_equal(seam_areas(lab, 4, 1.0), want)
+    blocks = np.full((10, 10, 10), -1)
+    blocks[2:8, 3:7, 1:5] = 0  # 6 x 4 voxels of contact at z = 5
+    blocks[2:8, 3:7, 5:9] = 1
+    got = seam_areas(blocks, 2, 0.01)
+    assert got[0, 1] == got[1, 0] == pytest.approx(24 * 0.01**2) and got[0, 0] == got[1, 1] == 0
+
+
+def test_seam_transfer_moves_volume_between_touching_parts_only():
+    """Each sample's transfers sum to zero; a part's gain has the variance of its seams' areas times the offset's
+    spread, summed over its seams (Monte Carlo against the closed form); a part without seams gains nothing."""
+    from physgs_nerfstudio.mass.integrate import seam_transfer
+
+    seams = np.array([[0.0, 2.0, 0.5, 0.0], [2.0, 0.0, 1.0, 0.0], [0.5, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+    t = seam_transfer(seams, 0.3, np.random.default_rng(0), 200000)
+    np.testing.assert_allclose(t.sum(1), 0.0, atol=1e-12)
+    want = (seams**2).sum(1) * 0.3**2
+    np.testing.assert_allclose(t.var(0)[:3], want[:3], rtol=0.02)
+    assert not t[:, 3].any()
+    assert not seam_transfer(np.zeros((3, 3)), 0.3, np.random.default_rng(0), 10).any()
+
+
+def _split_in_two(geo):
+    """The box's geometry as two parts, split at mid-height, with their seam; every other field the box's."""
+    import dataclasses
+
+    from physgs_nerfstudio.bayes.nig import NIG
+    from physgs_nerfstudio.geometry.parts import seam_areas
+    from physgs_nerfstudio.geometry.structure import PartStructure
+
+    z = np.argwhere(geo.solid)[:, 2]
+    cut = int(np.median(z))
+    parts = np.where(geo.parts >= 0, (np.indices(geo.parts.shape)[2] >= cut).astype(int), -1)
+    h = geo.grid.voxel_size
+    st, rep = geo.structure, lambda a: np.repeat(np.asarray(a), 2)
+    t = st.thickness
+    two = PartStructure(rep(st.hollow_a), rep(st.hollow_b),
+                        NIG(t.tau.repeat(2), t.kappa.repeat(2), t.a.repeat(2), t.b.repeat(2)), rep(st.observations))
+    vol = np.stack([np.bincount(np.where(geo.solid, parts, -1)[geo.solid], minlength=2) * h**3] * len(geo.volumes))
+    return dataclasses.replace(
+        geo, parts=parts, part_mixture=np.repeat(geo.part_mixture, 2, 0), volumes=vol,
+        areas=np.repeat(geo.areas, 2, 1) / 2, surface_areas=np.repeat(geo.surface_areas, 2, 1) / 2,
+        full_areas=None, curvatures=None, sheet_share=np.repeat(geo.sheet_share, 2), structure=two,
+        material_levels=None, seam_areas=seam_areas(np.where(geo.solid, parts, -1), 2, h))  # fmt: skip
+
+
+def test_seams_move_mass_only_between_parts_of_unlike_weight(box):
+    """The box cut in two at mid-height. Both halves solid oak: moving their seam moves no mass (the samples are
+    the same as without it, drawn in the same order). The upper half hollow with a thin wall: the seam now moves
+    the lower half's solid oak, and the mass's spread grows by its density x the seam's area x the offset's spread
+    (the difference of the two runs' samples, one draw each)."""
+    import dataclasses
+
+    pf, views = box
+    geo = _split_in_two(_geo(pf, views))
+    area = float(geo.seam_areas[0, 1])
+    assert area == pytest.approx(0.4 * 0.3, rel=0.15)  # the box's horizontal section
+    unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)
+    kw = dict(n_samples=20000, seed=5, structure="solid")
+    off = integrate_mass(pf, geo, MassConfig(**kw), keep_samples=True)
+    on = integrate_mass(pf, geo, MassConfig(**kw, seam_offset_voxels=1.0), keep_samples=True)
+    np.testing.assert_allclose(on.samples, off.samples, rtol=1e-9)
+    assert on.parts[0]["seams_m2"] == {"1": pytest.approx(area)} and on.geometry["seam_offset_voxels"] == 1.0
+    st = geo.structure
+    hollow_top = dataclasses.replace(st, hollow_a=np.array([1e-3, 1e6]), hollow_b=np.array([1e6, 1e-3]))
+    g2 = dataclasses.replace(geo, structure=hollow_top)
+    kw["structure"] = "auto"
+    off = integrate_mass(pf, g2, MassConfig(**kw), keep_samples=True)
+    on = integrate_mass(pf, g2, MassConfig(**kw, seam_offset_voxels=1.0), keep_samples=True)
+    rho = 700.0
+    assert float(np.std(on.samples - off.samples)) == pytest.approx(rho * area * unit, rel=0.1)
+    assert abs(float(np.mean(on.samples - off.samples))) < 0.05 * rho * area * unit
+    assert on.interval_kg[0] <= on.median_kg <= on.interval_kg[1]
+    assert on.interval_kg[1] - on.interval_kg[0] > off.interval_kg[1] - off.interval_kg[0]
+    with pytest.raises(ValueError, match="seam_offset_voxels"):
+        MassConfig(seam_offset_voxels=float("nan"))

@@ -72,7 +72,7 @@ from .grid import VoxelGrid
 from .mesh import face_mean_curvature
 
 __all__ = ["PartGeometry", "concavities", "material_quantiles", "part_areas", "part_labels", "pooled_part_alpha",
-           "sum_rows", "voxel_mixture"]
+           "seam_areas", "sum_rows", "voxel_mixture"]
 
 
 def sum_rows(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
@@ -285,6 +285,23 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
         for x in (fa * factor, fa * sheet, fa, fa * full, curv * full))  # fmt: skip
     share = np.divide(sheet_area, total_area, out=np.zeros_like(area), where=total_area > 0)
     return PartGeometry(vol, area, share, total_area, full_area, curvature)
+
+
+def seam_areas(parts: np.ndarray, num_parts: int, voxel_size: float) -> np.ndarray:
+    """float64 [P, P], symmetric, zero diagonal: the area between each two parts inside the solid (scene units^2),
+    the voxel faces shared by a voxel of one and a voxel of the other (``parts``: int [X, Y, Z], -1 outside the
+    solid). A part's seam with another lies inside the object, where no view sees it: its place is the nearest
+    surface evidence carried inwards (:func:`voxel_mixture`), so the mass's Monte Carlo moves it
+    (:mod:`physgs_nerfstudio.mass.integrate`, "Seams")."""
+    counts = np.zeros(num_parts * num_parts, np.int64)
+    for axis in range(parts.ndim):
+        n = parts.shape[axis]
+        a = np.take(parts, np.arange(n - 1), axis=axis)
+        b = np.take(parts, np.arange(1, n), axis=axis)
+        on = (a >= 0) & (b >= 0) & (a != b)
+        counts += np.bincount(a[on] * num_parts + b[on], minlength=num_parts * num_parts)
+    m = counts.reshape(num_parts, num_parts).astype(np.float64)
+    return (m + m.T) * voxel_size**2
 
 
 def _nearest_solid(solid: np.ndarray, at: np.ndarray, radius: int = 3) -> tuple[np.ndarray, ...]:

@@ -45,6 +45,7 @@ from .parts import (
     part_areas,
     part_labels,
     pooled_part_alpha,
+    seam_areas,
     sum_rows,
     voxel_mixture,
 )
@@ -260,6 +261,9 @@ class ObjectGeometry:
     curvatures: np.ndarray | None = None
     """[G, P] integrated mean curvature of those faces, scene units (:mod:`physgs_nerfstudio.geometry.parts`,
     "Wall curvature"); None: walls of area x thickness"""
+    seam_areas: np.ndarray | None = None
+    """[P, P] area between each two parts inside the nominal solid, scene units^2
+    (:func:`physgs_nerfstudio.geometry.parts.seam_areas`); None: no seams (the mass moves none)"""
 
     @property
     def num_parts(self) -> int:
@@ -688,5 +692,5 @@ def reconstruct_object(
         sheet_share=geos[0].sheet_share, structure=structure, selection=selection, views_used=len(views),
         mask_sources=sources, material_levels=levels, surface_areas=np.stack([gm.surface for gm in geos]),
         pixel_voxels=pixel_voxels, full_areas=np.stack([gm.full_area for gm in geos]),
-        curvatures=np.stack([gm.curvature for gm in geos]),
+        curvatures=np.stack([gm.curvature for gm in geos]), seam_areas=seam_areas(nominal_parts, P, grid.voxel_size),
     )  # fmt: skip

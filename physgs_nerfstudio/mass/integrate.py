@@ -24,6 +24,15 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   demo's settings, 0.67 on 60-view GPU runs). It is off by default because of what it costs (benchmarks/README.md,
   "The surface offset"): at 0.47 the demo's intervals cover the truth more often but are about twice as wide, and
   on a thin part carved 2-3 resolution units thick (a table's top) they reach from near zero to 1.6-1.9x.
+* **Seams** (``seam_offset_voxels``): where two parts meet inside the object (a shoe's rubber sole under its
+  leather upper, a hammer's steel head on its oak handle), no view sees the boundary: each inside voxel takes the
+  material of the nearest surface evidence (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`), so the seam is
+  the seen one carried inwards, placed to about the carving's resolution ``u``. Each seam between parts ``i`` and
+  ``j``, of area ``a_ij`` (:func:`physgs_nerfstudio.geometry.parts.seam_areas`), moves by its own offset
+  ``e ~ N(0, (s_seam u)^2)`` per sample: ``a_ij e`` of volume passes from ``j`` to ``i`` (or back), the object's
+  volume unchanged (no part below 0). Which side of a seam holds the volume decides its density and whether it
+  weighs at all (the inside of a hollow part does not), so this moves the mass where parts of unlike weight meet
+  and not elsewhere.
 * Part mass: ``rho x V_p`` (solid) or ``rho x min(V_p, W_p(t_p))`` (hollow); the object's mass is the sum. The
   wall's volume ``W_p`` (:func:`wall_volume`) is ``A_p t_p`` where the faces are sheets (both sides of the wall
   reconstructed: their half areas add up to its middle surface) and shrinks with the mean curvature where the wall
@@ -43,7 +52,7 @@ import torch
 
 from ..geometry import GeometryConfig, ObjectGeometry
 
-__all__ = ["MassConfig", "MassReport", "MaterialMass", "integrate_mass", "wall_volume"]
+__all__ = ["MassConfig", "MassReport", "MaterialMass", "integrate_mass", "seam_transfer", "wall_volume"]
 
 
 @dataclass
@@ -67,12 +76,18 @@ class MassConfig:
     larger of the voxel and the pixel footprint), one draw per sample shared by every part (module doc, "Surface
     offset"); 0: the variants alone"""
 
+    seam_offset_voxels: float = 0.0
+    """spread (one standard deviation) of each seam between two parts inside the object, in units of the carving's
+    resolution, one draw per seam and sample (module doc, "Seams"); 0: the seams stay where the geometry put them"""
+
     def __post_init__(self) -> None:
         if not 0 < self.level < 1:
             raise ValueError(f"MassConfig.level must be in (0, 1), got {self.level}.")
         if not (math.isfinite(self.surface_offset_voxels) and self.surface_offset_voxels >= 0):
             raise ValueError(f"MassConfig.surface_offset_voxels must be finite and >= 0, got "
                              f"{self.surface_offset_voxels}.")
+        if not (math.isfinite(self.seam_offset_voxels) and self.seam_offset_voxels >= 0):
+            raise ValueError(f"MassConfig.seam_offset_voxels must be finite and >= 0, got {self.seam_offset_voxels}.")
         if self.n_samples < 10:
             raise ValueError(f"MassConfig.n_samples must be >= 10, got {self.n_samples}.")
         if self.structure not in ("auto", "solid", "hollow"):
@@ -163,6 +178,20 @@ def wall_volume(area: np.ndarray, full_area: np.ndarray, curvature: np.ndarray, 
     return (area - full) * t + full * t * g
 
 
+def seam_transfer(seams: np.ndarray, sigma: float, rng: np.random.Generator, n: int) -> np.ndarray:
+    """[n, P] volume each part gains (negative: loses) when every seam moves by its own normal offset of spread
+    ``sigma`` (module doc, "Seams"); ``seams``: [P, P] symmetric seam areas. Each row sums to zero."""
+    i, j = np.nonzero(np.triu(seams, 1))
+    P = seams.shape[0]
+    out = np.zeros((n, P))
+    if len(i) == 0:
+        return out
+    t = seams[i, j][None, :] * sigma * rng.standard_normal((n, len(i)))  # [n, seams]: from j to i
+    np.add.at(out.T, i, t.T)
+    np.add.at(out.T, j, -t.T)
+    return out
+
+
 def _structure_draws(geo: ObjectGeometry, cfg: MassConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """(hollow bool [S, P], thickness metres [S, P])."""
     S, P = cfg.n_samples, geo.num_parts
@@ -206,11 +235,14 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
     share = _material_shares(geo, rng, S)  # [S, P, K]
     rho = _density_draws(pf, cfg, rng)  # [S, K]
     hollow, thick = _structure_draws(geo, cfg, rng)
+    unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)  # the carving's resolution, scene units
     V_solid = V
-    if cfg.surface_offset_voxels > 0:  # drawn last: the other draws unchanged
-        unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)  # the carving's resolution, scene units
+    if cfg.surface_offset_voxels > 0:  # drawn after the others: they stay unchanged
         d = cfg.surface_offset_voxels * unit * rng.standard_normal(S)
         V_solid = np.maximum(geo.volumes[gi] + geo.surface_areas[gi] * d[:, None], 0.0) * mpu**3
+    if cfg.seam_offset_voxels > 0 and geo.seam_areas is not None:  # drawn last
+        moved = seam_transfer(geo.seam_areas * mpu**2, cfg.seam_offset_voxels * unit * mpu, rng, S)
+        V, V_solid = (np.maximum(x + moved, 0.0) for x in (V, V_solid))
     if cfg.wall_curvature and geo.curvatures is not None and geo.full_areas is not None:
         wall = wall_volume(A, geo.full_areas[gi] * mpu**2, geo.curvatures[gi] * mpu, thick)
     else:
@@ -251,13 +283,13 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
                       "mixture": {pf.material_names[int(i)]: float(geo.part_mixture[p, i]) for i in top
                                   if geo.part_mixture[p, i] > 1e-3},
                       "volume_m3": float(Vn[p]), "volume_interval_m3": q(V_solid[:, p]), "area_m2": float(An[p]),
-                      "surface_area_m2": float(Sn[p]),
+                      "surface_area_m2": float(Sn[p]), "seams_m2": _seams(geo, p, mpu),
                       "wall_mean_curvature_per_m": _mean_curvature(geo, p, mpu),
                       "sheet_share": float(geo.sheet_share[p]), "structure": s,
                       "mass_mean_kg": float(m[:, p].mean()), "mass_interval_kg": q(m[:, p])})  # fmt: skip
     info = {**geo.summary(), "voxel_size_m": geo.grid.voxel_size * mpu, "structure_mode": cfg.structure,
             "density_draw": cfg.density_draw, "num_gaussians": int(pf.num_gaussians),
-            "surface_offset_voxels": cfg.surface_offset_voxels,
+            "surface_offset_voxels": cfg.surface_offset_voxels, "seam_offset_voxels": cfg.seam_offset_voxels,
             "surface_area_m2": float(Sn.sum()),
             "volume_by_variant_m3": {n: float(v.sum() * mpu**3) for n, v in zip(geo.variant_names, geo.volumes)}}
     return MassReport(
@@ -266,6 +298,13 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
         metres_per_unit=mpu, scale_source=pf.scale_source, simulated=pf.simulated, geometry=info, parts=parts,
         samples=total if keep_samples else None,
     )  # fmt: skip
+
+
+def _seams(geo: ObjectGeometry, p: int, mpu: float) -> dict[str, float]:
+    """Part ``p``'s seams: the other part's id -> the area between them (m^2)."""
+    if geo.seam_areas is None:
+        return {}
+    return {str(q): float(a * mpu**2) for q, a in enumerate(geo.seam_areas[p]) if a > 0}
 
 
 def _mean_curvature(geo: ObjectGeometry, p: int, mpu: float) -> float | None:
