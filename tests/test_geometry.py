@@ -740,15 +740,15 @@ def test_seams_move_mass_only_between_parts_of_unlike_weight(box):
     assert area == pytest.approx(0.4 * 0.3, rel=0.15)  # the box's horizontal section
     unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)
     kw = dict(n_samples=20000, seed=5, structure="solid")
-    off = integrate_mass(pf, geo, MassConfig(**kw), keep_samples=True)
-    on = integrate_mass(pf, geo, MassConfig(**kw, seam_offset_voxels=1.0), keep_samples=True)
+    off = integrate_mass(pf, geo, MassConfig(**kw, seam_offset_voxels=0.0), keep_samples=True)
+    on = integrate_mass(pf, geo, MassConfig(**kw), keep_samples=True)  # the default, 1.0
     np.testing.assert_allclose(on.samples, off.samples, rtol=1e-9)
     assert on.parts[0]["seams_m2"] == {"1": pytest.approx(area)} and on.geometry["seam_offset_voxels"] == 1.0
     st = geo.structure
     hollow_top = dataclasses.replace(st, hollow_a=np.array([1e-3, 1e6]), hollow_b=np.array([1e6, 1e-3]))
     g2 = dataclasses.replace(geo, structure=hollow_top)
     kw["structure"] = "auto"
-    off = integrate_mass(pf, g2, MassConfig(**kw), keep_samples=True)
+    off = integrate_mass(pf, g2, MassConfig(**kw, seam_offset_voxels=0.0), keep_samples=True)
     on = integrate_mass(pf, g2, MassConfig(**kw, seam_offset_voxels=1.0), keep_samples=True)
     rho = 700.0
     assert float(np.std(on.samples - off.samples)) == pytest.approx(rho * area * unit, rel=0.1)

@@ -76,9 +76,11 @@ class MassConfig:
     larger of the voxel and the pixel footprint), one draw per sample shared by every part (module doc, "Surface
     offset"); 0: the variants alone"""
 
-    seam_offset_voxels: float = 0.0
+    seam_offset_voxels: float = 1.0
     """spread (one standard deviation) of each seam between two parts inside the object, in units of the carving's
-    resolution, one draw per seam and sample (module doc, "Seams"); 0: the seams stay where the geometry put them"""
+    resolution, one draw per seam and sample (module doc, "Seams"). 1.0: the root mean square of the seams' offsets
+    against the truth, each seam weighted by its area (0.95 over 24 seams of CPU demo runs at five development seeds,
+    ``benchmarks/seam_offset.py``; benchmarks/README.md, session 26); 0: the seams stay where the geometry put them"""
 
     def __post_init__(self) -> None:
         if not 0 < self.level < 1:
