@@ -19,6 +19,7 @@
 #   PHASE=scenes CPU_SEEDS="1313 1414" bash benchmarks/gpu/run_gpu.sh msuite  # issue 12: GPU suite scenes (+ CPU suite)
 #   PHASE=train OBJECTS="mug chair" bash benchmarks/gpu/run_gpu.sh msuite     # ... then train and score them
 #   PHASE=diag [RULES="expected median"] [ACCOUNT="top"] bash benchmarks/gpu/run_gpu.sh msuite  # ... carving rules vs the truth
+#   PHASE=seams OBJECTS="shoe hammer mug pan bottle lamp" bash benchmarks/gpu/run_gpu.sh msuite  # ... the seams vs the truth
 #   [BASE=DIR] bash benchmarks/gpu/run_gpu.sh after  # issue 13, after `export` on the same machine: mass_integration.py
 #                                            # (and BASE's beside it),
 #                                            # the run's ns-eval, physgs vs splatfacto-big
@@ -406,7 +407,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     ALT2_NAME and ALT3_ARGS, ALT3_NAME: more such exports)
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
     OBJECTS=${OBJECTS:-"mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase"}
-    case "${PHASE:?PHASE=scenes|train}" in
+    case "${PHASE:?PHASE=scenes|train|diag|seams}" in
       scenes)
         for o in $OBJECTS; do
           (d=/tmp/ms/${o}_s$GSEED; OMP_NUM_THREADS=1 python3 -m physgs_nerfstudio.cli synth --out $d/scene --object $o \
@@ -452,6 +453,12 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
           tail -1 "$OUT/gpu_mass_suite_$name.log"; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null  # each as it ends
         done
         cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
+        echo "[$(elapsed) s] done"
+        ;;
+      seams)  # the trained runs of OBJECTS: where the export puts the seams between parts (benchmarks/seam_offset.py)
+        RUNS=$(for o in $OBJECTS; do [ -d /tmp/ms/${o}_s$GSEED/runs ] && echo /tmp/ms/${o}_s$GSEED; done)
+        timeout $((${LIMIT:-570} - $(elapsed))) python3 benchmarks/seam_offset.py $RUNS --trained \
+          --out "$OUT/seam_offset_gpu_s$GSEED.json" 2>&1 | grep -v -i warn | tail -30
         echo "[$(elapsed) s] done"
         ;;
       diag)  # the trained runs of OBJECTS against the truth: carving RULES side by side and the export's parts
