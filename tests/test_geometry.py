@@ -739,7 +739,7 @@ def test_seams_move_mass_only_between_parts_of_unlike_weight(box):
     area = float(geo.seam_areas[0, 1])
     assert area == pytest.approx(0.4 * 0.3, rel=0.15)  # the box's horizontal section
     unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)
-    kw = dict(n_samples=20000, seed=5, structure="solid")
+    kw = {"n_samples": 20000, "seed": 5, "structure": "solid"}
     off = integrate_mass(pf, geo, MassConfig(**kw, seam_offset_voxels=0.0), keep_samples=True)
     on = integrate_mass(pf, geo, MassConfig(**kw), keep_samples=True)  # the default, 1.0
     np.testing.assert_allclose(on.samples, off.samples, rtol=1e-9)
