@@ -35,8 +35,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from geometry_diag import _to_world
 from mass_suite import _demo_export_args
+from voxel_truth import voxel_centres_world
 
 from physgs_nerfstudio.export.voxel import load_voxel_grid
 from physgs_nerfstudio.geometry.parts import seam_areas
@@ -46,9 +46,7 @@ from physgs_nerfstudio.synth.objects import build_layout
 def true_labels(vx: dict, transform: np.ndarray, scale: float, parts: list) -> np.ndarray:
     """int [X, Y, Z]: the index of the one part (of ``parts``) whose outer surface encloses each voxel's centre; -1
     for none, -2 for more than one."""
-    shape = vx["occupancy"].shape
-    origin, h = np.asarray(vx["origin_scene"], float), float(vx["voxel_size_scene"])
-    world = _to_world(origin + (np.indices(shape).reshape(3, -1).T + 0.5) * h, transform, scale)
+    world = voxel_centres_world(vx, transform, scale)
     count = np.zeros(len(world), np.int64)
     label = np.full(len(world), -1, np.int64)
     for i, p in enumerate(parts):
@@ -56,7 +54,7 @@ def true_labels(vx: dict, transform: np.ndarray, scale: float, parts: list) -> n
         count += inside
         label[inside] = i
     label[count > 1] = -2
-    return label.reshape(shape)
+    return label.reshape(vx["occupancy"].shape)
 
 
 def seam_offsets(vx: dict, materials_by_part: list[str], transform: np.ndarray, scale: float,
@@ -68,9 +66,7 @@ def seam_offsets(vx: dict, materials_by_part: list[str], transform: np.ndarray, 
     truth = true_labels(vx, transform, scale, parts)
     P = len(parts)
     faces = seam_areas(np.where(truth >= 0, truth, -1), P, 1.0)
-    read = np.full(occ.shape, "", object)
-    for i, m in enumerate(materials_by_part):
-        read[pid == i] = m
+    read = np.where(pid >= 0, np.asarray([*materials_by_part, ""])[pid], "")  # "" outside the solid
     footprint = max(1.0, float(vx["meta"]["geometry"].get("pixel_footprint_voxels", 1.0)))
     out = []
     for a in range(P):

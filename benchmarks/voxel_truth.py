@@ -32,15 +32,22 @@ from physgs_nerfstudio.export.voxel import load_voxel_grid
 from physgs_nerfstudio.synth.objects import build_layout
 
 
+def voxel_centres_world(vx: dict, transform: np.ndarray, scale: float) -> np.ndarray:
+    """[X*Y*Z, 3] the world coordinates of every voxel centre of a loaded grid (:func:`load_voxel_grid`), in C
+    order, through nerfstudio's dataparser ``transform`` [3, 4] and ``scale``."""
+    origin, h = np.asarray(vx["origin_scene"], float), float(vx["voxel_size_scene"])
+    index = np.indices(vx["occupancy"].shape).reshape(3, -1).T
+    return _to_world(origin + (index + 0.5) * h, transform, scale)
+
+
 def voxel_truth(vx: dict, transform: np.ndarray, scale: float, parts: list, profile: str | None = None) -> dict:
     """The comparison (module doc) of a loaded voxel grid (:func:`load_voxel_grid`) with the layout's ``parts``, the
     grid's scene coordinates mapped to the world by nerfstudio's dataparser ``transform`` [3, 4] and ``scale``."""
     occ = vx["occupancy"].astype(bool)
     pid = vx["part_id"]
-    origin, h = np.asarray(vx["origin_scene"], float), float(vx["voxel_size_scene"])
+    h = float(vx["voxel_size_scene"])
     mpu = float(vx["metres_per_unit"])
-    index = np.indices(occ.shape).reshape(3, -1).T
-    world = _to_world(origin + (index + 0.5) * h, transform, scale)
+    world = voxel_centres_world(vx, transform, scale)
     cell = (h * mpu) ** 3
     flat_occ, flat_pid = occ.ravel(), pid.ravel()
     in_any = np.zeros(len(world), bool)

@@ -407,6 +407,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     ALT2_NAME and ALT3_ARGS, ALT3_NAME: more such exports)
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
     OBJECTS=${OBJECTS:-"mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase"}
+    RUNS=$(for o in $OBJECTS; do [ -d /tmp/ms/${o}_s$GSEED/runs ] && echo /tmp/ms/${o}_s$GSEED; done)  # diag, seams
     case "${PHASE:?PHASE=scenes|train|diag|seams}" in
       scenes)
         for o in $OBJECTS; do
@@ -456,7 +457,6 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         echo "[$(elapsed) s] done"
         ;;
       seams)  # the trained runs of OBJECTS: where the export puts the seams between parts (benchmarks/seam_offset.py)
-        RUNS=$(for o in $OBJECTS; do [ -d /tmp/ms/${o}_s$GSEED/runs ] && echo /tmp/ms/${o}_s$GSEED; done)
         timeout $((${LIMIT:-570} - $(elapsed))) python3 benchmarks/seam_offset.py $RUNS --trained \
           --out "$OUT/seam_offset_gpu_s$GSEED.json" 2>&1 | grep -v -i warn | tail -30
         echo "[$(elapsed) s] done"
@@ -464,7 +464,6 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
       diag)  # the trained runs of OBJECTS against the truth: carving RULES side by side and the export's parts
         # (benchmarks/carve_diag.py --parts; ACCOUNT="top leg_0": the per-view account of those true parts'
         # lost voxels; "baseline" is the export's own rule) -> carve_diag_gpu_s$GSEED.json
-        RUNS=$(for o in $OBJECTS; do [ -d /tmp/ms/${o}_s$GSEED/runs ] && echo /tmp/ms/${o}_s$GSEED; done)
         PYTHONUNBUFFERED=1 timeout $((${LIMIT:-570} - $(elapsed))) python3 benchmarks/carve_diag.py $RUNS --parts \
           ${NO_MEDIAN:+--no-median} ${ACCOUNT:+--account $ACCOUNT} \
           --rules ${RULES:-baseline median median_extent1 nodepth} --out "$OUT/carve_diag_gpu_s$GSEED.json" 2>&1 \

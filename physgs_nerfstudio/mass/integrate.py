@@ -184,14 +184,12 @@ def seam_transfer(seams: np.ndarray, sigma: float, rng: np.random.Generator, n: 
     """[n, P] volume each part gains (negative: loses) when every seam moves by its own normal offset of spread
     ``sigma`` (module doc, "Seams"); ``seams``: [P, P] symmetric seam areas. Each row sums to zero."""
     i, j = np.nonzero(np.triu(seams, 1))
-    P = seams.shape[0]
-    out = np.zeros((n, P))
     if len(i) == 0:
-        return out
+        return np.zeros((n, seams.shape[0]))
     t = seams[i, j][None, :] * sigma * rng.standard_normal((n, len(i)))  # [n, seams]: from j to i
-    np.add.at(out.T, i, t.T)
-    np.add.at(out.T, j, -t.T)
-    return out
+    incidence = np.zeros((len(i), seams.shape[0]))
+    incidence[np.arange(len(i)), i], incidence[np.arange(len(i)), j] = 1.0, -1.0
+    return t @ incidence
 
 
 def _structure_draws(geo: ObjectGeometry, cfg: MassConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
