@@ -4,8 +4,11 @@ bottle, a chair, a crate and a lamp), against the generator's exact parts.
     python benchmarks/indoor_room.py --seed 1616 --out /tmp/room        # `physgs demo` settings (CPU)
     python benchmarks/indoor_room.py --seed 3131 --out /tmp/room --views 24 --resolution 160 --iterations 600 \
         --export-resolution 128                                         # a finer capture (48 min here, sharing 2 cores)
+    python benchmarks/indoor_room.py --run /tmp/ms/indoor_room_s9797 --out DIR    # a run trained elsewhere (GPU)
 
-Runs `physgs demo --object indoor_room` (resumable), then the export's geometry on the trained run, and reports:
+Runs `physgs demo --object indoor_room` (resumable), or takes a finished training (``--run``: a folder whose
+``runs/`` holds its config.yml, such as `ns-train physgs` at 60 views 512 px on the GPU, benchmarks/gpu/run_gpu.sh
+msuite), then the export's geometry on the trained run, and reports:
 which generated object each selected Gaussian lies on (within ``--near-m`` of a part: the 27-point stencil of
 geometry_diag.py), how many lie on the floor or the rug, the selected object (the one most selected Gaussians lie
 on), and the carved solid's volume against that object's true volume (its parts' enclosed volumes: the space the
@@ -43,23 +46,35 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=None, help="the demo's training iterations")
     ap.add_argument("--export-resolution", type=int, default=None,
                     help="voxels along the object's longest side, for the demo's export and this measurement "
-                         "(default: the demo's)")  # fmt: skip
+                         "(default: the demo's; with --run, the export's default)")  # fmt: skip
+    ap.add_argument("--run", type=Path, default=None,
+                    help="measure this finished training instead of running the demo (a folder whose runs/ holds "
+                         "its config.yml); the demo flags are then ignored")  # fmt: skip
     a = ap.parse_args()
     from physgs_nerfstudio.demo import DemoCommand
 
-    d = a.out / f"indoor_room_s{a.seed}"
+    a.out.mkdir(parents=True, exist_ok=True)
     given = {k: v for k, v in {"views": a.views, "resolution": a.resolution, "iterations": a.iterations,
                                 "export-resolution": a.export_resolution}.items() if v is not None}  # fmt: skip
-    flags = [x for k, v in given.items() for x in (f"--{k}", str(v))]
-    cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "demo", "--object", "indoor_room", "--seed", str(a.seed),
-           "--output-dir", str(d), *flags, *a.demo_args]  # fmt: skip
-    proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
-    (a.out / f"indoor_room_s{a.seed}.log").write_text(proc.stdout[-20000:] + proc.stderr[-20000:])
+    if a.run is not None:
+        d, resolution, given = a.run, a.export_resolution or GeometryConfig().resolution, {"run": str(a.run)}
+    else:
+        d, resolution = (
+            a.out / f"indoor_room_s{a.seed}",
+            a.export_resolution or DemoCommand().export_resolution,
+        )
+        flags = [x for k, v in given.items() for x in (f"--{k}", str(v))]
+        cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "demo", "--object", "indoor_room", "--seed",
+               str(a.seed), "--output-dir", str(d), *flags, *a.demo_args]  # fmt: skip
+        proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
+        (a.out / f"indoor_room_s{a.seed}.log").write_text(proc.stdout[-20000:] + proc.stderr[-20000:])
     cfg_path = next((d / "runs").glob("**/config.yml"), None)
     if cfg_path is None:
-        raise SystemExit(f"the demo did not train (see {a.out}/indoor_room_s{a.seed}.log)")
+        raise SystemExit(
+            f"no trained run under {d}/runs" + ("" if a.run else f" (see {a.out}/indoor_room_s{a.seed}.log)")
+        )
     run = load_run_on_device(cfg_path)
-    geo = object_geometry(run, GeometryConfig(resolution=a.export_resolution or DemoCommand().export_resolution))
+    geo = object_geometry(run, GeometryConfig(resolution=resolution))
     pf = run.field
     T, s = _transform(cfg_path.parent)
     truth = json.loads((run.data_dir / "ground_truth.json").read_text())
@@ -77,7 +92,7 @@ def main() -> None:
     mpu = float(pf.metres_per_unit)
     carved = float(geo.solid.sum()) * float(geo.grid.voxel_size) ** 3 * mpu**3
     res = {
-        "seed": a.seed, "demo_settings": given,
+        "seed": int(truth.get("seed", a.seed)), "demo_settings": given, "export_resolution": resolution,
         "selected_gaussians": int(sel.sum()), "selected_on": counts,
         "selected_on_ground": int(ground.sum()), "selected_off_every_part": int((on < 0).sum()),
         "object": chosen, "carved_volume_m3": carved, "true_enclosed_volume_m3": true_vol,

@@ -401,10 +401,13 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #   PHASE=scenes: the generated OBJECTS (default: all 12) at GSEED (synth + simulated perception, one process per
     #     object on the CPUs); beside them, with CPU_SEEDS, the CPU suite (`physgs demo` settings, CUDA hidden) at
     #     those seeds and its re-export with ALT_ARGS (ALT_NAME)
-    #   PHASE=train: `ns-train physgs` (STEPS, 7000) of OBJECTS, CONC at a time on the one GPU, then
-    #     `mass_suite.py --trained` (`physgs export --outputs mass` with its defaults, 4 at a time) -> mass_suite_gpu.json,
-    #     and with ALT_ARGS the same runs exported with those flags too -> mass_suite_gpu_ALT_NAME.json (ALT2_ARGS,
-    #     ALT2_NAME and ALT3_ARGS, ALT3_NAME: more such exports)
+    #   PHASE=train: `ns-train physgs` (STEPS, 7000) of OBJECTS, CONC at a time on each of the machine's GPUs (round
+    #     robin), then `mass_suite.py --trained` (`physgs export --outputs mass` with its defaults, EJOBS = 4 at a
+    #     time) -> mass_suite_gpu.json, and with ALT_ARGS the same runs exported with those flags too ->
+    #     mass_suite_gpu_ALT_NAME.json (ALT2_ARGS, ALT2_NAME and ALT3_ARGS, ALT3_NAME: more such exports). OBJECTS may
+    #     hold indoor_room: it is measured by indoor_room.py --run (-> indoor_room_gpu_sGSEED.json), not the suite.
+    #     STABILITY="chair table": then mass_stability.py on those runs (SJOBS = 8 at a time) ->
+    #     stability_OBJECT_sGSEED.json; SEAMS="shoe ...": then seam_offset.py on those -> seam_offset_gpu_sGSEED.json
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
     OBJECTS=${OBJECTS:-"mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase"}
     RUNS=$(for o in $OBJECTS; do [ -d /tmp/ms/${o}_s$GSEED/runs ] && echo /tmp/ms/${o}_s$GSEED; done)  # diag, seams
@@ -432,28 +435,43 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         # the gsplat build first: six trainings started beside it each found no gsplat_cuda.so (seed 3939)
         [ -n "${GSPLAT_BUILD_PID:-}" ] && wait "$GSPLAT_BUILD_PID"
         echo "[$(elapsed) s] gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
-        n=0
+        n=0 NGPU=$(nvidia-smi -L | wc -l)
         for o in $OBJECTS; do
           d=/tmp/ms/${o}_s$GSEED
           [ -f $d/scene/materials.json ] || { echo "no scene for $o"; continue; }
-          (python3 -m nerfstudio.scripts.train physgs --data $d/scene --max-num-iterations "$STEPS" --vis tensorboard \
+          (CUDA_VISIBLE_DEVICES=$((n % NGPU)) python3 -m nerfstudio.scripts.train physgs --data $d/scene --max-num-iterations "$STEPS" --vis tensorboard \
              --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
              --output-dir $d/runs --timestamp gpu > /tmp/ms_train_$o.log 2>&1; echo "[$(elapsed) s] trained $o: rc $?") &
-          n=$((n + 1)); [ $((n % CONC)) -eq 0 ] && wait
+          n=$((n + 1)); [ $((n % (CONC * NGPU))) -eq 0 ] && wait
         done
         wait
-        python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
+        SUITE=$(for o in $OBJECTS; do [ "$o" = indoor_room ] || echo $o; done)
+        if [[ " $OBJECTS " == *" indoor_room "* ]]; then  # beside the suite's exports
+          (python3 benchmarks/indoor_room.py --run /tmp/ms/indoor_room_s$GSEED --out /tmp/ms/room > /tmp/ms_room.log 2>&1
+           cp /tmp/ms/room/indoor_room.json "$OUT/indoor_room_gpu_s$GSEED.json"
+           echo "[$(elapsed) s] indoor_room: $(grep -E '"volume_ratio"|"selected_on_ground"' /tmp/ms/room/indoor_room.json | tr -d '\n ')") &
+        fi
+        python3 benchmarks/mass_suite.py --trained --objects $SUITE --seeds $GSEED --jobs "${EJOBS:-4}" --out /tmp/ms \
           --alt-name gpu > "$OUT/gpu_mass_suite.log" 2>&1
         cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
         # the same runs exported with ALT_ARGS, ALT2_ARGS and ALT3_ARGS as well (each where set)
         for alt in "${ALT_NAME:-alt}=${ALT_ARGS:-}" "${ALT2_NAME:-alt2}=${ALT2_ARGS:-}" "${ALT3_NAME:-alt3}=${ALT3_ARGS:-}"; do
           name=${alt%%=*} args=${alt#*=}
           [ -n "$args" ] || continue
-          python3 benchmarks/mass_suite.py --trained --objects $OBJECTS --seeds $GSEED --jobs 4 --out /tmp/ms \
+          python3 benchmarks/mass_suite.py --trained --objects $SUITE --seeds $GSEED --jobs "${EJOBS:-4}" --out /tmp/ms \
             --alt-name "gpu_$name" --export-args="$args" > "$OUT/gpu_mass_suite_$name.log" 2>&1
           tail -1 "$OUT/gpu_mass_suite_$name.log"; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null  # each as it ends
         done
         cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
+        for o in ${STABILITY:-}; do
+          python3 benchmarks/mass_stability.py /tmp/ms/${o}_s$GSEED --jobs "${SJOBS:-8}" 2>&1 | grep "largest change"
+          cp /tmp/ms/${o}_s$GSEED/mass_stability.json "$OUT/stability_${o}_s$GSEED.json" 2>/dev/null
+        done
+        if [ -n "${SEAMS:-}" ]; then
+          python3 benchmarks/seam_offset.py $(for o in $SEAMS; do echo /tmp/ms/${o}_s$GSEED; done) --trained \
+            --out "$OUT/seam_offset_gpu_s$GSEED.json" 2>&1 | grep -v -i warn | tail -3
+        fi
+        wait  # indoor_room
         echo "[$(elapsed) s] done"
         ;;
       seams)  # the trained runs of OBJECTS: where the export puts the seams between parts (benchmarks/seam_offset.py)
