@@ -107,3 +107,104 @@ def test_resting_plane_is_the_floor_among_all_gaussians(case: str) -> None:
     assert abs(plane.normal @ UP) > 0.999 and abs(plane.offset + 0.001) < 0.005
     assert find_resting_plane(np.concatenate([obj, far]), sel[: len(obj) + len(far)], cams, UP) is None
     assert find_resting_plane(pts, sel, cams, UP, SupportConfig(enabled=False)) is None
+
+
+def _views(cams: np.ndarray, size: int = 64, mask: bool = True) -> list:
+    """Pinhole views at ``cams`` looking at the origin (60 degree field), with all-foreground (or empty) masks."""
+    import torch
+
+    from physgs_nerfstudio.geometry.capture import CaptureView
+
+    out = []
+    for c in cams:
+        f = -c / np.linalg.norm(c)  # camera z: forward
+        r = np.cross(f, UP)
+        r /= np.linalg.norm(r)
+        d = np.cross(f, r)  # camera y: down
+        R = np.stack([r, d, f])  # world -> camera rows
+        vm = np.eye(4)
+        vm[:3, :3], vm[:3, 3] = R, -R @ c
+        k = size / 2 / np.tan(np.deg2rad(30))
+        K = torch.tensor([[k, 0, size / 2], [0, k, size / 2], [0, 0, 1]], dtype=torch.float32)
+        out.append(CaptureView(torch.tensor(vm, dtype=torch.float32), K, size, size,
+                               torch.full((size, size), mask, dtype=torch.bool)))  # fmt: skip
+    return out
+
+
+def _room_with_reflections(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A floor with a table-sized box on it, and under the floor, within its footprint, the diffuse cloud of
+    Gaussians with which a splat draws a shiny floor's reflections: half the points, the lowest of them all."""
+    floor = _floor(rng, 3.0, 6000)
+    box = _box_surface(rng, (-0.5, -0.3, 0.0), (0.5, 0.3, 0.75), 3000)
+    mirror = np.column_stack([rng.uniform(-1.0, 1.0, (9000, 2)), -rng.uniform(0.05, 0.6, 9000)])
+    return floor, box, mirror
+
+
+def test_reflections_under_a_floor_are_seen_only_through_it() -> None:
+    """The cloud under the floor is the lowest third, so the first search draws its planes there and finds no thin
+    layer; the search over all the points finds the floor. No camera sees the cloud past the floor (every ray to it
+    crosses the floor), so it does not count as "below" where the views are given, and the floor is accepted;
+    counted (no views, or ``below_seen_past`` off), it rejects the floor, as before."""
+    from physgs_nerfstudio.geometry.support import support_plane_or_reason
+
+    rng = np.random.default_rng(3)
+    floor, box, mirror = _room_with_reflections(rng)
+    pts = np.concatenate([floor, box, mirror])
+    cams = _ring(30, 2.5, 35, 70)
+    views = _views(cams)
+    plane, why = support_plane_or_reason(pts, cams, UP, SupportConfig(), views)
+    assert plane is not None, why
+    assert abs(plane.offset) < 0.01 and plane.drops(floor).mean() > 0.98 and plane.drops(mirror).all()
+    assert not plane.drops(box[box[:, 2] > 0.03]).any()
+    for cfg, v in ((SupportConfig(), None), (SupportConfig(below_seen_past=False), views)):
+        plane, why = support_plane_or_reason(pts, cams, UP, cfg, v)
+        assert plane is None and "lies below it" in why and "no thin layer" in why
+    plane, why = support_plane_or_reason(pts, cams, UP, SupportConfig(sample_quantiles=(1 / 3,)), views)
+    assert plane is None and why.startswith("lowest 33%: no thin layer")
+
+
+def test_a_table_top_stays_no_support_with_views() -> None:
+    """Its legs stand under its footprint, and the low views see them past the top's edge, on their masks; with
+    empty masks the same legs are background and do not count."""
+    from physgs_nerfstudio.geometry.support import _in_plane, seen_under_plane, support_plane_or_reason
+
+    rng = np.random.default_rng(4)
+    top = _box_surface(rng, (-0.5, -0.3, 0.72), (0.5, 0.3, 0.745), 5000)
+    legs = np.concatenate([_box_surface(rng, (sx * 0.45 - 0.02, sy * 0.25 - 0.02, 0.0),
+                                        (sx * 0.45 + 0.02, sy * 0.25 + 0.02, 0.72), 500)
+                           for sx in (-1, 1) for sy in (-1, 1)])  # fmt: skip
+    mug = _box_surface(rng, (-0.05, -0.05, 0.745), (0.05, 0.05, 0.85), 300)
+    cams = _ring(40, 3.0, 15, 60)
+    pts = np.concatenate([top, legs, mug])
+    plane, why = support_plane_or_reason(pts, cams, UP, SupportConfig(), _views(cams))
+    assert plane is None and "below" in why
+    uv = top @ _in_plane(UP)
+    seen = seen_under_plane(legs, uv, UP, 0.73, 0.01, _views(cams))
+    assert seen.mean() > 0.9
+    assert not seen_under_plane(legs, uv, UP, 0.73, 0.01, _views(cams, mask=False)).any()
+
+
+def test_points_under_a_wide_floor_are_hidden_from_cameras_above() -> None:
+    """Brute force: a point counts as seen past the plane exactly when, for some view that has it in frame, the
+    segment from the camera crosses the plane outside the footprint (here a square)."""
+    from physgs_nerfstudio.geometry.support import _in_plane, seen_under_plane
+
+    rng = np.random.default_rng(5)
+    floor = _floor(rng, 1.0, 20000, noise=0.0)
+    pts = np.column_stack([rng.uniform(-2.0, 2.0, (400, 2)), -rng.uniform(0.05, 1.5, 400)])
+    cams = _ring(12, 3.0, 30, 60)
+    views = _views(cams, size=256)
+    got = seen_under_plane(pts, floor @ _in_plane(UP), UP, 0.0, 0.005, views, cells=64)
+    cell = 2.0 / 64
+    n_past = np.zeros(len(pts), int)
+    for c in cams:
+        t = c[2] / (c[2] - pts[:, 2])
+        x = c + t[:, None] * (pts - c)
+        past = np.abs(x[:, :2]).max(1) > 1.0 + cell  # (the footprint is grown by a cell)
+        n_past += past
+    clear_in = n_past >= 2  # all-foreground masks: "on the mask" wherever in frame
+    clear_out = n_past == 0
+    assert got[clear_out].sum() == 0
+    # where several views see past the floor, in frame (the views look at the origin from 3 m: points within 2 m
+    # of it are in most frames), the point counts
+    assert got[clear_in].mean() > 0.8

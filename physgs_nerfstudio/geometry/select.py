@@ -48,7 +48,7 @@ from .capture import CaptureView
 from .carve import mask_view_votes, signed_mask_distances
 from .errors import GeometryError
 from .gaussians import lift_masks
-from .support import SupportConfig, SupportPlane, find_support_plane, views_up
+from .support import SupportConfig, SupportPlane, support_plane_or_reason, views_up
 
 logger = logging.getLogger(__name__)
 
@@ -259,9 +259,11 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     on_support = 0
     extent = None
     support = None
-    plane = find_support_plane(means, np.stack([v.centre.double().cpu().numpy() for v in views]), views_up(views),
-                               cfg.support)  # fmt: skip
-    if plane is not None:
+    plane, why_not = support_plane_or_reason(means, np.stack([v.centre.double().cpu().numpy() for v in views]),
+                                             views_up(views), cfg.support, views)  # fmt: skip
+    if plane is None:
+        logger.info("object: no support plane among the foreground (%s)", why_not)
+    else:
         height = plane.height(means)
         keep = height > plane.tol  # (SupportPlane.drops)
         if keep.any():

@@ -14,10 +14,16 @@ object's own flat bottom (a crate's, a shoe's sole) or top (a table's) is never 
   shot from around and above its object);
 * **below everything**: at most ``max_below`` of the foreground near the plane (within half its size of its
   inliers' footprint, in the plane and in height: far floaters and background are other clusters) lies more than
-  the plane's tolerance below it, and at least ``min_cameras_above`` of the cameras lie above it (a table's top
-  has its legs below it; the views of an object-centric capture from below its bottom face are under that face);
-* **wider than what stands on it**: the plane's inliers reach beyond the footprint of the rest of the foreground,
-  on all four sides, by ``margin`` of that footprint's size (an object's own bottom face *is* its footprint);
+  the plane's tolerance below it, under its footprint (its inliers' 1-99% box), and at least
+  ``min_cameras_above`` of the cameras lie above it (a table's top has its legs below it; the views of an
+  object-centric capture from below its bottom face are under that face). Where the views are given (the search
+  among the foreground), a point under the plane counts only when the views see it *past* the plane, on their
+  masks (:func:`seen_under_plane`): a table's legs from the low views. A splat draws a shiny floor's reflections
+  with Gaussians under it, seen only through it (the GPU's ``indoor_room`` at 512 px: 27% of the foreground near
+  the floor, which was rejected, and the room's whole floor came out as the object);
+* **wider than what stands on it**: the plane's inliers reach beyond the footprint of the rest of the foreground
+  over the plane's footprint, on all four sides, by ``margin`` of that footprint's size (an object's own bottom
+  face *is* its footprint; floaters beside a floor do not stand on it);
 * **substantial**: it holds at least ``min_share`` of the foreground near it.
 
 Where the masks leave the floor out, :func:`find_resting_plane` runs the same search among all the Gaussians around
@@ -27,7 +33,10 @@ The plane is fitted by RANSAC with the normal constrained to be level (three poi
 foreground, best inlier count), refined by least squares on its inliers. The tolerance is the inliers' own
 thickness: ``tol_sigmas`` robust standard deviations (1.4826 x MAD) of their distances to the plane, at least
 ``min_tol`` of the foreground's extent, so a rug on the floor (8 mm at demo settings, where a pixel covers
-3 cm of the floor) counts with it. The Gaussians within the tolerance of the plane and below it are not the
+3 cm of the floor) counts with it. A plane is a thin layer: when the refinement grows the tolerance past
+``max_tol_growth`` times the search's band, it cut through a diffuse cloud (a floor's reflections, the lowest
+third of the GPU room's foreground), and the search is made again with the three points drawn from all the
+points (``sample_quantiles``). The Gaussians within the tolerance of the plane and below it are not the
 object's; those above it are clustered as before.
 """
 
@@ -41,7 +50,8 @@ import numpy as np
 from .capture import CaptureView
 from .grid import VoxelGrid
 
-__all__ = ["SupportConfig", "SupportPlane", "find_resting_plane", "find_support_plane", "views_up"]
+__all__ = ["SupportConfig", "SupportPlane", "find_resting_plane", "find_support_plane", "seen_under_plane",
+           "support_plane_or_reason", "views_up"]
 
 
 @dataclass
@@ -72,6 +82,29 @@ class SupportConfig:
     lie below it are empty"""
     resting_points: int = 50_000
     """:func:`find_resting_plane` looks at this many of the Gaussians around the object's bottom at most"""
+    sample_quantiles: tuple[float, ...] = (1 / 3, 1.0)
+    """RANSAC draws its planes' three points from the lowest this share of the points (heights along the views' up),
+    each share in turn until a plane passes the tests: the lowest third first (a floor under a table top that the
+    masks took in too), then all of them (a splat puts a shiny floor's reflections under it, and they are the lowest
+    third: the GPU's `indoor_room` at 512 px)"""
+    max_tol_growth: float = 3.0
+    """a plane is a thin layer: its inliers' tolerance after the refinement (``tol_sigmas`` robust deviations) may be
+    at most this many times the search's band (1% of the points' extent); beyond, the "plane" is a cut through a
+    diffuse cloud, whose tolerance grows with each refinement (2 m on the GPU's `indoor_room` reflections)"""
+    below_seen_past: bool = True
+    """where the views are given (the selection's search among the foreground), the "below everything" test counts
+    only the points under the plane that some view sees past it on its foreground mask (:func:`seen_under_plane`): a
+    table's legs, seen from the low views. A splat puts a shiny floor's reflections under it, seen only through the
+    floor (the GPU's `indoor_room` at 512 px: 27% of the foreground near the floor lay under it, and the floor was
+    rejected). False: every point under the plane counts"""
+    over_footprint: bool = True
+    """the "below everything" and "wider than what stands on it" tests count only the points over or under the
+    plane's footprint (its inliers' 1-99% box), not those beside it: a table's legs stand under its top, and what
+    stands on a floor stands over it. False: every point in the plane's neighbourhood, beside it too (the GPU's
+    `indoor_room`: floaters beside the floor, a fifth of the points above it, reached past its edge, and the
+    backdrop's Gaussians lay below its level beyond it)"""
+    footprint_cells: int = 64
+    """cells along the longer side of the plane's footprint grid (:func:`hidden_under_plane`)"""
 
 
 @dataclass
@@ -129,19 +162,42 @@ def find_support_plane(means: np.ndarray, cameras: np.ndarray, up: np.ndarray,
                        cfg: SupportConfig | None = None) -> SupportPlane | None:  # fmt: skip
     """The support plane under the foreground Gaussians' ``means`` [N, 3] (module doc), or None when there is none.
     ``cameras``: the camera centres [V, 3]; ``up``: the views' up direction (:func:`views_up`)."""
+    return support_plane_or_reason(means, cameras, up, cfg)[0]
+
+
+def support_plane_or_reason(means: np.ndarray, cameras: np.ndarray, up: np.ndarray, cfg: SupportConfig | None = None,
+                            views: Sequence[CaptureView] | None = None) -> tuple[SupportPlane | None, str]:  # fmt: skip
+    """:func:`find_support_plane`, with the test that the best plane failed when there is none (for the log).
+    ``views`` (their cameras are ``cameras``): "below everything" counts only the points under the plane that some view
+    sees past it on its mask (``cfg.below_seen_past``, :func:`seen_under_plane`); None: every point under it."""
     cfg = cfg or SupportConfig()
-    if not cfg.enabled or len(means) < 50:
-        return None
+    if not cfg.enabled:
+        return None, "off"
+    if len(means) < 50:
+        return None, f"{len(means)} points"
     rng = np.random.default_rng(cfg.seed)
     x = means[rng.permutation(len(means))[: cfg.max_points]] if len(means) > cfg.max_points else means
     x = np.asarray(x, dtype=np.float64)
     up = np.asarray(up, dtype=np.float64) / max(np.linalg.norm(up), 1e-12)
-    h = x @ up
     ext = float(np.max(np.quantile(x, 0.95, axis=0) - np.quantile(x, 0.05, axis=0)))
     if ext <= 0:
-        return None
+        return None, "no extent"
+    why = []
+    for q in cfg.sample_quantiles:
+        plane, reason = _search(x, cameras, up, ext, q, cfg, views, rng)
+        if plane is not None:
+            return plane, ""
+        why.append(f"lowest {q:.0%}: {reason}" if q < 1 else f"all: {reason}")
+    return None, "; ".join(why)
+
+
+def _search(x: np.ndarray, cameras: np.ndarray, up: np.ndarray, ext: float, quantile: float, cfg: SupportConfig,
+            views: Sequence[CaptureView] | None, rng: np.random.Generator) -> tuple[SupportPlane | None, str]:  # fmt: skip
+    """One RANSAC search with its planes' points drawn from the lowest ``quantile`` of ``x`` (module doc), and the
+    acceptance tests; (the plane, "") or (None, the test the best plane failed)."""
+    h = x @ up
     tol0 = 0.01 * ext
-    low = np.flatnonzero(h <= np.quantile(h, 1 / 3))
+    low = np.flatnonzero(h <= np.quantile(h, quantile))
     cos_max = np.cos(np.deg2rad(cfg.max_tilt_deg))
     best, best_n, best_d = -1, up, float(np.quantile(h, 0.01))
     tri = low[rng.integers(0, len(low), size=(cfg.iterations, 3))]
@@ -158,40 +214,99 @@ def find_support_plane(means: np.ndarray, cameras: np.ndarray, up: np.ndarray,
         if cnt > best:
             best, best_n, best_d = cnt, nrm[i], d
     if best < 0:
-        return None
+        return None, "no level plane"
     n, d = best_n, best_d
     tol = tol0
     for _ in range(3):  # refine: least squares on the inliers, the tolerance from their spread
         r = x @ n - d
         inl = np.abs(r) <= tol
         if inl.sum() < 3:
-            return None
+            return None, "fewer than 3 inliers"
         n, d = _fit(x[inl], up)
         r = x @ n - d
         mad = float(np.median(np.abs(r[np.abs(r) <= tol])))
         tol = max(cfg.tol_sigmas * 1.4826 * mad, cfg.min_tol * ext)
+    if tol > cfg.max_tol_growth * tol0:
+        return None, f"no thin layer (its inliers' spread grew to {tol / tol0:.0f}x the search's band)"
     r = x @ n - d
     on = np.abs(r) <= tol
     if n @ up < cos_max or on.sum() < 10:
-        return None
+        return None, "not level" if n @ up < cos_max else "fewer than 10 inliers"
     uv = x @ _in_plane(n)
     lo_on, hi_on = np.quantile(uv[on], 0.01, axis=0), np.quantile(uv[on], 0.99, axis=0)
     size = float(np.max(hi_on - lo_on))
     # the plane's neighbourhood: far floaters and background (other clusters) neither support nor refute it
     near = np.all((uv >= lo_on - 0.5 * size) & (uv <= hi_on + 0.5 * size), 1) & (np.abs(r) <= size)
     plane = SupportPlane(n, d, tol, float(on.sum() / max(near.sum(), 1)), size)
-    if plane.share < cfg.min_share or (near & (r < -tol)).sum() > cfg.max_below * near.sum():
-        return None
-    if len(cameras) and (np.asarray(cameras, dtype=np.float64) @ n - d > tol).mean() < cfg.min_cameras_above:
-        return None
-    rest = near & (r > tol)
+    over = np.all((uv >= lo_on) & (uv <= hi_on), 1) if cfg.over_footprint else np.ones(len(uv), dtype=bool)
+    under = near & (r < -tol) & over
+    if views is not None and cfg.below_seen_past and under.any():
+        under[under] = seen_under_plane(x[under], uv[on], n, d, tol, views, cfg.footprint_cells)
+    below = float(under.sum() / max(near.sum(), 1))
+    if plane.share < cfg.min_share:
+        return None, f"holds {plane.share:.1%} of the foreground near it (min_share {cfg.min_share:.0%})"
+    if below > cfg.max_below:
+        return None, f"{below:.1%} of the foreground near it lies below it (max_below {cfg.max_below:.0%})"
+    above = float((np.asarray(cameras, dtype=np.float64) @ n - d > tol).mean()) if len(cameras) else 1.0
+    if above < cfg.min_cameras_above:
+        return None, f"{above:.0%} of the cameras above it (min_cameras_above {cfg.min_cameras_above:.0%})"
+    rest = near & (r > tol) & over
     if rest.sum() < 10:
-        return None
+        return None, "nothing stands on it"
     lo_r, hi_r = np.quantile(uv[rest], 0.01, axis=0), np.quantile(uv[rest], 0.99, axis=0)
     grow = cfg.margin * float(np.max(hi_r - lo_r))
     if np.any(lo_on > lo_r - grow) or np.any(hi_on < hi_r + grow):
-        return None
-    return plane
+        return None, "not wider than what stands on it"
+    return plane, ""
+
+
+def seen_under_plane(points: np.ndarray, inliers_uv: np.ndarray, n: np.ndarray, d: float, tol: float,
+                     views: Sequence[CaptureView], cells: int = 64) -> np.ndarray:  # fmt: skip
+    """bool [P]: which ``points`` [P, 3] under the plane ``x . n = d`` the views see *past* the plane on their
+    foreground masks: of the views that see a point past the plane (the view's camera lies under the plane, or its
+    segment to the point crosses the plane outside the plane's footprint, and the point is in its frame), at least
+    two and at least half have it on their mask (nearest pixel). The footprint is the cells of a
+    ``cells``-wide grid over the in-plane coordinates that hold an inlier (``inliers_uv`` [M, 2], :func:`_in_plane`
+    coordinates), grown by a cell and with its holes filled (the floor under an object standing on it holds no inlier,
+    but it is there). A table's legs are seen so from the low views; what lies under a floor is seen only through it,
+    or, past its edge, on the background (module doc, "below everything"). Vectorised over the points, view by view."""
+    from scipy import ndimage
+
+    points = np.asarray(points, dtype=np.float64)
+    n_past = np.zeros(len(points), dtype=np.int64)
+    n_on = np.zeros(len(points), dtype=np.int64)
+    if len(points) == 0:
+        return n_on > 0
+    B = _in_plane(n)
+    lo = inliers_uv.min(0)
+    cell = max(float((inliers_uv.max(0) - lo).max()) / cells, 1e-12)
+    shape = np.floor((inliers_uv.max(0) - lo) / cell).astype(int) + 3  # a margin of one cell for the growth
+    occ = np.zeros(tuple(shape), dtype=bool)
+    ij = np.floor((inliers_uv - lo) / cell).astype(int) + 1
+    occ[ij[:, 0], ij[:, 1]] = True
+    occ = ndimage.binary_fill_holes(ndimage.binary_dilation(occ))
+    hp = points @ n - d  # < 0
+    for v in views:  # (tens of views; each step a few products over the points)
+        c = v.centre.double().cpu().numpy()
+        h = float(c @ n - d)
+        if h > tol:  # where the segment camera -> point crosses the plane, t in (0, 1)
+            x = c + (h / (h - hp))[:, None] * (points - c)
+            ij = np.floor((x @ B - lo) / cell).astype(int) + 1
+            inside = np.all((ij >= 0) & (ij < occ.shape), 1)
+            past = np.ones(len(points), dtype=bool)
+            past[inside] = ~occ[ij[inside, 0], ij[inside, 1]]
+        else:
+            past = np.ones(len(points), dtype=bool)
+        vm, K = v.viewmat.double().cpu().numpy(), v.K.double().cpu().numpy()
+        pc = points @ vm[:3, :3].T + vm[:3, 3]
+        z = pc[:, 2]
+        zs = np.maximum(z, 1e-9)
+        u = np.floor(K[0, 0] * pc[:, 0] / zs + K[0, 2]).astype(np.int64)
+        w = np.floor(K[1, 1] * pc[:, 1] / zs + K[1, 2]).astype(np.int64)
+        ok = past & (z > 0) & (u >= 0) & (u < v.width) & (w >= 0) & (w < v.height)
+        n_past += ok
+        n_on[ok] += v.mask.cpu().numpy()[w[ok], u[ok]]
+    return (n_on >= 2) & (2 * n_on >= n_past)
 
 
 def find_resting_plane(means: np.ndarray, selected: np.ndarray, cameras: np.ndarray, up: np.ndarray,
