@@ -104,7 +104,7 @@ class SupportConfig:
     `indoor_room`: floaters beside the floor, a fifth of the points above it, reached past its edge, and the
     backdrop's Gaussians lay below its level beyond it)"""
     footprint_cells: int = 64
-    """cells along the longer side of the plane's footprint grid (:func:`hidden_under_plane`)"""
+    """cells along the longer side of the plane's footprint grid (:func:`seen_under_plane`)"""
 
 
 @dataclass
