@@ -47,6 +47,9 @@ def main() -> None:
     ap.add_argument("--export-resolution", type=int, default=None,
                     help="voxels along the object's longest side, for the demo's export and this measurement "
                          "(default: the demo's; with --run, the export's default)")  # fmt: skip
+    ap.add_argument("--contact-band", type=float, default=None,
+                    help="the selection's contact band above a support plane (SelectConfig.contact_band; default: "
+                         "the export's)")  # fmt: skip
     ap.add_argument("--run", type=Path, default=None,
                     help="measure this finished training instead of running the demo (a folder whose runs/ holds "
                          "its config.yml); the demo flags are then ignored")  # fmt: skip
@@ -74,7 +77,10 @@ def main() -> None:
             f"no trained run under {d}/runs" + ("" if a.run else f" (see {a.out}/indoor_room_s{a.seed}.log)")
         )
     run = load_run_on_device(cfg_path)
-    geo = object_geometry(run, GeometryConfig(resolution=resolution))
+    geometry = GeometryConfig(resolution=resolution)
+    if a.contact_band is not None:
+        geometry.select.contact_band = a.contact_band
+    geo = object_geometry(run, geometry)
     pf = run.field
     T, s = _transform(cfg_path.parent)
     truth = json.loads((run.data_dir / "ground_truth.json").read_text())
@@ -93,6 +99,7 @@ def main() -> None:
     carved = float(geo.solid.sum()) * float(geo.grid.voxel_size) ** 3 * mpu**3
     res = {
         "seed": int(truth.get("seed", a.seed)), "demo_settings": given, "export_resolution": resolution,
+        "contact_band": geometry.select.contact_band,
         "selected_gaussians": int(sel.sum()), "selected_on": counts,
         "selected_on_ground": int(ground.sum()), "selected_off_every_part": int((on < 0).sum()),
         "object": chosen, "carved_volume_m3": carved, "true_enclosed_volume_m3": true_vol,

@@ -208,3 +208,37 @@ def test_points_under_a_wide_floor_are_hidden_from_cameras_above() -> None:
     # where several views see past the floor, in frame (the views look at the origin from 3 m: points within 2 m
     # of it are in most frames), the point counts
     assert got[clear_in].mean() > 0.8
+
+
+def test_contact_band_keeps_neighbours_joined_near_the_floor_apart(monkeypatch) -> None:
+    """Two objects on a floor, 0.4 m apart, joined by a chain of clutter a few centimetres above the floor (what the
+    GPU room's floor Gaussians did): clustered as one without the band; with ``contact_band`` the clusters are cut
+    above it, the central object alone is selected, and its own points in the band (its legs' feet) join it."""
+    import types
+
+    import torch
+
+    import physgs_nerfstudio.geometry.select as sel
+
+    rng = np.random.default_rng(6)
+    floor = _floor(rng, 2.0, 8000)
+    table = _box_surface(rng, (-0.4, -0.3, 0.0), (0.4, 0.3, 0.75), 4000)
+    crate = _box_surface(rng, (0.8, -0.2, 0.0), (1.2, 0.2, 0.4), 2000)
+    chain = np.column_stack([rng.uniform(0.35, 0.85, 600), rng.uniform(-0.05, 0.05, 600), rng.uniform(0.01, 0.025, 600)])
+    pts = np.concatenate([floor, table, crate, chain])
+    cams = _ring(30, 3.0, 30, 60)
+    g = types.SimpleNamespace(means=torch.from_numpy(pts).float(), opacities=torch.ones(len(pts)))
+    ones = torch.ones(len(pts), dtype=torch.float64)
+    monkeypatch.setattr(sel, "lift_masks", lambda *a, **k: (10 * ones, 0 * ones))  # all foreground
+    views = _views(cams)
+    n_t, n_c = len(floor), len(floor) + len(table)
+    up_t, up_c = table[:, 2] > 0.03, crate[:, 2] > 0.03  # (the bottom faces go with the floor)
+    base = sel.select_object(g, views, sel.SelectConfig()).selected.numpy()
+    assert base[n_t:n_c][up_t].mean() > 0.99 and base[n_c : n_c + len(crate)][up_c].mean() > 0.99  # joined
+    assert not base[: len(floor)].any()  # the floor is the support plane
+    cut = sel.select_object(g, views, sel.SelectConfig(contact_band=5.0)).selected.numpy()
+    assert not cut[n_c : n_c + len(crate)].any()
+    feet = table[:, 2] < 0.05
+    assert cut[n_t:n_c][~feet].mean() > 0.99 and cut[n_t:n_c][feet & (table[:, 2] > 0.02)].mean() > 0.9
+    with pytest.raises(ValueError, match="contact_band"):
+        sel.SelectConfig(contact_band=0.5)

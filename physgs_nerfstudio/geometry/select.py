@@ -36,6 +36,7 @@
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -85,6 +86,13 @@ class SelectConfig:
     """pick the cluster nearest this point (scene units) instead of the capture centre"""
     bbox: tuple[float, float, float, float, float, float] | None = None
     """only Gaussians inside (xmin ymin zmin xmax ymax zmax), scene units (the viewer's crop box)"""
+    contact_band: float | None = None
+    """where a support plane is found: the clusters are cut among the candidates more than this many of the plane's
+    tolerances above it, and those within the band join the cluster of their nearest candidate above it (within the
+    cells' bridge). Objects stand on a floor; near it, its clutter and reflections bridge them (the GPU's
+    `indoor_room`: the chair, the crate and the lamp joined the table's cluster through Gaussians a few centimetres
+    up). None (the default): every candidate above the plane's tolerance is clustered; measured offline only
+    (benchmarks/README.md, session 27)"""
     support: SupportConfig = field(default_factory=SupportConfig)
     """the floor or table the object stands on, dropped before the clusters (module doc, step 2;
     :mod:`.support`)"""
@@ -94,6 +102,8 @@ class SelectConfig:
             raise ValueError(f"SelectConfig.min_prob must be in (0, 1), got {self.min_prob}.")
         if min(self.prior) <= 0:
             raise ValueError(f"SelectConfig.prior must be two positive numbers, got {self.prior}.")
+        if self.contact_band is not None and not self.contact_band >= 1:
+            raise ValueError(f"SelectConfig.contact_band must be >= 1 (plane tolerances) or None, got {self.contact_band}.")
         if self.cluster_cells < 4:
             raise ValueError(f"SelectConfig.cluster_cells must be >= 4, got {self.cluster_cells}.")
         if self.bbox is not None:
@@ -218,6 +228,28 @@ def _clusters(means: Tensor | np.ndarray, cfg: SelectConfig, extent: float | Non
     return lab, lo, cell, np.arange(1, n + 1)
 
 
+def _join_band(means: Tensor, band: Tensor, chosen_core: Tensor, reach: float, rounds: int) -> Tensor:
+    """bool [N] over ``means``: the chosen cluster of the points outside the ``band`` (``chosen_core``, over those
+    points in order), grown into the band: a band point joins when it lies within ``reach`` of a point already in,
+    for ``rounds`` rounds (enough to cross the band's height, not to walk along it to the next object's feet)."""
+    from scipy.spatial import cKDTree
+
+    member = torch.zeros(len(means), dtype=torch.bool)
+    member[~band.cpu()] = chosen_core.cpu()
+    pts = means.cpu().numpy()
+    low = torch.nonzero(band.cpu()).squeeze(1).numpy()
+    for _ in range(max(1, rounds)):
+        todo = low[~member.numpy()[low]]
+        if not len(todo) or not bool(member.any()):
+            break
+        dist, _ = cKDTree(pts[member.numpy()]).query(pts[todo], distance_upper_bound=reach)
+        new = todo[np.isfinite(dist)]
+        if not len(new):
+            break
+        member[torch.from_numpy(new)] = True
+    return member.to(means.device)
+
+
 def _quantiles(x: Tensor, qs: Sequence[float]) -> Tensor:
     """float64 [len(qs), D]: the column quantiles of ``x`` [N, D] (linear interpolation, NumPy's default): NumPy's on
     the CPU, a sort on a GPU (``torch.quantile`` refuses inputs of more than 16M elements)."""
@@ -259,6 +291,7 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     on_support = 0
     extent = None
     support = None
+    band = None  # the kept candidates within the contact band above the support plane (``contact_band``)
     plane, why_not = support_plane_or_reason(means, np.stack([v.centre.double().cpu().numpy() for v in views]),
                                              views_up(views), cfg.support, views)  # fmt: skip
     if plane is None:
@@ -276,17 +309,24 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
             kept = torch.from_numpy(keep).to(idx.device)
             idx, m_dev = idx[kept], m_dev[kept]
             extent = plane.size  # the scene the plane holds, not the floaters and background around it
-    lab, _, _, ids = _clusters(m_dev, cfg, extent)
+            if cfg.contact_band is not None:
+                band = torch.from_numpy(height[keep] <= cfg.contact_band * plane.tol).to(idx.device)
+                band = None if bool(band.all()) else band
+    core = m_dev if band is None else m_dev[~band]
+    lab, _, cell, ids = _clusters(core, cfg, extent)
     valid = lab > 0
     if not bool(valid.any()):
         chosen = torch.ones(len(lab), dtype=torch.bool, device=lab.device)
     else:
         # distance of each cluster to the centre: its nearest Gaussian
-        d = (m_dev - torch.as_tensor(centre, dtype=torch.float64, device=m_dev.device)).norm(dim=1)
+        d = (core - torch.as_tensor(centre, dtype=torch.float64, device=core.device)).norm(dim=1)
         dmin = torch.full((int(lab.max()) + 1,), float("inf"), dtype=torch.float64, device=d.device)
         dmin = dmin.scatter_reduce(0, lab[valid], d[valid], reduce="amin")
         dmin[0] = float("inf")
         chosen = lab == int(torch.argmin(dmin))
+    if band is not None:
+        reach = cell * (cfg.bridge_cells + 1)
+        chosen = _join_band(m_dev, band, chosen, reach, math.ceil(cfg.contact_band * plane.tol / reach) + 1)
     selected = torch.zeros_like(cand)
     selected[idx[chosen.to(idx.device)]] = True
     logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
