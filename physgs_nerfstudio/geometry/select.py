@@ -88,8 +88,9 @@ class SelectConfig:
     """only Gaussians inside (xmin ymin zmin xmax ymax zmax), scene units (the viewer's crop box)"""
     contact_band: float | None = None
     """where a support plane is found: the clusters are cut among the candidates more than this many of the plane's
-    tolerances above it, and those within the band join the cluster of their nearest candidate above it (within the
-    cells' bridge). Objects stand on a floor; near it, its clutter and reflections bridge them (the GPU's
+    tolerances above it, and the chosen cluster grows back into the band (a band candidate joins within the cells'
+    bridge of one already in, for as many rounds as cross the band's height: :func:`_join_band`). Objects stand on a
+    floor; near it, its clutter and reflections bridge them (the GPU's
     `indoor_room`: the chair, the crate and the lamp joined the table's cluster through Gaussians a few centimetres
     up). None (the default): every candidate above the plane's tolerance is clustered; measured offline only
     (benchmarks/README.md, session 27)"""
