@@ -46,8 +46,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from .capture import CaptureView
+from .carve import mask_view_votes, signed_mask_distances
 from .grid import VoxelGrid
 
 __all__ = ["SupportConfig", "SupportPlane", "find_resting_plane", "find_support_plane", "seen_under_plane",
@@ -265,7 +267,7 @@ def seen_under_plane(points: np.ndarray, inliers_uv: np.ndarray, n: np.ndarray, 
     """bool [P]: which ``points`` [P, 3] under the plane ``x . n = d`` the views see *past* the plane on their
     foreground masks: of the views that see a point past the plane (the view's camera lies under the plane, or its
     segment to the point crosses the plane outside the plane's footprint, and the point is in its frame), at least
-    two and at least half have it on their mask (nearest pixel). The footprint is the cells of a
+    two and at least half have it on their mask (the carving's lookup, :func:`.carve.mask_view_votes`). The footprint is the cells of a
     ``cells``-wide grid over the in-plane coordinates that hold an inlier (``inliers_uv`` [M, 2], :func:`_in_plane`
     coordinates), grown by a cell and with its holes filled (the floor under an object standing on it holds no inlier,
     but it is there). A table's legs are seen so from the low views; what lies under a floor is seen only through it,
@@ -285,27 +287,24 @@ def seen_under_plane(points: np.ndarray, inliers_uv: np.ndarray, n: np.ndarray, 
     ij = np.floor((inliers_uv - lo) / cell).astype(int) + 1
     occ[ij[:, 0], ij[:, 1]] = True
     occ = ndimage.binary_fill_holes(ndimage.binary_dilation(occ))
+    # the carving's projection and mask lookup: which views frame each point, and which have it on their mask
+    dev = views[0].mask.device
+    framed, off_mask = mask_view_votes(torch.from_numpy(points).float().to(dev), views,
+                                       [t.to(dev) for t in signed_mask_distances([v.mask for v in views])], 0.0)  # fmt: skip
+    on_mask = (framed & ~off_mask).cpu().numpy()
+    framed = framed.cpu().numpy()
     hp = points @ n - d  # < 0
-    for v in views:  # (tens of views; each step a few products over the points)
+    for k, v in enumerate(views):  # (tens of views; each step a few products over the points)
         c = v.centre.double().cpu().numpy()
         h = float(c @ n - d)
+        past = np.ones(len(points), dtype=bool)  # a camera under the plane sees under it
         if h > tol:  # where the segment camera -> point crosses the plane, t in (0, 1)
             x = c + (h / (h - hp))[:, None] * (points - c)
             ij = np.floor((x @ B - lo) / cell).astype(int) + 1
             inside = np.all((ij >= 0) & (ij < occ.shape), 1)
-            past = np.ones(len(points), dtype=bool)
             past[inside] = ~occ[ij[inside, 0], ij[inside, 1]]
-        else:
-            past = np.ones(len(points), dtype=bool)
-        vm, K = v.viewmat.double().cpu().numpy(), v.K.double().cpu().numpy()
-        pc = points @ vm[:3, :3].T + vm[:3, 3]
-        z = pc[:, 2]
-        zs = np.maximum(z, 1e-9)
-        u = np.floor(K[0, 0] * pc[:, 0] / zs + K[0, 2]).astype(np.int64)
-        w = np.floor(K[1, 1] * pc[:, 1] / zs + K[1, 2]).astype(np.int64)
-        ok = past & (z > 0) & (u >= 0) & (u < v.width) & (w >= 0) & (w < v.height)
-        n_past += ok
-        n_on[ok] += v.mask.cpu().numpy()[w[ok], u[ok]]
+        n_past += past & framed[k]
+        n_on += past & on_mask[k]
     return (n_on >= 2) & (2 * n_on >= n_past)
 
 
