@@ -47,9 +47,11 @@ def main() -> None:
     ap.add_argument("--export-resolution", type=int, default=None,
                     help="voxels along the object's longest side, for the demo's export and this measurement "
                          "(default: the demo's; with --run, the export's default)")  # fmt: skip
-    ap.add_argument("--contact-band", type=float, default=None,
-                    help="the selection's contact band above a support plane (SelectConfig.contact_band; default: "
-                         "the export's)")  # fmt: skip
+    ap.add_argument("--contact-band", type=str, default=None,
+                    help="the selection's contact band above a support plane, in the clusters' reach "
+                         "(SelectConfig.contact_band; 'none': off; default: the export's)")  # fmt: skip
+    ap.add_argument("--no-split", action="store_true",
+                    help="keep the coarse cluster over a support plane (SelectConfig.split_on_plane = False)")
     ap.add_argument("--run", type=Path, default=None,
                     help="measure this finished training instead of running the demo (a folder whose runs/ holds "
                          "its config.yml); the demo flags are then ignored")  # fmt: skip
@@ -79,7 +81,8 @@ def main() -> None:
     run = load_run_on_device(cfg_path)
     geometry = GeometryConfig(resolution=resolution)
     if a.contact_band is not None:
-        geometry.select.contact_band = a.contact_band
+        geometry.select.contact_band = None if a.contact_band.lower() == "none" else float(a.contact_band)
+    geometry.select.split_on_plane = not a.no_split
     geo = object_geometry(run, geometry)
     pf = run.field
     T, s = _transform(cfg_path.parent)
@@ -99,7 +102,7 @@ def main() -> None:
     carved = float(geo.solid.sum()) * float(geo.grid.voxel_size) ** 3 * mpu**3
     res = {
         "seed": int(truth.get("seed", a.seed)), "demo_settings": given, "export_resolution": resolution,
-        "contact_band": geometry.select.contact_band,
+        "contact_band": geometry.select.contact_band, "split_on_plane": geometry.select.split_on_plane,
         "selected_gaussians": int(sel.sum()), "selected_on": counts,
         "selected_on_ground": int(ground.sum()), "selected_off_every_part": int((on < 0).sum()),
         "object": chosen, "carved_volume_m3": carved, "true_enclosed_volume_m3": true_vol,

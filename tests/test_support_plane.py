@@ -212,8 +212,9 @@ def test_points_under_a_wide_floor_are_hidden_from_cameras_above() -> None:
 
 def test_contact_band_keeps_neighbours_joined_near_the_floor_apart(monkeypatch) -> None:
     """Two objects on a floor, 0.4 m apart, joined by a chain of clutter a few centimetres above the floor (what the
-    GPU room's floor Gaussians did): clustered as one without the band; with ``contact_band`` the clusters are cut
-    above it, the central object alone is selected, and its own points in the band (its legs' feet) join it."""
+    GPU room's floor Gaussians did): clustered as one without the band; with ``contact_band`` (the default) the
+    clusters are cut above it, the central object alone is selected, and its own points in the band (its legs' feet)
+    join it. A low object wholly inside the band (a mat on the floor, at the capture's centre) is still found."""
     import types
 
     import torch
@@ -233,12 +234,60 @@ def test_contact_band_keeps_neighbours_joined_near_the_floor_apart(monkeypatch) 
     views = _views(cams)
     n_t, n_c = len(floor), len(floor) + len(table)
     up_t, up_c = table[:, 2] > 0.03, crate[:, 2] > 0.03  # (the bottom faces go with the floor)
-    base = sel.select_object(g, views, sel.SelectConfig()).selected.numpy()
+    base = sel.select_object(g, views, sel.SelectConfig(contact_band=None)).selected.numpy()
     assert base[n_t:n_c][up_t].mean() > 0.99 and base[n_c : n_c + len(crate)][up_c].mean() > 0.99  # joined
     assert not base[: len(floor)].any()  # the floor is the support plane
-    cut = sel.select_object(g, views, sel.SelectConfig(contact_band=5.0)).selected.numpy()
+    cut = sel.select_object(g, views, sel.SelectConfig()).selected.numpy()
     assert not cut[n_c : n_c + len(crate)].any()
     feet = table[:, 2] < 0.05
     assert cut[n_t:n_c][~feet].mean() > 0.99 and cut[n_t:n_c][feet & (table[:, 2] > 0.02)].mean() > 0.9
+    # the same scene with the table moved 1.2 m away and a 4 cm mat at the centre: the mat is its own cluster
+    mat = _box_surface(rng, (-0.3, -0.2, 0.0), (0.3, 0.2, 0.04), 1500)
+    pts2 = np.concatenate([floor, table + [-1.2, 0, 0], crate, mat])
+    g2 = types.SimpleNamespace(means=torch.from_numpy(pts2).float(), opacities=torch.ones(len(pts2)))
+    ones2 = torch.ones(len(pts2), dtype=torch.float64)
+    monkeypatch.setattr(sel, "lift_masks", lambda *a, **k: (10 * ones2, 0 * ones2))
+    got = sel.select_object(g2, views, sel.SelectConfig()).selected.numpy()
+    n_m = len(pts2) - len(mat)
+    assert got[n_m:][mat[:, 2] > 0.02].mean() > 0.99 and not got[:n_m].any()
     with pytest.raises(ValueError, match="contact_band"):
-        sel.SelectConfig(contact_band=0.5)
+        sel.SelectConfig(contact_band=-0.5)
+
+
+def test_object_standing_close_to_another_on_a_floor_is_split_from_it(monkeypatch) -> None:
+    """A table and a chair 15 cm from its edge on a floor (the generated `indoor_room`'s layout): the clusters' cells
+    are a share of the floor's size and join them; ``split_on_plane`` splits the chosen cluster again at the table's
+    own resolution and keeps the table whole, legs included, and none of the chair."""
+    import types
+
+    import torch
+
+    import physgs_nerfstudio.geometry.select as sel
+
+    rng = np.random.default_rng(8)
+
+    def _solid(boxes: list, n: int) -> np.ndarray:
+        vol = np.array([np.prod(np.subtract(hi, lo)) ** (2 / 3) for lo, hi in boxes])
+        counts = np.maximum((n * vol / vol.sum()).astype(int), 200)
+        return np.concatenate([_box_surface(rng, lo, hi, k) for (lo, hi), k in zip(boxes, counts)])
+
+    legs = [((x - 0.03, y - 0.03, 0.0), (x + 0.03, y + 0.03, 0.72)) for x in (-0.55, 0.55) for y in (-0.35, 0.35)]
+    table = _solid([((-0.6, -0.4, 0.72), (0.6, 0.4, 0.76)), *legs], 12000)
+    cx = 0.6 + 0.15 + 0.2  # the chair's seat begins 15 cm from the table's edge
+    chair_legs = [((x - 0.02, y - 0.02, 0.0), (x + 0.02, y + 0.02, 0.45)) for x in (cx - 0.18, cx + 0.18)
+                  for y in (-0.18, 0.18)]  # fmt: skip
+    chair = _solid([((cx - 0.2, -0.2, 0.45), (cx + 0.2, 0.2, 0.49)), ((cx + 0.17, -0.2, 0.49), (cx + 0.2, 0.2, 0.9)),
+                    *chair_legs], 6000)  # fmt: skip
+    floor = _floor(rng, 2.5, 20000)
+    pts = np.concatenate([floor, table, chair])
+    g = types.SimpleNamespace(means=torch.from_numpy(pts).float(), opacities=torch.ones(len(pts)))
+    ones = torch.ones(len(pts), dtype=torch.float64)
+    monkeypatch.setattr(sel, "lift_masks", lambda *a, **k: (10 * ones, 0 * ones))  # all foreground
+    views = _views(_ring(30, 3.5, 30, 60))
+    n_t = len(floor)
+    t_up, c_up = table[:, 2] > 0.03, chair[:, 2] > 0.03
+    coarse = sel.select_object(g, views, sel.SelectConfig(split_on_plane=False)).selected.numpy()
+    assert coarse[n_t : n_t + len(table)][t_up].mean() > 0.99 and coarse[n_t + len(table) :][c_up].mean() > 0.99
+    got = sel.select_object(g, views, sel.SelectConfig()).selected.numpy()
+    assert got[n_t : n_t + len(table)][t_up].mean() > 0.99
+    assert not got[n_t + len(table) :].any() and not got[:n_t].any()

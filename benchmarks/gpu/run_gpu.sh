@@ -405,7 +405,10 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     robin), then `mass_suite.py --trained` (`physgs export --outputs mass` with its defaults, EJOBS = 4 at a
     #     time) -> mass_suite_gpu.json, and with ALT_ARGS the same runs exported with those flags too ->
     #     mass_suite_gpu_ALT_NAME.json (ALT2_ARGS, ALT2_NAME and ALT3_ARGS, ALT3_NAME: more such exports). OBJECTS may
-    #     hold indoor_room: it is measured by indoor_room.py --run (-> indoor_room_gpu_sGSEED.json), not the suite.
+    #     hold indoor_room: it is measured by indoor_room.py --run (-> indoor_room_gpu_sGSEED_V.json for each V in
+    #     ROOM_VARIANTS, default "default": the export's selection; "noband", "nosplit", "coarse": without the contact
+    #     band, without the split over the support plane, without both), not the suite. GPU0=k: the
+    #     first training goes to GPU k (several invocations side by side).
     #     STABILITY="chair table": then mass_stability.py on those runs (SJOBS = 8 at a time) ->
     #     stability_OBJECT_sGSEED.json; SEAMS="shoe ...": then seam_offset.py on those -> seam_offset_gpu_sGSEED.json
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
@@ -439,7 +442,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         for o in $OBJECTS; do
           d=/tmp/ms/${o}_s$GSEED
           [ -f $d/scene/materials.json ] || { echo "no scene for $o"; continue; }
-          (CUDA_VISIBLE_DEVICES=$((n % NGPU)) python3 -m nerfstudio.scripts.train physgs --data $d/scene --max-num-iterations "$STEPS" --vis tensorboard \
+          (CUDA_VISIBLE_DEVICES=$(((n + ${GPU0:-0}) % NGPU)) python3 -m nerfstudio.scripts.train physgs --data $d/scene --max-num-iterations "$STEPS" --vis tensorboard \
              --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
              --output-dir $d/runs --timestamp gpu > /tmp/ms_train_$o.log 2>&1; echo "[$(elapsed) s] trained $o: rc $?") &
           n=$((n + 1)); [ $((n % (CONC * NGPU))) -eq 0 ] && wait
@@ -447,13 +450,20 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         wait
         SUITE=$(for o in $OBJECTS; do [ "$o" = indoor_room ] || echo $o; done)
         if [[ " $OBJECTS " == *" indoor_room "* ]]; then  # beside the suite's exports
-          (python3 benchmarks/indoor_room.py --run /tmp/ms/indoor_room_s$GSEED --out /tmp/ms/room > /tmp/ms_room.log 2>&1
-           cp /tmp/ms/room/indoor_room.json "$OUT/indoor_room_gpu_s$GSEED.json"
-           echo "[$(elapsed) s] indoor_room: $(grep -E '"volume_ratio"|"selected_on_ground"' /tmp/ms/room/indoor_room.json | tr -d '\n ')") &
+          for v in ${ROOM_VARIANTS:-default}; do  # ROOM_VARIANTS="default noband nosplit coarse": the selection's options
+            r=/tmp/ms/room_s${GSEED}_$v
+            case $v in noband) args="--contact-band none" ;; nosplit) args="--no-split" ;;
+                       coarse) args="--contact-band none --no-split" ;; *) args="" ;; esac
+            (python3 benchmarks/indoor_room.py --run /tmp/ms/indoor_room_s$GSEED --out $r $args > $r.log 2>&1
+             cp $r/indoor_room.json "$OUT/indoor_room_gpu_s${GSEED}_$v.json"
+             echo "[$(elapsed) s] indoor_room s$GSEED $v: $(grep -E '"volume_ratio"|"selected_on_ground"' $r/indoor_room.json | tr -d '\n ')") &
+          done
         fi
-        python3 benchmarks/mass_suite.py --trained --objects $SUITE --seeds $GSEED --jobs "${EJOBS:-4}" --out /tmp/ms \
-          --alt-name gpu > "$OUT/gpu_mass_suite.log" 2>&1
-        cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
+        if [ -n "$SUITE" ]; then
+          python3 benchmarks/mass_suite.py --trained --objects $SUITE --seeds $GSEED --jobs "${EJOBS:-4}" --out /tmp/ms \
+            --alt-name gpu > "$OUT/gpu_mass_suite.log" 2>&1
+          cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
+        fi
         # the same runs exported with ALT_ARGS, ALT2_ARGS and ALT3_ARGS as well (each where set)
         for alt in "${ALT_NAME:-alt}=${ALT_ARGS:-}" "${ALT2_NAME:-alt2}=${ALT2_ARGS:-}" "${ALT3_NAME:-alt3}=${ALT3_ARGS:-}"; do
           name=${alt%%=*} args=${alt#*=}

@@ -86,14 +86,23 @@ class SelectConfig:
     """pick the cluster nearest this point (scene units) instead of the capture centre"""
     bbox: tuple[float, float, float, float, float, float] | None = None
     """only Gaussians inside (xmin ymin zmin xmax ymax zmax), scene units (the viewer's crop box)"""
-    contact_band: float | None = None
-    """where a support plane is found: the clusters are cut among the candidates more than this many of the plane's
-    tolerances above it, and the chosen cluster grows back into the band (a band candidate joins within the cells'
-    bridge of one already in, for as many rounds as cross the band's height: :func:`_join_band`). Objects stand on a
-    floor; near it, its clutter and reflections bridge them (the GPU's
-    `indoor_room`: the chair, the crate and the lamp joined the table's cluster through Gaussians a few centimetres
-    up). None (the default): every candidate above the plane's tolerance is clustered; measured offline only
-    (benchmarks/README.md, session 27)"""
+    contact_band: float | None = 1.0
+    """where a support plane is found: the clusters are cut only among the candidates higher above it than its
+    tolerance plus this many of the clusters' *reach* (the distance across which they join: a cell times
+    ``bridge_cells`` + 1), and the candidates in that band then join the cluster whose points they reach, a reach per
+    round, for as many rounds as cross the band's height (:func:`_grow_into_band`); band candidates that no cluster
+    reaches form clusters of their own (an object lying flat on the floor). Objects stand on a floor, and near it
+    their contact shadows, clutter and the floor's reflections bridge them: on the GPU's `indoor_room` the chair, the
+    crate and the lamp joined the table's cluster through Gaussians a few centimetres up. At the clusters' own
+    resolution whatever lies within one reach of the plane touches it, so it is no evidence that two objects touch.
+    None: every candidate above the plane's tolerance is clustered (before session 28)"""
+    split_on_plane: bool = True
+    """where a support plane is found: the chosen cluster is split again at its own resolution (:func:`_split_close`:
+    its Gaussians linked within the clusters' reach, two cells of ``cluster_cells`` along the longest side of its
+    5-95% core, by exact distance), keeping the part nearest the centre, until it stops shrinking. The clusters' cells
+    are a share of the floor's size, not of the object's, and objects on a floor stand close: on the GPU's
+    `indoor_room` the chair stands 15 cm from the table and stayed in its cluster (2.5-2.8x the table's volume at three
+    seeds, session 28). False: the coarse clusters alone"""
     support: SupportConfig = field(default_factory=SupportConfig)
     """the floor or table the object stands on, dropped before the clusters (module doc, step 2;
     :mod:`.support`)"""
@@ -103,8 +112,9 @@ class SelectConfig:
             raise ValueError(f"SelectConfig.min_prob must be in (0, 1), got {self.min_prob}.")
         if min(self.prior) <= 0:
             raise ValueError(f"SelectConfig.prior must be two positive numbers, got {self.prior}.")
-        if self.contact_band is not None and not self.contact_band >= 1:
-            raise ValueError(f"SelectConfig.contact_band must be >= 1 (plane tolerances) or None, got {self.contact_band}.")
+        if self.contact_band is not None and not self.contact_band >= 0:
+            raise ValueError(f"SelectConfig.contact_band must be >= 0 (the clusters' reach) or None, got "
+                             f"{self.contact_band}.")
         if self.cluster_cells < 4:
             raise ValueError(f"SelectConfig.cluster_cells must be >= 4, got {self.cluster_cells}.")
         if self.bbox is not None:
@@ -194,26 +204,19 @@ def hull_view_weights(framed: Tensor, outside: Tensor, counts: tuple[Tensor, Ten
     return torch.where(held > 0, kept.double() / held.clamp_min(1).double(), torch.ones_like(kept, dtype=torch.float64))
 
 
-def _clusters(means: Tensor | np.ndarray, cfg: SelectConfig, extent: float | None = None
+def _clusters(means: Tensor | np.ndarray, cfg: SelectConfig, extent: float | None = None, cell: float | None = None
               ) -> tuple[Tensor, np.ndarray, float, np.ndarray]:  # fmt: skip
     """Cluster label of each point (0: none; a tensor on the points' device), the cell grid's origin and size, and
     the cluster ids. ``extent``: the size the ``cluster_cells`` divide (default: the points' own, 0.2-99.8%
-    quantiles). The points' cells are found where the points are (a GPU); only the coarse grid is labelled on the
-    host."""
+    quantiles); ``cell``: the cell size, when the caller has it (:func:`_cell_size`). The points' cells are found
+    where the points are (a GPU); only the coarse grid is labelled on the host."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
-    from scipy.spatial import cKDTree
 
     m = torch.as_tensor(means).double()
     lo_hi = _quantiles(m, (0.002, 0.998))  # (one partition for both)
     lo = lo_hi[0].cpu().numpy()
-    span = float((lo_hi[1] - lo_hi[0]).max()) if extent is None else extent
-    sub = m[:: max(1, len(m) // 100_000)].cpu().numpy()
-    # the median nearest-neighbour spacing, estimated from the neighbours of 20,000 of the points (each found among
-    # all of them): the query of every point cost 0.9 s at 150k points, and the median moved by < 0.1%
-    probe = sub[:: max(1, len(sub) // 20_000)]
-    nn = cKDTree(sub).query(probe, k=2)[0][:, 1] if len(sub) > 1 else np.zeros(1)
-    # cells no finer than the Gaussians' own spacing, so a sparse splat stays one cluster
-    cell = max(span / cfg.cluster_cells, 1.5 * float(np.median(nn)), 1e-9)
+    if cell is None:
+        cell = _cell_size(m, cfg, extent, lo_hi)
     lo = lo - 2 * cell
     idx = torch.floor((m - torch.as_tensor(lo, device=m.device)) / cell).long()
     shape = np.maximum(idx.amax(0).cpu().numpy() + 1, 1) if len(idx) else np.ones(3, np.int64)
@@ -229,26 +232,53 @@ def _clusters(means: Tensor | np.ndarray, cfg: SelectConfig, extent: float | Non
     return lab, lo, cell, np.arange(1, n + 1)
 
 
-def _join_band(means: Tensor, band: Tensor, chosen_core: Tensor, reach: float, rounds: int) -> Tensor:
-    """bool [N] over ``means``: the chosen cluster of the points outside the ``band`` (``chosen_core``, over those
-    points in order), grown into the band: a band point joins when it lies within ``reach`` of a point already in,
-    for ``rounds`` rounds (enough to cross the band's height, not to walk along it to the next object's feet)."""
+def _cell_size(m: Tensor, cfg: SelectConfig, extent: float | None = None, lo_hi: Tensor | None = None) -> float:
+    """The clusters' cell: ``extent`` (default: the points' 0.2-99.8% quantiles' largest side; ``lo_hi``: those
+    quantiles, when the caller has them) over ``cluster_cells``, but no finer than 1.5 x the points' median
+    nearest-neighbour spacing, so that a sparse splat stays one cluster."""
     from scipy.spatial import cKDTree
 
-    member = torch.zeros(len(means), dtype=torch.bool)
-    member[~band.cpu()] = chosen_core.cpu()
+    if extent is None:
+        lo_hi = _quantiles(m, (0.002, 0.998)) if lo_hi is None else lo_hi
+        extent = float((lo_hi[1] - lo_hi[0]).max())
+    sub = m[:: max(1, len(m) // 100_000)].cpu().numpy()
+    # the median nearest-neighbour spacing, estimated from the neighbours of 20,000 of the points (each found among
+    # all of them): the query of every point cost 0.9 s at 150k points, and the median moved by < 0.1%
+    probe = sub[:: max(1, len(sub) // 20_000)]
+    nn = cKDTree(sub).query(probe, k=2)[0][:, 1] if len(sub) > 1 else np.zeros(1)
+    return max(extent / cfg.cluster_cells, 1.5 * float(np.median(nn)), 1e-9)
+
+
+def _grow_into_band(means: Tensor, band: Tensor, core_labels: Tensor, reach: float, rounds: int, cfg: SelectConfig,
+                    cell: float) -> Tensor:  # fmt: skip
+    """long [N]: cluster labels of all ``means`` from those of the points outside the ``band`` (``core_labels``, over
+    those points in order; 0: none). Every cluster grows into the band at once: a band point takes the label of the
+    nearest labelled point within ``reach``, for ``rounds`` rounds (enough to cross the band's height, so an object's
+    feet join it, and each foot goes to the nearest object, not along the floor to the next one). Band points that no
+    cluster reaches are clustered among themselves (:func:`_clusters`, the same ``cell``), with labels after the
+    core's."""
+    from scipy.spatial import cKDTree
+
+    b = band.cpu().numpy()
+    lab = np.zeros(len(b), np.int64)
+    lab[~b] = core_labels.cpu().numpy()
     pts = means.cpu().numpy()
-    low = torch.nonzero(band.cpu()).squeeze(1).numpy()
     for _ in range(max(1, rounds)):
-        todo = low[~member.numpy()[low]]
-        if not len(todo) or not bool(member.any()):
+        todo = np.nonzero(b & (lab == 0))[0]
+        have = np.nonzero(lab > 0)[0]
+        if not len(todo) or not len(have):
             break
-        dist, _ = cKDTree(pts[member.numpy()]).query(pts[todo], distance_upper_bound=reach)
-        new = todo[np.isfinite(dist)]
-        if not len(new):
+        dist, j = cKDTree(pts[have]).query(pts[todo], distance_upper_bound=reach)
+        ok = np.isfinite(dist)
+        if not ok.any():
             break
-        member[torch.from_numpy(new)] = True
-    return member.to(means.device)
+        lab[todo[ok]] = lab[have[j[ok]]]
+    left = b & (lab == 0)
+    if left.any():
+        sub, _, _, _ = _clusters(means[torch.from_numpy(left).to(means.device)], cfg, cell=cell)
+        sub = sub.cpu().numpy()
+        lab[left] = np.where(sub > 0, sub + lab.max(), 0)
+    return torch.from_numpy(lab).to(means.device)
 
 
 def _quantiles(x: Tensor, qs: Sequence[float]) -> Tensor:
@@ -268,6 +298,76 @@ def _sorted_quantiles(x: Tensor, qs: Sequence[float]) -> Tensor:
     t = (pos - i0).to(s.device)[:, None]
     a, b = s[i0.to(s.device)], s[i1.to(s.device)]
     return a + (b - a) * t
+
+
+def _split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: SelectConfig, rounds: int = 8,
+                 min_share: float = 0.01, spacing_quantile: float = 0.9) -> Tensor:
+    """bool [N] over ``m``: the ``chosen`` points split into parts that lie farther apart than the clusters' reach at
+    the chosen points' own resolution (``bridge_cells`` + 1 cells of their 5-95% extent's longest side over
+    ``cluster_cells``, no finer than 1.5 x their median nearest-neighbour spacing, as :func:`_cell_size`), and the
+    part nearest ``centre`` kept; again on that part until it stops shrinking (a neighbour's points stretched the
+    extent, and so the reach, of the first round). The parts are the connected components of each point's 16 nearest
+    neighbours within the reach (SciPy), exact distances rather than the coarse clusters' dilated cells, which join
+    points up to 4-7 cells apart. Only parts of at least ``min_share`` of the points (and 16) are split off: smaller
+    ones are gaps in the sampling of one surface or stray floaters, and each joins the part nearest it."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    cur = chosen.cpu().numpy().copy()
+    pts = m.cpu().numpy()
+    for _ in range(rounds):
+        p = pts[cur]
+        if len(p) < 16:
+            break
+        q = np.quantile(p, (0.05, 0.95), axis=0)
+        tree = cKDTree(p)
+        nn = tree.query(p[:: max(1, len(p) // 20_000)], k=2)[0][:, 1]
+        spacing = float(np.quantile(nn, spacing_quantile))
+        reach = (cfg.bridge_cells + 1) * max(float((q[1] - q[0]).max()) / cfg.cluster_cells, 1.5 * spacing)
+        dist, j = tree.query(p, k=16, distance_upper_bound=reach)
+        ok = np.isfinite(dist)
+        rows = np.broadcast_to(np.arange(len(p))[:, None], j.shape)[ok]
+        graph = coo_matrix((np.ones(int(ok.sum()), np.int8), (rows, j[ok])), shape=(len(p), len(p)))
+        n, comp = connected_components(graph, directed=False)
+        size = np.bincount(comp, minlength=n)
+        big = size >= max(16, min_share * len(p))
+        if big.sum() <= 1:
+            break
+        # crumbs (gaps in the sampling of one surface, stray floaters) are no objects: each joins the nearest part
+        crumb = ~big[comp]
+        if crumb.any():
+            _, k = cKDTree(p[~crumb]).query(p[crumb])
+            comp[crumb] = comp[~crumb][k]
+        d = np.linalg.norm(p - centre, axis=1)
+        near = np.full(n, np.inf)
+        np.minimum.at(near, comp, d)
+        keep = comp == int(np.argmin(near))
+        idx = np.nonzero(cur)[0]
+        cur[:] = False
+        cur[idx[keep]] = True
+    return torch.from_numpy(cur).to(chosen.device)
+
+
+def _labels(m: Tensor, cfg: SelectConfig, extent: float | None, height: np.ndarray | None, tol: float
+            ) -> tuple[Tensor, np.ndarray]:  # fmt: skip
+    """Cluster label of each candidate (0: none) and the cluster ids: :func:`_clusters`, or, above a support plane
+    (``height``: the candidates' heights above it, ``tol``: its tolerance) with ``cfg.contact_band``, clusters cut
+    above the band and grown back into it (:func:`_grow_into_band`)."""
+    if height is None or cfg.contact_band is None:
+        lab, _, _, ids = _clusters(m, cfg, extent)
+        return lab, ids
+    cell = _cell_size(m, cfg, extent)
+    reach = cell * (cfg.bridge_cells + 1)
+    top = tol + cfg.contact_band * reach
+    band = torch.from_numpy(height <= top).to(m.device)
+    if bool(band.all()) or not bool(band.any()):
+        lab, _, _, ids = _clusters(m, cfg, extent, cell=cell)
+        return lab, ids
+    core, _, _, _ = _clusters(m[~band], cfg, cell=cell)
+    lab = _grow_into_band(m, band, core, reach, math.ceil(top / reach) + 1, cfg, cell)
+    ids = torch.unique(lab[lab > 0]).cpu().numpy()
+    return lab, ids
 
 
 @torch.no_grad()
@@ -292,42 +392,40 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     on_support = 0
     extent = None
     support = None
-    band = None  # the kept candidates within the contact band above the support plane (``contact_band``)
+    height = None  # the kept candidates' heights above the support plane, where there is one
     plane, why_not = support_plane_or_reason(means, np.stack([v.centre.double().cpu().numpy() for v in views]),
                                              views_up(views), cfg.support, views)  # fmt: skip
     if plane is None:
         logger.info("object: no support plane among the foreground (%s)", why_not)
     else:
-        height = plane.height(means)
-        keep = height > plane.tol  # (SupportPlane.drops)
+        h = plane.height(means)
+        keep = h > plane.tol  # (SupportPlane.drops)
         if keep.any():
             on_support = int((~keep).sum())
             logger.info("object: %d foreground Gaussians on or under the support plane (a floor or table holding "
                         "%.0f%% of the foreground) dropped", on_support, 100 * plane.share)  # fmt: skip
-            flat = torch.from_numpy(np.abs(height) <= plane.tol).to(idx.device)
+            flat = torch.from_numpy(np.abs(h) <= plane.tol).to(idx.device)
             support = torch.zeros_like(cand)
             support[idx[flat]] = True
             kept = torch.from_numpy(keep).to(idx.device)
-            idx, m_dev = idx[kept], m_dev[kept]
+            idx, m_dev, height = idx[kept], m_dev[kept], h[keep]
             extent = plane.size  # the scene the plane holds, not the floaters and background around it
-            if cfg.contact_band is not None:
-                band = torch.from_numpy(height[keep] <= cfg.contact_band * plane.tol).to(idx.device)
-                band = None if bool(band.all()) else band
-    core = m_dev if band is None else m_dev[~band]
-    lab, _, cell, ids = _clusters(core, cfg, extent)
+    lab, ids = _labels(m_dev, cfg, extent, height, plane.tol if plane is not None else 0.0)
     valid = lab > 0
     if not bool(valid.any()):
         chosen = torch.ones(len(lab), dtype=torch.bool, device=lab.device)
     else:
         # distance of each cluster to the centre: its nearest Gaussian
-        d = (core - torch.as_tensor(centre, dtype=torch.float64, device=core.device)).norm(dim=1)
+        d = (m_dev - torch.as_tensor(centre, dtype=torch.float64, device=m_dev.device)).norm(dim=1)
         dmin = torch.full((int(lab.max()) + 1,), float("inf"), dtype=torch.float64, device=d.device)
         dmin = dmin.scatter_reduce(0, lab[valid], d[valid], reduce="amin")
         dmin[0] = float("inf")
         chosen = lab == int(torch.argmin(dmin))
-    if band is not None:
-        reach = cell * (cfg.bridge_cells + 1)
-        chosen = _join_band(m_dev, band, chosen, reach, math.ceil(cfg.contact_band * plane.tol / reach) + 1)
+    if height is not None and cfg.split_on_plane:
+        before = int(chosen.sum())
+        chosen = _split_close(m_dev, chosen, centre, cfg)
+        logger.info("object: split at its own resolution over the support plane: %d of %d Gaussians kept",
+                    int(chosen.sum()), before)  # fmt: skip
     selected = torch.zeros_like(cand)
     selected[idx[chosen.to(idx.device)]] = True
     logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
