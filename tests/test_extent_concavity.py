@@ -203,3 +203,26 @@ def test_concavity_rule_leaves_a_face_carved_below_the_hull_alone():
     the empty layer over the top is deep in the hull but lies against the solid on one side only, so it is no
     concavity and the top face counts."""
     _boxes(np.s_[8:32, 8:32, 8:28], np.s_[8:32, 8:32, 8:32])
+
+
+@pytest.mark.parametrize("radius", [2.0, 2.5, 3.0, 4.2])
+def test_concavities_deep_layer_matches_erosion_by_a_ball(radius: float) -> None:
+    """The hull's deep layer (by the exact distance transform) against scipy's erosion by a ball of that radius with
+    outside-the-grid as outside, on random blobby hulls with a solid that surrounds pockets."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(int(radius * 10))
+    hull = ndimage.binary_dilation(rng.random((26, 28, 24)) < 0.02, iterations=int(radius) + 2)
+    solid = hull & (rng.random(hull.shape) < 0.7)
+    r = int(np.floor(radius))
+    o = np.arange(-r, r + 1)
+    ball = (o[:, None, None] ** 2 + o[None, :, None] ** 2 + o[None, None, :] ** 2) <= radius**2
+    deep = ndimage.binary_erosion(hull, structure=ball, border_value=0) & ~solid
+    enclosed = np.zeros_like(deep)
+    for axis in range(3):
+        before = np.maximum.accumulate(solid, axis=axis)
+        after = np.flip(np.maximum.accumulate(np.flip(solid, axis), axis=axis), axis)
+        enclosed |= before & after
+    want = deep & enclosed
+    assert want.any()
+    np.testing.assert_array_equal(concavities(hull, solid, radius), want)

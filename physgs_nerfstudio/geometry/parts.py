@@ -217,10 +217,12 @@ def concavities(hull: np.ndarray, solid: np.ndarray, depth_voxels: float = 2.0) 
     lies against the solid on one side only."""
     from scipy import ndimage
 
-    r = int(np.floor(depth_voxels))
-    o = np.arange(-r, r + 1)
-    ball = (o[:, None, None] ** 2 + o[None, :, None] ** 2 + o[None, None, :] ** 2) <= depth_voxels**2
-    deep = ndimage.binary_erosion(hull, structure=ball, border_value=0) & ~solid
+    # the hull eroded by a ball of radius ``depth_voxels`` (outside the grid counts as outside the hull): the voxels
+    # whose nearest voxel outside the hull lies farther than that, by the exact Euclidean distance transform. A ball
+    # structuring element needs (2 r + 1)^3 of memory and time per voxel: a few pixels of a fine grid on a small
+    # object are tens of voxels, and its erosion ran out of memory (session 28)
+    padded = np.pad(np.asarray(hull, dtype=bool), 1, constant_values=False)
+    deep = (ndimage.distance_transform_edt(padded)[1:-1, 1:-1, 1:-1] > depth_voxels) & ~solid
     if not deep.any():
         return deep
     enclosed = np.zeros_like(deep)

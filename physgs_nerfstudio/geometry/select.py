@@ -9,7 +9,12 @@
    foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``) are grouped into 3-D clusters
    (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side but no finer than
    1.5 x the Gaussians' median nearest-neighbour spacing, cells dilated by ``bridge_cells`` so that an
-   object's parts a few millimetres apart stay one cluster).
+   object's parts a few millimetres apart stay one cluster). Over a support plane, two more rules (session 28): the
+   clusters are cut above a *contact band* one reach above the plane and grown back into it (``contact_band``: near
+   a floor, its clutter, contact shadows and reflections bridge the objects standing on it), and the chosen cluster
+   is split again at its own resolution (``split_on_plane``, :func:`_split_close`: the cells are a share of the floor,
+   and a chair 15 cm from a table shared its cluster). On the GPU's `indoor_room` at two fresh seeds the selected
+   volume fell from 5.14x the table's to 1.73x and 1.69x, the chair, the crate and the lamp left out.
 3. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
    camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
    the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
