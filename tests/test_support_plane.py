@@ -73,6 +73,8 @@ def test_an_objects_own_face_is_no_support(case: str) -> None:
         pts = np.concatenate([base[base[:, 2] > 1e-9], pole, shade])
         cams = _ring(40, 1.2, 15, 60)
         assert find_support_plane(pts, cams, UP, SupportConfig(wider_quantile=None)) is not None
+        with pytest.raises(ValueError, match="wider_quantile"):
+            SupportConfig(wider_quantile=0.5)
     else:
         pts = np.concatenate([_floor(rng, 1.6, 6000), _box_surface(rng, (-0.5, -0.3, 0.0), (0.5, 0.3, 0.75), 3000)])
         cams = _ring(40, 3.0, -10, 60)

@@ -106,7 +106,8 @@ class SelectConfig:
     split_on_plane: bool = True
     """where a support plane is found: the chosen cluster is split again at its own resolution (:func:`_split_close`:
     its Gaussians linked within the clusters' reach, two cells of ``cluster_cells`` along the longest side of its
-    5-95% core, by exact distance), keeping the part nearest the centre, until it stops shrinking. The clusters' cells
+    5-95% core or of 1.5 x the 90th percentile of their spacing, by exact distance), keeping the part nearest the
+    centre, until it stops shrinking. The clusters' cells
     are a share of the floor's size, not of the object's, and objects on a floor stand close: on the GPU's
     `indoor_room` the chair stands 15 cm from the table and stayed in its cluster (2.5-2.8x the table's volume at three
     seeds, session 28). False: the coarse clusters alone"""
@@ -324,7 +325,8 @@ def _split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: SelectConfi
                  min_share: float = 0.01, spacing_quantile: float = 0.9) -> Tensor:
     """bool [N] over ``m``: the ``chosen`` points split into parts that lie farther apart than the clusters' reach at
     the chosen points' own resolution (``bridge_cells`` + 1 cells of their 5-95% extent's longest side over
-    ``cluster_cells``, no finer than 1.5 x their median nearest-neighbour spacing, as :func:`_cell_size`), and the
+    ``cluster_cells``, a cell no finer than 1.5 x the ``spacing_quantile`` of their nearest-neighbour spacings: a
+    sparse splat's Gaussians come in clumps, and with the median a CPU demo's table fell into 93 pieces), and the
     part nearest ``centre`` kept; again on that part until it stops shrinking (a neighbour's points stretched the
     extent, and so the reach, of the first round). The parts are the connected components of each point's 16 nearest
     neighbours within the reach (SciPy), exact distances rather than the coarse clusters' dilated cells, which join

@@ -21,9 +21,10 @@ object's own flat bottom (a crate's, a shoe's sole) or top (a table's) is never 
   masks (:func:`seen_under_plane`): a table's legs from the low views. A splat draws a shiny floor's reflections
   with Gaussians under it, seen only through it (the GPU's ``indoor_room`` at 512 px: 27% of the foreground near
   the floor, which was rejected, and the room's whole floor came out as the object);
-* **wider than what stands on it**: the plane's inliers reach beyond the footprint of the rest of the foreground
-  over the plane's footprint, on all four sides, by ``margin`` of that footprint's size (an object's own bottom
-  face *is* its footprint; floaters beside a floor do not stand on it);
+* **wider than what stands on it**: the plane's inliers reach beyond the 5-95% quantiles (``wider_quantile``) of
+  the rest of the foreground above it, over and beside its footprint at any height, on all four sides, by
+  ``margin`` of that extent (an object's own bottom face *is* its footprint; a lamp's base has its shade overhanging
+  it; a few floaters beside a floor do not move the quantiles);
 * **substantial**: it holds at least ``min_share`` of the foreground near it.
 
 Where the masks leave the floor out, :func:`find_resting_plane` runs the same search among all the Gaussians around
@@ -100,9 +101,10 @@ class SupportConfig:
     floor (the GPU's `indoor_room` at 512 px: 27% of the foreground near the floor lay under it, and the floor was
     rejected). False: every point under the plane counts"""
     over_footprint: bool = True
-    """the "below everything" and "wider than what stands on it" tests count only the points over or under the
-    plane's footprint (its inliers' 1-99% box), not those beside it: a table's legs stand under its top, and what
-    stands on a floor stands over it. False: every point in the plane's neighbourhood, beside it too (the GPU's
+    """the "below everything" test (and "wider than what stands on it" where ``wider_quantile`` is None) counts only
+    the points over or under the plane's footprint (its inliers' 1-99% box), not those beside it: a table's legs
+    stand under its top, and what stands on a floor stands over it. False: every point in the plane's neighbourhood,
+    beside it too (the GPU's
     `indoor_room`: floaters beside the floor, a fifth of the points above it, reached past its edge, and the
     backdrop's Gaussians lay below its level beyond it)"""
     wider_quantile: float | None = 0.05
@@ -114,6 +116,10 @@ class SupportConfig:
     (``over_footprint``, session 27)"""
     footprint_cells: int = 64
     """cells along the longer side of the plane's footprint grid (:func:`seen_under_plane`)"""
+
+    def __post_init__(self) -> None:
+        if self.wider_quantile is not None and not 0 <= self.wider_quantile < 0.5:
+            raise ValueError(f"SupportConfig.wider_quantile must be in [0, 0.5) or None, got {self.wider_quantile}.")
 
 
 @dataclass
