@@ -58,7 +58,7 @@ from .support import SupportConfig, SupportPlane, support_plane_or_reason, views
 
 logger = logging.getLogger(__name__)
 
-_MAX_CELLS = 256e6  # the coarse clusters' grid (bool cells, int32 labels): about 1.3 GB at most
+_MAX_CELLS = 1e9  # the coarse clusters' grid (bool cells, int32 labels): about 6 GB at most; the GPU rooms needed 180-200M
 
 __all__ = ["ObjectSelection", "SelectConfig", "capture_centre", "hull_view_weights", "select_object"]
 
