@@ -304,12 +304,15 @@ def test_object_standing_close_to_another_on_a_floor_is_split_from_it(monkeypatc
     assert not got[n_t + len(table) :].any() and not got[:n_t].any()
 
 
-def test_clusters_grid_stays_bounded_for_a_fine_cell_over_a_wide_spread() -> None:
+def test_clusters_grid_stays_bounded_for_a_fine_cell_over_a_wide_spread(monkeypatch) -> None:
     """A cell far finer than the points' spread (a small support plane's size over 48, among strays metres away)
-    asked for tens of GB of labels; the grid is coarsened to fit and the two clumps stay two clusters."""
+    asked for tens of GB of labels; the grid is coarsened to fit (here a cap of 2M cells, not the default's 1,000M)
+    and the two clumps stay two clusters."""
     import torch
 
     import physgs_nerfstudio.geometry.select as sel
+
+    monkeypatch.setattr(sel, "_MAX_CELLS", 2e6)
 
     rng = np.random.default_rng(9)
     a = rng.normal(0, 0.01, (2000, 3))
