@@ -299,9 +299,11 @@ def test_object_standing_close_to_another_on_a_floor_is_split_from_it(monkeypatc
     t_up, c_up = table[:, 2] > 0.03, chair[:, 2] > 0.03
     coarse = sel.select_object(g, views, sel.SelectConfig(split_on_plane=False)).selected.numpy()
     assert coarse[n_t : n_t + len(table)][t_up].mean() > 0.99 and coarse[n_t + len(table) :][c_up].mean() > 0.99
-    got = sel.select_object(g, views, sel.SelectConfig()).selected.numpy()
+    chosen = sel.select_object(g, views, sel.SelectConfig())
+    got = chosen.selected.numpy()
     assert got[n_t : n_t + len(table)][t_up].mean() > 0.99
     assert not got[n_t + len(table) :].any() and not got[:n_t].any()
+    assert chosen.split_from == int(coarse.sum()) > chosen.num_selected
 
 
 def test_clusters_grid_stays_bounded_for_a_fine_cell_over_a_wide_spread(monkeypatch) -> None:

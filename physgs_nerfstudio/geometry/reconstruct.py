@@ -275,6 +275,9 @@ class ObjectGeometry:
                 "selected_gaussians": self.selection.num_selected,
                 "object_centre_scene": [float(x) for x in self.selection.centre],
                 "rests_on_plane": self.selection.plane is not None,
+                "support_plane_in_masks": self.selection.support is not None,
+                "on_support_gaussians": self.selection.on_support, "clusters": self.selection.num_clusters,
+                "split_from_gaussians": self.selection.split_from,
                 "pixel_footprint_voxels": self.pixel_voxels}  # fmt: skip
 
 

@@ -150,6 +150,8 @@ class ObjectSelection:
     plane: SupportPlane | None = None
     """the plane the object stands on: the support plane found among the foreground (step 2), or the resting plane
     found among all the Gaussians (:func:`.support.find_resting_plane`, set by the reconstruction); None: none"""
+    split_from: int = 0
+    """the chosen cluster's Gaussians before ``split_on_plane`` split it (0: not split; module doc, step 2)"""
 
     @property
     def num_selected(self) -> int:
@@ -443,9 +445,11 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
         dmin = dmin.scatter_reduce(0, lab[valid], d[valid], reduce="amin")
         dmin[0] = float("inf")
         chosen = lab == int(torch.argmin(dmin))
+    split_from = 0
     if height is not None and cfg.split_on_plane:
         before = int(chosen.sum())
         chosen = _split_close(m_dev, chosen, centre, cfg)
+        split_from = before if int(chosen.sum()) < before else 0
         logger.info("object: split at its own resolution over the support plane: %d of %d Gaussians kept",
                     int(chosen.sum()), before)  # fmt: skip
     selected = torch.zeros_like(cand)
@@ -453,4 +457,4 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
                 g.means.shape[0], len(ids))  # fmt: skip
     return ObjectSelection(prob, selected, centre, len(ids), on_support=on_support, support=support,
-                           plane=plane if support is not None else None)
+                           plane=plane if support is not None else None, split_from=split_from)
