@@ -33,8 +33,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from physgs_nerfstudio.export.command import load_run, object_geometry  # noqa: E402
 from physgs_nerfstudio.geometry import reconstruct  # noqa: E402
+from physgs_nerfstudio.geometry.clusters import cluster_labels  # noqa: E402
 from physgs_nerfstudio.geometry.gaussians import render_depth  # noqa: E402
-from physgs_nerfstudio.geometry.select import _clusters, select_object  # noqa: E402
+from physgs_nerfstudio.geometry.select import select_object  # noqa: E402
 from physgs_nerfstudio.mass.integrate import integrate_mass  # noqa: E402
 from physgs_nerfstudio.synth.objects import build_layout  # noqa: E402
 
@@ -160,7 +161,7 @@ def main() -> None:
         print(f"wrote {a.out / 'splat.npz'} ({(a.out / 'splat.npz').stat().st_size / 2**20:.1f} MiB)", flush=True)
     done("selection")
     cand = (prob >= cfg.select.min_prob) & real
-    lab, _, cell, ids = _clusters(means[cand], cfg.select)
+    lab, _, cell, ids = cluster_labels(means[cand], cfg.select)
     lab = lab.cpu().numpy()
     lab_all = np.zeros(len(means), np.int64)
     lab_all[cand] = lab

@@ -557,7 +557,7 @@ def test_part_labels_on_the_box_equal_the_whole_grid(seed):
 @pytest.mark.parametrize("n", [1, 2, 7, 1000])
 def test_sorted_quantiles_are_numpys(n):
     """The selection's column quantiles on a GPU (a sort) against NumPy's linear interpolation."""
-    from physgs_nerfstudio.geometry.select import _sorted_quantiles
+    from physgs_nerfstudio.geometry.clusters import _sorted_quantiles
 
     x = torch.from_numpy(np.random.default_rng(n).normal(size=(n, 3)) * 10)
     qs = (0.0, 0.002, 0.25, 0.5, 0.998, 1.0)

@@ -312,17 +312,18 @@ def test_clusters_grid_stays_bounded_for_a_fine_cell_over_a_wide_spread(monkeypa
     and the two clumps stay two clusters."""
     import torch
 
+    import physgs_nerfstudio.geometry.clusters as cl
     import physgs_nerfstudio.geometry.select as sel
 
-    monkeypatch.setattr(sel, "_MAX_CELLS", 2e6)
+    monkeypatch.setattr(cl, "MAX_CELLS", 2e6)
 
     rng = np.random.default_rng(9)
     a = rng.normal(0, 0.01, (2000, 3))
     b = rng.normal(0, 0.01, (2000, 3)) + [5.0, 4.0, 3.0]
     strays = rng.uniform(-8, 8, (20, 3))
     m = torch.from_numpy(np.concatenate([a, b, strays]))
-    lab, _, cell, ids = sel._clusters(m, sel.SelectConfig(), extent=0.01)
+    lab, _, cell, ids = cl.cluster_labels(m, sel.SelectConfig(), extent=0.01)
     q = np.quantile(m.numpy(), (0.002, 0.998), axis=0)  # the grid's box: strays past it are no cluster
-    assert float(np.prod((q[1] - q[0]) / cell + 5)) <= sel._MAX_CELLS
+    assert float(np.prod((q[1] - q[0]) / cell + 5)) <= cl.MAX_CELLS
     la, lb = lab[:2000].numpy(), lab[2000:4000].numpy()
     assert (la == la[0]).mean() > 0.99 and (lb == lb[0]).mean() > 0.99 and la[0] != lb[0] and la[0] > 0

@@ -12,7 +12,7 @@
    object's parts a few millimetres apart stay one cluster). Over a support plane, two more rules (session 28): the
    clusters are cut above a *contact band* one reach above the plane and grown back into it (``contact_band``: near
    a floor, its clutter, contact shadows and reflections bridge the objects standing on it), and the chosen cluster
-   is split again at its own resolution (``split_on_plane``, :func:`_split_close`: the cells are a share of the floor,
+   is split again at its own resolution (``split_on_plane``, :func:`.clusters.split_close`: the cells are a share of the floor,
    and a chair 15 cm from a table shared its cluster). On the GPU's `indoor_room` at two fresh seeds the selected
    volume fell from 5.14x the table's to 1.73x and 1.69x, the chair, the crate and the lamp left out.
 3. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
@@ -41,7 +41,6 @@
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -52,13 +51,12 @@ from torch import Tensor
 
 from .capture import CaptureView
 from .carve import mask_view_votes, signed_mask_distances
+from .clusters import band_labels, split_close
 from .errors import GeometryError
 from .gaussians import lift_masks
 from .support import SupportConfig, SupportPlane, support_plane_or_reason, views_up
 
 logger = logging.getLogger(__name__)
-
-_MAX_CELLS = 1e9  # the coarse clusters' grid (bool cells, int32 labels): about 6 GB at most; the GPU rooms needed 180-200M
 
 __all__ = ["ObjectSelection", "SelectConfig", "capture_centre", "hull_view_weights", "select_object"]
 
@@ -97,14 +95,14 @@ class SelectConfig:
     """where a support plane is found: the clusters are cut only among the candidates higher above it than its
     tolerance plus this many of the clusters' *reach* (the distance across which they join: a cell times
     ``bridge_cells`` + 1), and the candidates in that band then join the cluster whose points they reach, a reach per
-    round, for as many rounds as cross the band's height (:func:`_grow_into_band`); band candidates that no cluster
+    round, for as many rounds as cross the band's height (:func:`.clusters.grow_into_band`); band candidates that no cluster
     reaches form clusters of their own (an object lying flat on the floor). Objects stand on a floor, and near it
     their contact shadows, clutter and the floor's reflections bridge them: on the GPU's `indoor_room` the chair, the
     crate and the lamp joined the table's cluster through Gaussians a few centimetres up. At the clusters' own
     resolution whatever lies within one reach of the plane touches it, so it is no evidence that two objects touch.
     None: every candidate above the plane's tolerance is clustered (before session 28)"""
     split_on_plane: bool = True
-    """where a support plane is found: the chosen cluster is split again at its own resolution (:func:`_split_close`:
+    """where a support plane is found: the chosen cluster is split again at its own resolution (:func:`.clusters.split_close`:
     its Gaussians linked within the clusters' reach, two cells of ``cluster_cells`` along the longest side of its
     5-95% core or of 1.5 x the 90th percentile of their spacing, by exact distance), keeping the part nearest the
     centre, until it stops shrinking. The clusters' cells
@@ -214,186 +212,6 @@ def hull_view_weights(framed: Tensor, outside: Tensor, counts: tuple[Tensor, Ten
     return torch.where(held > 0, kept.double() / held.clamp_min(1).double(), torch.ones_like(kept, dtype=torch.float64))
 
 
-def _clusters(means: Tensor | np.ndarray, cfg: SelectConfig, extent: float | None = None, cell: float | None = None
-              ) -> tuple[Tensor, np.ndarray, float, np.ndarray]:  # fmt: skip
-    """Cluster label of each point (0: none; a tensor on the points' device), the cell grid's origin and size, and
-    the cluster ids. ``extent``: the size the ``cluster_cells`` divide (default: the points' own, 0.2-99.8%
-    quantiles); ``cell``: the cell size, when the caller has it (:func:`_cell_size`). The points' cells are found
-    where the points are (a GPU); only the coarse grid is labelled on the host."""
-    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
-
-    m = torch.as_tensor(means).double()
-    lo_hi = _quantiles(m, (0.002, 0.998))  # (one partition for both)
-    lo = lo_hi[0].cpu().numpy()
-    if cell is None:
-        cell = _cell_size(m, cfg, extent, lo_hi)
-    spread = lo_hi[1].cpu().numpy() - lo
-    if float(np.prod(spread / cell + 5)) > _MAX_CELLS:
-        # a cell far finer than the points' spread (a support plane's size divided, under far strays): coarsened
-        # until the grid fits (the CPU lamp at seed 9696 asked for 38 GB of labels)
-        fine = cell
-        while float(np.prod(spread / cell + 5)) > _MAX_CELLS:
-            cell *= 1.25
-        logger.warning("object: the clusters' cell %.3g coarsened to %.3g to fit a spread of %.3g scene units",
-                       fine, cell, float(spread.max()))  # fmt: skip
-    lo = lo - 2 * cell
-    idx = torch.floor((m - torch.as_tensor(lo, device=m.device)) / cell).long()
-    top = np.floor(spread / cell).astype(np.int64) + 5  # 2 cells past the 99.8% quantiles, as before the 0.2% ones
-    shape = np.maximum(idx.amax(0).cpu().numpy() + 1, 1) if len(idx) else np.ones(3, np.int64)
-    inside = (idx >= 0).all(1)
-    if float(np.prod(shape.astype(np.float64))) > _MAX_CELLS:  # far strays: what lies past the box is no cluster
-        inside &= (idx < torch.as_tensor(top, device=idx.device)).all(1)
-        shape = np.minimum(shape, top)
-    flat = (idx[:, 0] * int(shape[1]) + idx[:, 1]) * int(shape[2]) + idx[:, 2]
-    occ = np.zeros(int(np.prod(shape)), bool)
-    occ[flat[inside].cpu().numpy()] = True
-    occ = occ.reshape(*shape)
-    grown = ndimage.binary_dilation(occ, iterations=cfg.bridge_cells) if cfg.bridge_cells > 0 else occ
-    labels, n = ndimage.label(grown, structure=np.ones((3, 3, 3), bool))
-    lab = torch.zeros(len(m), dtype=torch.long, device=m.device)
-    lab[inside] = torch.from_numpy(labels.reshape(-1)).to(m.device).long()[flat[inside]]
-    return lab, lo, cell, np.arange(1, n + 1)
-
-
-def _cell_size(m: Tensor, cfg: SelectConfig, extent: float | None = None, lo_hi: Tensor | None = None) -> float:
-    """The clusters' cell: ``extent`` (default: the points' 0.2-99.8% quantiles' largest side; ``lo_hi``: those
-    quantiles, when the caller has them) over ``cluster_cells``, but no finer than 1.5 x the points' median
-    nearest-neighbour spacing, so that a sparse splat stays one cluster."""
-    from scipy.spatial import cKDTree
-
-    if extent is None:
-        lo_hi = _quantiles(m, (0.002, 0.998)) if lo_hi is None else lo_hi
-        extent = float((lo_hi[1] - lo_hi[0]).max())
-    sub = m[:: max(1, len(m) // 100_000)].cpu().numpy()
-    # the median nearest-neighbour spacing, estimated from the neighbours of 20,000 of the points (each found among
-    # all of them): the query of every point cost 0.9 s at 150k points, and the median moved by < 0.1%
-    probe = sub[:: max(1, len(sub) // 20_000)]
-    nn = cKDTree(sub).query(probe, k=2)[0][:, 1] if len(sub) > 1 else np.zeros(1)
-    return max(extent / cfg.cluster_cells, 1.5 * float(np.median(nn)), 1e-9)
-
-
-def _grow_into_band(means: Tensor, band: Tensor, core_labels: Tensor, reach: float, rounds: int, cfg: SelectConfig,
-                    cell: float) -> Tensor:  # fmt: skip
-    """long [N]: cluster labels of all ``means`` from those of the points outside the ``band`` (``core_labels``, over
-    those points in order; 0: none). Every cluster grows into the band at once: a band point takes the label of the
-    nearest labelled point within ``reach``, for ``rounds`` rounds (enough to cross the band's height, so an object's
-    feet join it, and each foot goes to the nearest object, not along the floor to the next one). Band points that no
-    cluster reaches are clustered among themselves (:func:`_clusters`, the same ``cell``), with labels after the
-    core's."""
-    from scipy.spatial import cKDTree
-
-    b = band.cpu().numpy()
-    lab = np.zeros(len(b), np.int64)
-    lab[~b] = core_labels.cpu().numpy()
-    pts = means.cpu().numpy()
-    for _ in range(max(1, rounds)):
-        todo = np.nonzero(b & (lab == 0))[0]
-        have = np.nonzero(lab > 0)[0]
-        if not len(todo) or not len(have):
-            break
-        dist, j = cKDTree(pts[have]).query(pts[todo], distance_upper_bound=reach)
-        ok = np.isfinite(dist)
-        if not ok.any():
-            break
-        lab[todo[ok]] = lab[have[j[ok]]]
-    left = b & (lab == 0)
-    if left.any():
-        sub, _, _, _ = _clusters(means[torch.from_numpy(left).to(means.device)], cfg, cell=cell)
-        sub = sub.cpu().numpy()
-        lab[left] = np.where(sub > 0, sub + lab.max(), 0)
-    return torch.from_numpy(lab).to(means.device)
-
-
-def _quantiles(x: Tensor, qs: Sequence[float]) -> Tensor:
-    """float64 [len(qs), D]: the column quantiles of ``x`` [N, D] (linear interpolation, NumPy's default): NumPy's on
-    the CPU, a sort on a GPU (``torch.quantile`` refuses inputs of more than 16M elements)."""
-    if x.device.type == "cpu":
-        return torch.from_numpy(np.quantile(x.double().numpy(), qs, axis=0))
-    return _sorted_quantiles(x, qs)
-
-
-def _sorted_quantiles(x: Tensor, qs: Sequence[float]) -> Tensor:
-    """:func:`_quantiles` by a sort along the rows, on ``x``'s device."""
-    s = torch.sort(x.double(), dim=0).values
-    pos = torch.tensor(qs, dtype=torch.float64) * (len(s) - 1)
-    i0 = pos.floor().long().clamp(0, len(s) - 1)
-    i1 = (i0 + 1).clamp(max=len(s) - 1)
-    t = (pos - i0).to(s.device)[:, None]
-    a, b = s[i0.to(s.device)], s[i1.to(s.device)]
-    return a + (b - a) * t
-
-
-def _split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: SelectConfig, rounds: int = 8,
-                 min_share: float = 0.01, spacing_quantile: float = 0.9) -> Tensor:
-    """bool [N] over ``m``: the ``chosen`` points split into parts that lie farther apart than the clusters' reach at
-    the chosen points' own resolution (``bridge_cells`` + 1 cells of their 5-95% extent's longest side over
-    ``cluster_cells``, a cell no finer than 1.5 x the ``spacing_quantile`` of their nearest-neighbour spacings: a
-    sparse splat's Gaussians come in clumps, and with the median a CPU demo's table fell into 93 pieces), and the
-    part nearest ``centre`` kept; again on that part until it stops shrinking (a neighbour's points stretched the
-    extent, and so the reach, of the first round). The parts are the connected components of each point's 16 nearest
-    neighbours within the reach (SciPy), exact distances rather than the coarse clusters' dilated cells, which join
-    points up to 4-7 cells apart. Only parts of at least ``min_share`` of the points (and 16) are split off: smaller
-    ones are gaps in the sampling of one surface or stray floaters, and each joins the part nearest it."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    cur = chosen.cpu().numpy().copy()
-    pts = m.cpu().numpy()
-    for _ in range(rounds):
-        p = pts[cur]
-        if len(p) < 16:
-            break
-        q = np.quantile(p, (0.05, 0.95), axis=0)
-        tree = cKDTree(p)
-        nn = tree.query(p[:: max(1, len(p) // 20_000)], k=2)[0][:, 1]
-        spacing = float(np.quantile(nn, spacing_quantile))
-        reach = (cfg.bridge_cells + 1) * max(float((q[1] - q[0]).max()) / cfg.cluster_cells, 1.5 * spacing)
-        dist, j = tree.query(p, k=16, distance_upper_bound=reach)
-        ok = np.isfinite(dist)
-        rows = np.broadcast_to(np.arange(len(p))[:, None], j.shape)[ok]
-        graph = coo_matrix((np.ones(int(ok.sum()), np.int8), (rows, j[ok])), shape=(len(p), len(p)))
-        n, comp = connected_components(graph, directed=False)
-        size = np.bincount(comp, minlength=n)
-        big = size >= max(16, min_share * len(p))
-        if big.sum() <= 1:
-            break
-        # crumbs (gaps in the sampling of one surface, stray floaters) are no objects: each joins the nearest part
-        crumb = ~big[comp]
-        if crumb.any():
-            _, k = cKDTree(p[~crumb]).query(p[crumb])
-            comp[crumb] = comp[~crumb][k]
-        d = np.linalg.norm(p - centre, axis=1)
-        near = np.full(n, np.inf)
-        np.minimum.at(near, comp, d)
-        keep = comp == int(np.argmin(near))
-        idx = np.nonzero(cur)[0]
-        cur[:] = False
-        cur[idx[keep]] = True
-    return torch.from_numpy(cur).to(chosen.device)
-
-
-def _labels(m: Tensor, cfg: SelectConfig, extent: float | None, height: np.ndarray | None, tol: float
-            ) -> tuple[Tensor, np.ndarray]:  # fmt: skip
-    """Cluster label of each candidate (0: none) and the cluster ids: :func:`_clusters`, or, above a support plane
-    (``height``: the candidates' heights above it, ``tol``: its tolerance) with ``cfg.contact_band``, clusters cut
-    above the band and grown back into it (:func:`_grow_into_band`)."""
-    if height is None or cfg.contact_band is None:
-        lab, _, _, ids = _clusters(m, cfg, extent)
-        return lab, ids
-    cell = _cell_size(m, cfg, extent)
-    reach = cell * (cfg.bridge_cells + 1)
-    top = tol + cfg.contact_band * reach
-    band = torch.from_numpy(height <= top).to(m.device)
-    if bool(band.all()) or not bool(band.any()):
-        lab, _, _, ids = _clusters(m, cfg, extent, cell=cell)
-        return lab, ids
-    core, _, _, _ = _clusters(m[~band], cfg, cell=cell)
-    lab = _grow_into_band(m, band, core, reach, math.ceil(top / reach) + 1, cfg, cell)
-    ids = torch.unique(lab[lab > 0]).cpu().numpy()
-    return lab, ids
-
-
 @torch.no_grad()
 def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None = None, *,
                   backend: str = "auto") -> ObjectSelection:  # fmt: skip
@@ -434,7 +252,7 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
             kept = torch.from_numpy(keep).to(idx.device)
             idx, m_dev, height = idx[kept], m_dev[kept], h[keep]
             extent = plane.size  # the scene the plane holds, not the floaters and background around it
-    lab, ids = _labels(m_dev, cfg, extent, height, plane.tol if plane is not None else 0.0)
+    lab, ids = band_labels(m_dev, cfg, extent, height, plane.tol if plane is not None else 0.0)
     valid = lab > 0
     if not bool(valid.any()):
         chosen = torch.ones(len(lab), dtype=torch.bool, device=lab.device)
@@ -448,7 +266,7 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     split_from = 0
     if height is not None and cfg.split_on_plane:
         before = int(chosen.sum())
-        chosen = _split_close(m_dev, chosen, centre, cfg)
+        chosen = split_close(m_dev, chosen, centre, cfg)
         split_from = before if int(chosen.sum()) < before else 0
         logger.info("object: split at its own resolution over the support plane: %d of %d Gaussians kept",
                     int(chosen.sum()), before)  # fmt: skip
