@@ -32,12 +32,12 @@ logger = logging.getLogger(__name__)
 MAX_CELLS = 1e9
 """the coarse clusters' grid (bool cells, int32 labels): about 6 GB at most; the GPU rooms' grids hold 180-200M"""
 
-__all__ = ["MAX_CELLS", "ClusterSettings", "band_labels", "cell_size", "cluster_labels", "column_quantiles", "grow_into_band",
-           "split_close"]
+__all__ = ["MAX_CELLS", "ClusterSettings", "band_labels", "cell_size", "cluster_labels", "column_quantiles",
+           "grow_into_band", "split_close"]
 
 
-def cluster_labels(means: Tensor | np.ndarray, cfg: ClusterSettings, extent: float | None = None, cell: float | None = None
-              ) -> tuple[Tensor, np.ndarray, float, np.ndarray]:  # fmt: skip
+def cluster_labels(means: Tensor | np.ndarray, cfg: ClusterSettings, extent: float | None = None,
+                   cell: float | None = None) -> tuple[Tensor, np.ndarray, float, np.ndarray]:  # fmt: skip
     """Cluster label of each point (0: none; a tensor on the points' device), the cell grid's origin and size, and
     the cluster ids. ``extent``: the size the ``cluster_cells`` divide (default: the points' own, 0.2-99.8%
     quantiles); ``cell``: the cell size, when the caller has it (:func:`cell_size`). The points' cells are found
@@ -87,15 +87,19 @@ def cell_size(m: Tensor, cfg: ClusterSettings, extent: float | None = None, lo_h
         lo_hi = column_quantiles(m, (0.002, 0.998)) if lo_hi is None else lo_hi
         extent = float((lo_hi[1] - lo_hi[0]).max())
     sub = m[:: max(1, len(m) // 100_000)].cpu().numpy()
-    # the median nearest-neighbour spacing, estimated from the neighbours of 20,000 of the points (each found among
-    # all of them): the query of every point cost 0.9 s at 150k points, and the median moved by < 0.1%
-    probe = sub[:: max(1, len(sub) // 20_000)]
-    nn = cKDTree(sub).query(probe, k=2)[0][:, 1] if len(sub) > 1 else np.zeros(1)
-    return max(extent / cfg.cluster_cells, 1.5 * float(np.median(nn)), 1e-9)
+    return max(extent / cfg.cluster_cells, 1.5 * float(np.median(_nn_spacings(cKDTree(sub), sub))), 1e-9)
 
 
-def grow_into_band(means: Tensor, band: Tensor, core_labels: Tensor, reach: float, rounds: int, cfg: ClusterSettings,
-                    cell: float) -> Tensor:  # fmt: skip
+def _nn_spacings(tree, points: np.ndarray) -> np.ndarray:
+    """The nearest-neighbour distances of 20,000 of ``points`` (each found among all of them, in ``tree``: a cKDTree
+    of ``points``): the query of every point cost 0.9 s at 150k points, and the median moved by < 0.1%."""
+    if len(points) < 2:
+        return np.zeros(1)
+    return tree.query(points[:: max(1, len(points) // 20_000)], k=2)[0][:, 1]
+
+
+def grow_into_band(means: Tensor, band: Tensor, core_labels: Tensor, reach: float, rounds: int,
+                   cfg: ClusterSettings, cell: float) -> Tensor:  # fmt: skip
     """long [N]: cluster labels of all ``means`` from those of the points outside the ``band`` (``core_labels``, over
     those points in order; 0: none). Every cluster grows into the band at once: a band point takes the label of the
     nearest labelled point within ``reach``, for ``rounds`` rounds (enough to cross the band's height, so an object's
@@ -146,7 +150,7 @@ def _sorted_quantiles(x: Tensor, qs: Sequence[float]) -> Tensor:
 
 
 def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSettings, rounds: int = 8,
-                 min_share: float = 0.01, spacing_quantile: float = 0.9) -> Tensor:
+                min_share: float = 0.01, spacing_quantile: float = 0.9) -> Tensor:
     """bool [N] over ``m``: the ``chosen`` points split into parts that lie farther apart than the clusters' reach at
     the chosen points' own resolution (``bridge_cells`` + 1 cells of their 5-95% extent's longest side over
     ``cluster_cells``, a cell no finer than 1.5 x the ``spacing_quantile`` of their nearest-neighbour spacings: a
@@ -168,8 +172,7 @@ def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSetti
             break
         q = np.quantile(p, (0.05, 0.95), axis=0)
         tree = cKDTree(p)
-        nn = tree.query(p[:: max(1, len(p) // 20_000)], k=2)[0][:, 1]
-        spacing = float(np.quantile(nn, spacing_quantile))
+        spacing = float(np.quantile(_nn_spacings(tree, p), spacing_quantile))
         reach = (cfg.bridge_cells + 1) * max(float((q[1] - q[0]).max()) / cfg.cluster_cells, 1.5 * spacing)
         dist, j = tree.query(p, k=16, distance_upper_bound=reach)
         ok = np.isfinite(dist)
@@ -196,7 +199,7 @@ def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSetti
 
 
 def band_labels(m: Tensor, cfg: ClusterSettings, extent: float | None, height: np.ndarray | None, tol: float
-            ) -> tuple[Tensor, np.ndarray]:  # fmt: skip
+                ) -> tuple[Tensor, np.ndarray]:  # fmt: skip
     """Cluster label of each candidate (0: none) and the cluster ids: :func:`cluster_labels`, or, above a support plane
     (``height``: the candidates' heights above it, ``tol``: its tolerance) with ``cfg.contact_band``, clusters cut
     above the band and grown back into it (:func:`grow_into_band`)."""

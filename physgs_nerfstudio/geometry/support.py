@@ -251,7 +251,8 @@ def _search(x: np.ndarray, cameras: np.ndarray, up: np.ndarray, ext: float, quan
     lo_on, hi_on = np.quantile(uv[on], 0.01, axis=0), np.quantile(uv[on], 0.99, axis=0)
     size = float(np.max(hi_on - lo_on))
     # the plane's neighbourhood: far floaters and background (other clusters) neither support nor refute it
-    near = np.all((uv >= lo_on - 0.5 * size) & (uv <= hi_on + 0.5 * size), 1) & (np.abs(r) <= size)
+    beside = np.all((uv >= lo_on - 0.5 * size) & (uv <= hi_on + 0.5 * size), 1)  # over or beside it, any height
+    near = beside & (np.abs(r) <= size)
     plane = SupportPlane(n, d, tol, float(on.sum() / max(near.sum(), 1)), size)
     over = np.all((uv >= lo_on) & (uv <= hi_on), 1) if cfg.over_footprint else np.ones(len(uv), dtype=bool)
     under = near & (r < -tol) & over
@@ -265,7 +266,6 @@ def _search(x: np.ndarray, cameras: np.ndarray, up: np.ndarray, ext: float, quan
     above = float((np.asarray(cameras, dtype=np.float64) @ n - d > tol).mean()) if len(cameras) else 1.0
     if above < cfg.min_cameras_above:
         return None, f"{above:.0%} of the cameras above it (min_cameras_above {cfg.min_cameras_above:.0%})"
-    beside = np.all((uv >= lo_on - 0.5 * size) & (uv <= hi_on + 0.5 * size), 1)  # (near, at any height)
     rest = (near & over) if cfg.wider_quantile is None else beside
     rest = rest & (r > tol)
     if rest.sum() < 10:
