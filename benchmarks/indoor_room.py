@@ -50,6 +50,9 @@ def main() -> None:
     ap.add_argument("--contact-band", type=str, default=None,
                     help="the selection's contact band above a support plane, in the clusters' reach "
                          "(SelectConfig.contact_band; 'none': off; default: the export's)")  # fmt: skip
+    ap.add_argument("--open-half", type=str, default=None,
+                    help="GeometryConfig.hidden_min_open_half ('none': the majority alone, session 28's rule; "
+                         "default: the export's)")  # fmt: skip
     ap.add_argument("--no-split", action="store_true",
                     help="keep the coarse cluster over a support plane (SelectConfig.split_on_plane = False)")
     ap.add_argument("--run", type=Path, default=None,
@@ -83,6 +86,8 @@ def main() -> None:
     if a.contact_band is not None:
         geometry.select.contact_band = None if a.contact_band.lower() == "none" else float(a.contact_band)
     geometry.select.split_on_plane = not a.no_split
+    if a.open_half is not None:
+        geometry.hidden_min_open_half = None if a.open_half.lower() == "none" else int(a.open_half)
     geo = object_geometry(run, geometry)
     pf = run.field
     T, s = _transform(cfg_path.parent)
@@ -103,6 +108,7 @@ def main() -> None:
     res = {
         "seed": int(truth.get("seed", a.seed)), "demo_settings": given, "export_resolution": resolution,
         "contact_band": geometry.select.contact_band, "split_on_plane": geometry.select.split_on_plane,
+        "hidden_min_open_half": geometry.hidden_min_open_half,
         "selected_gaussians": int(sel.sum()), "selected_on": counts,
         "selected_on_ground": int(ground.sum()), "selected_off_every_part": int((on < 0).sum()),
         "object": chosen, "carved_volume_m3": carved, "true_enclosed_volume_m3": true_vol,

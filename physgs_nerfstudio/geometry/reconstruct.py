@@ -123,6 +123,11 @@ class GeometryConfig:
     hidden_min_open_fraction: float = 0.5
     """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
     than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""
+    hidden_min_open_half: int | None = 9
+    """... or in at least this many of the 9 directions of one half (the directions with a positive, or a negative,
+    step along one of the grid's axes; :mod:`.hidden`, "The open half"): the layer under a seen top that the
+    Gaussians of its partly seen underside enclose sideways; None = the majority alone (session 28); documented
+    range 8-9"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall,
@@ -219,6 +224,9 @@ class GeometryConfig:
         if not 0.0 <= self.hidden_min_open_fraction < 1.0:
             raise ValueError("GeometryConfig.hidden_min_open_fraction must be in [0, 1), got "
                              f"{self.hidden_min_open_fraction}.")
+        if self.hidden_min_open_half is not None and not 1 <= self.hidden_min_open_half <= 9:
+            raise ValueError("GeometryConfig.hidden_min_open_half must be in 1-9 (or None: the majority alone), got "
+                             f"{self.hidden_min_open_half}.")
         if self.evidence_surface_voxels is not None and not self.evidence_surface_voxels >= 0:
             raise ValueError("GeometryConfig.evidence_surface_voxels must be >= 0 (or None: every labelled Gaussian "
                              f"counts), got {self.evidence_surface_voxels}.")
@@ -491,7 +499,8 @@ def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, bey
     closed_t = torch.from_numpy(closed).to(dev)
     out = []
     for s in solids:
-        hidden = hidden_open_space(torch.from_numpy(s).to(dev), skin, closed_t, cfg.hidden_min_open_fraction)
+        hidden = hidden_open_space(torch.from_numpy(s).to(dev), skin, closed_t, cfg.hidden_min_open_fraction,
+                                   cfg.hidden_min_open_half)
         out.append(s & ~hidden.cpu().numpy())
     removed = int(solids[0].sum() - out[0].sum())
     if removed:
