@@ -176,30 +176,26 @@ def test_gaussian_samples_are_the_means_and_their_axes_ends():
     assert torch.equal(gaussian_samples(means, scales, quats, 0.0), means)
 
 
-def _table():
-    """A 24 x 24 x 26 grid: a floor below z = 1; a top (z 18-19) on four 2 x 2 legs; the carving kept the space
-    under the top between z 10 and 17 (no view saw past it); the skin is the top's upper face and sides and the
-    legs' outsides, where the views saw the surface."""
+def _table(thickness: int = 2):
+    """A 24 x 24 x 26 grid: a floor below z = 1; a top (``thickness`` voxels under z = 20) on four 2 x 2 legs; the
+    carving kept the space under the top from z 10 (no view saw past it); the skin is the top's upper face and
+    sides and the legs' outsides, where the views saw the surface."""
     shape = (24, 24, 26)
-    solid = np.zeros(shape, bool)
+    under = 20 - thickness
     top = np.zeros(shape, bool)
-    top[2:22, 2:22, 18:20] = True
+    top[2:22, 2:22, under:20] = True
     legs = np.zeros(shape, bool)
     for x, y in [(2, 2), (20, 2), (2, 20), (20, 20)]:
-        legs[x:x + 2, y:y + 2, 1:18] = True
+        legs[x:x + 2, y:y + 2, 1:under] = True
     hidden = np.zeros(shape, bool)
-    hidden[5:19, 5:19, 10:18] = True  # grazing rays from the sides carved the rest
+    hidden[5:19, 5:19, 10:under] = True  # grazing rays from the sides carved the rest
     solid = top | legs | hidden
     closed = np.zeros(shape, bool)
     closed[:, :, :1] = True  # below the support plane
-    surface = np.zeros(shape, bool)
+    surface = legs.copy()  # 2 x 2 legs: every voxel is on their outside
     surface[2:22, 2:22, 19] = True
-    surface[[2, 21], 2:22, 18:20] = True
-    surface[2:22, [2, 21], 18:20] = True
-    for x, y in [(2, 2), (20, 2), (2, 20), (20, 20)]:
-        leg = np.zeros(shape, bool)
-        leg[x:x + 2, y:y + 2, 1:18] = True
-        surface |= leg  # 2 x 2 legs: every voxel is on their outside
+    surface[[2, 21], 2:22, under:20] = True
+    surface[2:22, [2, 21], under:20] = True
     return solid, top, legs, hidden, closed, surface
 
 
@@ -250,23 +246,12 @@ def test_a_thick_top_closed_all_round_by_its_seen_sides_keeps_its_unseen_lower_p
     """A top 5 voxels thick whose upper face's skin reaches 2 voxels into it and whose sides were seen whole: its
     lower 3 voxels are no skin and their downward half is open, but no direction across is (the sides enclose
     them), so the open half keeps them, as the majority does."""
-    shape = (24, 24, 26)
-    top = np.zeros(shape, bool)
-    top[2:22, 2:22, 15:20] = True
-    legs = np.zeros(shape, bool)
-    for x, y in [(2, 2), (20, 2), (2, 20), (20, 20)]:
-        legs[x:x + 2, y:y + 2, 1:15] = True
-    hidden = np.zeros(shape, bool)
-    hidden[5:19, 5:19, 10:15] = True
-    closed = np.zeros(shape, bool)
-    closed[:, :, :1] = True
-    skin = legs.copy()
-    skin[2:22, 2:22, 18:20] = True
-    skin[[2, 21], 2:22, 15:20] = True
-    skin[2:22, [2, 21], 15:20] = True
+    solid, top, legs, hidden, closed, surface = _table(thickness=5)
+    skin = surface.copy()
+    skin[:, :, 18] |= top[:, :, 18]
     t = torch.from_numpy
     for half in (None, 9, 8):
-        h = hidden_open_space(t(top | legs | hidden), t(skin), t(closed), 0.5, half).numpy()
+        h = hidden_open_space(t(solid), t(skin), t(closed), 0.5, half).numpy()
         assert not (h & (top | legs)).any() and h[hidden].all(), half
 
 
