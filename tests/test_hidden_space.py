@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from physgs_nerfstudio.geometry.hidden import (
     LATTICE_DIRECTIONS,
     gaussian_samples,
+    hidden_open_rules,
     hidden_open_space,
     open_counts,
     open_fraction,
@@ -92,6 +93,9 @@ def test_hidden_space_lies_in_the_solid_off_the_skin_and_shrinks_with_the_skin(s
     h9 = hidden_open_space(solid, skin, None, frac, 9)
     assert not bool((h & ~h9).any()) and not bool((h9 & ~hidden_open_space(solid, skin, None, frac, 8)).any())
     assert not bool((h9 & skin).any())
+    # the rules' grid: 1 where the majority removes, 2 where only the open half does
+    rule = hidden_open_rules(solid, skin, None, frac, 9)
+    assert torch.equal(rule == 1, h) and torch.equal(rule == 2, h9 & ~h)
 
 
 def test_skin_grows_by_six_connected_steps():
@@ -312,8 +316,12 @@ def test_a_table_shot_from_above_loses_the_space_under_its_top():
     kept = _geo(pf, views, resolution=64, hidden_skin_voxels=None).volumes[0].sum()
     geo = _geo(pf, views, resolution=64)
     v = geo.volumes[0].sum()
-    print("truth", truth, "carving alone", kept, "without hidden space", v)
+    print("truth", truth, "carving alone", kept, "without hidden space", v, geo.hidden_removed)
     assert kept > 3.0 * truth  # the hidden space the rule is for
+    # the report says what each rule removed: the voxels of the nominal solid the rule took away
+    removed = geo.summary()["hidden_open_voxels"]
+    assert removed["majority"] > 0 and removed["open_half"] >= 0
+    assert (kept - v) / geo.grid.voxel_size**3 == pytest.approx(removed["majority"] + removed["open_half"], rel=0.05)
     # most of it goes; what stays is the skin's reach under the 4 cm top (about a voxel, 1.6 cm here) and the legs'
     # visual hull (module doc); the grown skin reaches 2 voxels under it
     assert 0.8 * truth <= v <= 0.45 * kept

@@ -71,13 +71,13 @@ from collections.abc import Iterator
 
 import numpy as np
 import torch
-from jaxtyping import Bool, Float, Int
+from jaxtyping import Bool, Float, Int, UInt8
 from torch import Tensor
 
 from ..render.projection import quat_to_rotmat
 
-__all__ = ["LATTICE_DIRECTIONS", "gaussian_samples", "hidden_open_space", "open_counts", "open_fraction",
-           "skin_centred", "skin_from_points"]
+__all__ = ["LATTICE_DIRECTIONS", "gaussian_samples", "hidden_open_rules", "hidden_open_space", "open_counts",
+           "open_fraction", "skin_centred", "skin_from_points"]
 
 LATTICE_DIRECTIONS: tuple[tuple[int, int, int], ...] = tuple(
     d for d in itertools.product((-1, 0, 1), repeat=3) if any(d))  # fmt: skip
@@ -229,13 +229,14 @@ def open_counts(solid: Bool[Tensor, "X Y Z"], skin: Bool[Tensor, "X Y Z"], close
     return total, halves.amax(0)
 
 
-def hidden_open_space(solid: Bool[Tensor, "X Y Z"], skin: Bool[Tensor, "X Y Z"],
+def hidden_open_rules(solid: Bool[Tensor, "X Y Z"], skin: Bool[Tensor, "X Y Z"],
                       closed: Bool[Tensor, "X Y Z"] | None = None, min_open_fraction: float = 0.5,
-                      min_open_half: int | None = None) -> Bool[Tensor, "X Y Z"]:  # fmt: skip
-    """bool grid: the solid's voxels that are hidden open space (module doc): not skin, and open in more than
-    ``min_open_fraction`` of the directions, or (unless None) in at least ``min_open_half`` of the 9 directions of
-    one half ("The open half"). Computed on the solid's bounding box grown by one voxel."""
-    out = torch.zeros_like(solid)
+                      min_open_half: int | None = None) -> UInt8[Tensor, "X Y Z"]:  # fmt: skip
+    """uint8 grid: which rule makes each voxel hidden open space (module doc): 0 none; 1 the majority (no skin, open
+    in more than ``min_open_fraction`` of the directions); 2 the open half alone (no skin, not a majority, and,
+    unless ``min_open_half`` is None, at least that many of the 9 directions of one half open with one across it;
+    "The open half"). Computed on the solid's bounding box grown by one voxel."""
+    out = torch.zeros(solid.shape, dtype=torch.uint8, device=solid.device)
     if not bool(solid.any()):
         return out
     idx = torch.nonzero(solid)
@@ -245,8 +246,15 @@ def hidden_open_space(solid: Bool[Tensor, "X Y Z"], skin: Bool[Tensor, "X Y Z"],
     s, k = solid[box], skin[box]
     c = closed[box] if closed is not None else None
     total, half = open_counts(s, k, c)
-    is_open = total.float() / len(LATTICE_DIRECTIONS) > min_open_fraction
-    if min_open_half is not None:
-        is_open |= half >= min_open_half
-    out[box] = s & ~k & is_open
+    majority = total.float() / len(LATTICE_DIRECTIONS) > min_open_fraction
+    by_half = half >= min_open_half if min_open_half is not None else torch.zeros_like(majority)
+    rule = torch.where(majority, 1, torch.where(by_half, 2, 0)).to(torch.uint8)
+    out[box] = rule * (s & ~k)
     return out
+
+
+def hidden_open_space(solid: Bool[Tensor, "X Y Z"], skin: Bool[Tensor, "X Y Z"],
+                      closed: Bool[Tensor, "X Y Z"] | None = None, min_open_fraction: float = 0.5,
+                      min_open_half: int | None = None) -> Bool[Tensor, "X Y Z"]:  # fmt: skip
+    """bool grid: the solid's voxels that are hidden open space by either rule (:func:`hidden_open_rules`)."""
+    return hidden_open_rules(solid, skin, closed, min_open_fraction, min_open_half) > 0

@@ -36,7 +36,7 @@ from .errors import GeometryError
 from .extent import support_excess
 from .gaussians import ViewRender, render_depth, surface_views
 from .grid import VoxelGrid
-from .hidden import gaussian_samples, hidden_open_space, skin_centred, skin_from_points
+from .hidden import gaussian_samples, hidden_open_rules, skin_centred, skin_from_points
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .parts import (
     PartGeometry,
@@ -272,6 +272,9 @@ class ObjectGeometry:
     seam_areas: np.ndarray | None = None
     """[P, P] area between each two parts inside the nominal solid, scene units^2
     (:func:`physgs_nerfstudio.geometry.parts.seam_areas`); None: no seams (the mass moves none)"""
+    hidden_removed: dict[str, int] | None = None
+    """the nominal solid's voxels removed as hidden open space (:mod:`.hidden`), by the rule that removed them:
+    "majority", "open_half"; None = the rule is off"""
 
     @property
     def num_parts(self) -> int:
@@ -286,7 +289,7 @@ class ObjectGeometry:
                 "support_plane_in_masks": self.selection.support is not None,
                 "on_support_gaussians": self.selection.on_support, "clusters": self.selection.num_clusters,
                 "split_from_gaussians": self.selection.split_from,
-                "pixel_footprint_voxels": self.pixel_voxels}  # fmt: skip
+                "hidden_open_voxels": self.hidden_removed, "pixel_footprint_voxels": self.pixel_voxels}  # fmt: skip
 
 
 def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
@@ -480,11 +483,11 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
 
 
 def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, beyond: np.ndarray | None,
-                    plane: SupportPlane | None, cfg: GeometryConfig) -> list[np.ndarray]:  # fmt: skip
+                    plane: SupportPlane | None, cfg: GeometryConfig) -> tuple[list[np.ndarray], dict[str, int]]:  # fmt: skip
     """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is sampled by ``surface``, the
     Gaussians some view sees on its surface (``means``, ``scales``, ``quats``); rays that leave the solid below the
     support plane or into space that the views kept and the Gaussians' polytope cut (``beyond``) are enclosed (the
-    object's unseen underside)."""
+    object's unseen underside). Also returns the nominal solid's voxels that each rule removed."""
     dev = surface.means.device
     reach = int(cfg.hidden_skin_voxels or 0)
     origin = np.asarray(grid.origin)
@@ -497,16 +500,17 @@ def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, bey
     if plane is not None:
         closed |= ~plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
-    out = []
-    for s in solids:
-        hidden = hidden_open_space(torch.from_numpy(s).to(dev), skin, closed_t, cfg.hidden_min_open_fraction,
-                                   cfg.hidden_min_open_half)
-        out.append(s & ~hidden.cpu().numpy())
-    removed = int(solids[0].sum() - out[0].sum())
-    if removed:
-        logger.info("hidden open space: %d of %d solid voxels that no seen surface encloses removed", removed,
-                    int(solids[0].sum()))  # fmt: skip
-    return out
+    out, removed = [], {}
+    for i, s in enumerate(solids):
+        rule = hidden_open_rules(torch.from_numpy(s).to(dev), skin, closed_t, cfg.hidden_min_open_fraction,
+                                 cfg.hidden_min_open_half).cpu().numpy()  # fmt: skip
+        out.append(s & (rule == 0))
+        if i == 0:
+            removed = {"majority": int((rule == 1).sum()), "open_half": int((rule == 2).sum())}
+    if removed["majority"] or removed["open_half"]:
+        logger.info("hidden open space: %d of %d solid voxels that no seen surface encloses removed (%d by the open "
+                    "half)", removed["majority"] + removed["open_half"], int(solids[0].sum()), removed["open_half"])
+    return out, removed
 
 
 def _up_weight(views: Sequence[CaptureView], weight: float) -> float:
@@ -614,9 +618,10 @@ def reconstruct_object(
     sel = selection.selected
     band = (cfg.evidence_surface_voxels if cfg.evidence_surface_voxels is not None else 1.0) * grid.voxel_size
     on_surface = surface_views(g.means[sel], obj_views, renders, band) > 0
+    hidden_removed = None
     if cfg.hidden_skin_voxels is not None:
         surf = _Subset(g, torch.nonzero(sel).squeeze(1)[on_surface])
-        solids = _without_hidden(grid, solids, surf, beyond, selection.plane, cfg)
+        solids, hidden_removed = _without_hidden(grid, solids, surf, beyond, selection.plane, cfg)
     names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else [])
     union = np.logical_or.reduce(solids)
     if not solids[0].any():
@@ -705,4 +710,5 @@ def reconstruct_object(
         mask_sources=sources, material_levels=levels, surface_areas=np.stack([gm.surface for gm in geos]),
         pixel_voxels=pixel_voxels, full_areas=np.stack([gm.full_area for gm in geos]),
         curvatures=np.stack([gm.curvature for gm in geos]), seam_areas=seam_areas(nominal_parts, P, grid.voxel_size),
+        hidden_removed=hidden_removed,
     )  # fmt: skip
