@@ -500,7 +500,7 @@ def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, bey
     if plane is not None:
         closed |= ~plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
-    out, removed = [], {}
+    out, removed = [], {"majority": 0, "open_half": 0}
     for i, s in enumerate(solids):
         rule = hidden_open_rules(torch.from_numpy(s).to(dev), skin, closed_t, cfg.hidden_min_open_fraction,
                                  cfg.hidden_min_open_half).cpu().numpy()  # fmt: skip
