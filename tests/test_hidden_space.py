@@ -21,6 +21,7 @@ from physgs_nerfstudio.geometry.hidden import (
     open_fraction,
     skin_centred,
     skin_from_points,
+    without_hidden_space,
 )
 
 
@@ -161,6 +162,8 @@ def test_a_closed_solid_sampled_with_gaps_keeps_its_inside_with_the_centred_skin
     skin = skin_centred(pts, np.zeros(3), 1.0, shape, 2, 1.5)
     assert not hidden_open_space(torch.from_numpy(solid), skin, torch.from_numpy(closed)).any()
     assert not hidden_open_space(torch.from_numpy(solid), skin, torch.from_numpy(closed), 0.5, 9).any()  # open half
+    kept, removed = without_hidden_space(torch.from_numpy(solid), skin, torch.from_numpy(closed), 0.5, 9, 8)
+    assert torch.equal(kept, torch.from_numpy(solid)) and removed == {"majority": 0, "open_half": 0}  # passes
 
 
 def test_gaussian_samples_are_the_means_and_their_axes_ends():
@@ -244,6 +247,31 @@ def test_the_open_half_removes_the_layer_that_stray_skin_encloses_sideways():
     kept_majority, kept_half = (stray & ~majority).sum(), (stray & ~half).sum()
     print("layer voxels kept: majority", kept_majority, "open half", kept_half, "of", stray.sum())
     assert kept_majority > 0.5 * stray.sum() and kept_half <= 0.8 * kept_majority
+
+
+def test_passes_remove_what_the_first_pass_left_open_and_keep_the_table():
+    """The stray-skin layer of the test above, with the rules run again on what they leave: the space a pass removed
+    is open to the next, so the layer and the space between it and the top go too; the top and the legs stay, more
+    passes remove a superset, and one pass is :func:`hidden_open_space`."""
+    solid, top, legs, hidden, closed, surface = _table()
+    rng = np.random.default_rng(0)
+    skin = surface | top
+    layer = np.zeros(solid.shape, bool)
+    layer[5:19, 5:19, 15] = True
+    skin |= layer & (rng.random(solid.shape) < 0.15)
+    t = torch.from_numpy
+    one, removed = without_hidden_space(t(solid), t(skin), t(closed), 0.5, 9, 1)
+    assert torch.equal(one, t(solid) & ~hidden_open_space(t(solid), t(skin), t(closed), 0.5, 9))
+    assert removed["majority"] + removed["open_half"] == int(solid.sum() - one.sum())
+    many, removed8 = without_hidden_space(t(solid), t(skin), t(closed), 0.5, 9, 8)
+    one, many = one.numpy(), many.numpy()
+    assert not (many & ~one).any() and not ((top | legs) & ~many).any()
+    assert removed8["majority"] + removed8["open_half"] == int(solid.sum() - many.sum())
+    between = hidden & ~skin
+    between[:, :, :15] = False  # the layer and the space between it and the top
+    print("kept between the top and below the stray skin: one pass", (between & one).sum(), "eight",
+          (between & many).sum(), "of", between.sum())
+    assert (between & many).sum() <= 0.25 * (between & one).sum()
 
 
 def test_a_thick_top_closed_all_round_by_its_seen_sides_keeps_its_unseen_lower_part():
@@ -339,7 +367,7 @@ def test_a_table_shot_from_above_loses_the_space_under_its_top():
 @pytest.mark.parametrize("bad", [{"hidden_skin": "dilated"}, {"hidden_skin_tolerance": 0.0},
                                  {"hidden_skin_sigmas": -1.0}, {"hidden_skin_voxels": -1},
                                  {"hidden_min_open_fraction": 1.0}, {"hidden_min_open_half": 0},
-                                 {"hidden_min_open_half": 10}])  # fmt: skip
+                                 {"hidden_min_open_half": 10}, {"hidden_passes": 0}])  # fmt: skip
 def test_hidden_space_settings_are_checked(bad):
     from physgs_nerfstudio.geometry.reconstruct import GeometryConfig
 

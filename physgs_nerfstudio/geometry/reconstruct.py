@@ -36,7 +36,7 @@ from .errors import GeometryError
 from .extent import support_excess
 from .gaussians import ViewRender, render_depth, surface_views
 from .grid import VoxelGrid
-from .hidden import gaussian_samples, hidden_open_rules, skin_centred, skin_from_points
+from .hidden import gaussian_samples, skin_centred, skin_from_points, without_hidden_space
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .parts import (
     PartGeometry,
@@ -128,6 +128,9 @@ class GeometryConfig:
     step along one of the grid's axes; :mod:`.hidden`, "The open half"): the layer under a seen top that the
     Gaussians of its partly seen underside enclose sideways; None = the majority alone (session 28); documented
     range 8-9"""
+    hidden_passes: int = 1
+    """the rules run again on what they leave, at most this many times in all, until a pass removes nothing: the
+    space a pass removed is open to the rays of the next (:mod:`.hidden`, "Passes"); 1 = one pass"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall,
@@ -224,6 +227,8 @@ class GeometryConfig:
         if not 0.0 <= self.hidden_min_open_fraction < 1.0:
             raise ValueError("GeometryConfig.hidden_min_open_fraction must be in [0, 1), got "
                              f"{self.hidden_min_open_fraction}.")
+        if self.hidden_passes < 1:
+            raise ValueError(f"GeometryConfig.hidden_passes must be >= 1, got {self.hidden_passes}.")
         if self.hidden_min_open_half is not None and not 1 <= self.hidden_min_open_half <= 9:
             raise ValueError("GeometryConfig.hidden_min_open_half must be in 1-9 (or None: the majority alone), got "
                              f"{self.hidden_min_open_half}.")
@@ -500,13 +505,10 @@ def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, bey
     if plane is not None:
         closed |= ~plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
-    out, removed = [], {"majority": 0, "open_half": 0}
-    for i, s in enumerate(solids):
-        rule = hidden_open_rules(torch.from_numpy(s).to(dev), skin, closed_t, cfg.hidden_min_open_fraction,
-                                 cfg.hidden_min_open_half).cpu().numpy()  # fmt: skip
-        out.append(s & (rule == 0))
-        if i == 0:
-            removed = {"majority": int((rule == 1).sum()), "open_half": int((rule == 2).sum())}
+    done = [without_hidden_space(torch.from_numpy(s).to(dev), skin, closed_t, cfg.hidden_min_open_fraction,
+                                 cfg.hidden_min_open_half, cfg.hidden_passes) for s in solids]  # fmt: skip
+    out = [kept.cpu().numpy() for kept, _ in done]
+    removed = done[0][1]  # the nominal solid's
     if removed["majority"] or removed["open_half"]:
         logger.info("hidden open space: %d of %d solid voxels that no seen surface encloses removed (%d by the open "
                     "half)", removed["majority"] + removed["open_half"], int(solids[0].sum()), removed["open_half"])
