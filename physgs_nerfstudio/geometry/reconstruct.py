@@ -124,10 +124,10 @@ class GeometryConfig:
     """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
     than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""
     hidden_min_open_half: int | None = 9
-    """... or in at least this many of the 9 directions of one half (the directions with a positive, or a negative,
-    step along one of the grid's axes; :mod:`.hidden`, "The open half"): the layer under a seen top that the
-    Gaussians of its partly seen underside enclose sideways; None = the majority alone (session 28); documented
-    range 8-9"""
+    """a voxel is also hidden open space when the rays leave in at least this many of the 9 directions of one half
+    (those with a positive, or a negative, step along one of the grid's axes) and in one across it (:mod:`.hidden`,
+    "The open half"): the layer under a seen top that the Gaussians of its partly seen underside enclose sideways;
+    None = the majority alone (session 28); documented range 8-9"""
     hidden_passes: int = 1
     """the rules run again on what they leave, at most this many times in all, until a pass removes nothing: the
     space a pass removed is open to the rays of the next (:mod:`.hidden`, "Passes"); 1 = one pass"""
