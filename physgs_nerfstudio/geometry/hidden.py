@@ -58,9 +58,9 @@ removes is not the object, so it is open space to the rays of the next: from the
 the top, the rays that ran down through the removed layer now leave the solid there. Run until a pass removes
 nothing (at most ``passes``), the rules reach a fixed point: a closed object whose first pass removes nothing is
 unchanged. On the CPU demo rooms at 8 passes the table went from 1.36x to 1.20x its volume at seed 3131 and from
-1.24x to 1.09x at 3232. The suite at two CPU seeds moved by at most 0.011 of the truth, except the mug at one seed,
-whose unseen fill inside the cup went too (0.85x -> 0.80x of its mass). Not measured on the GPU, so it is off by
-default (benchmarks/README.md, session 29).
+1.24x to 1.09x at 3232 (1.27x to 1.17x at 3333). Over the suite at three CPU seeds every object moved by at most
+0.011 of the truth except the mug, whose unseen fill inside the cup went too at two of them (0.85x -> 0.80x and
+0.995x -> 0.923x of its mass). Not measured on the GPU, so it is off by default (benchmarks/README.md, session 29).
 
 Limits: the space within the skin's reach under a seen edge stays (the skin of a top's side faces encloses the
 layer under the top sideways), so a thin top shot only from above keeps about a voxel of hidden space under it. The
