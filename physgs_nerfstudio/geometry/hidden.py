@@ -279,9 +279,10 @@ def without_hidden_space(solid: Bool[Tensor, "X Y Z"], skin: Bool[Tensor, "X Y Z
     removed = {"majority": 0, "open_half": 0}
     for _ in range(passes):
         rule = hidden_open_rules(solid, skin, closed, min_open_fraction, min_open_half)
-        removed["majority"] += int((rule == 1).sum())
-        removed["open_half"] += int((rule == 2).sum())
-        if not bool((rule > 0).any()):
+        _, n_majority, n_half = torch.bincount(rule.flatten(), minlength=3).tolist()
+        removed["majority"] += n_majority
+        removed["open_half"] += n_half
+        if not n_majority + n_half:
             break
         solid = solid & (rule == 0)
     return solid, removed
