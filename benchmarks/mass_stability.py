@@ -35,6 +35,7 @@ SETTINGS: dict[str, list[str]] = {
     "hidden_skin_tolerance=1.25": ["--mass.geometry.hidden-skin-tolerance", "1.25"],
     "hidden_skin_tolerance=2": ["--mass.geometry.hidden-skin-tolerance", "2"],
     "hidden_min_open_half=8": ["--mass.geometry.hidden-min-open-half", "8"],
+    "hidden_passes=1": ["--mass.geometry.hidden-passes", "1"],
     "min_voxel_evidence=0.25": ["--mass.geometry.min-voxel-evidence", "0.25"],
     "min_voxel_evidence=1": ["--mass.geometry.min-voxel-evidence", "1"],
     "hull_vote_fraction=0.35": ["--mass.geometry.select.hull-vote-fraction", "0.35"],

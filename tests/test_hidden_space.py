@@ -353,9 +353,11 @@ def test_a_table_shot_from_above_loses_the_space_under_its_top():
     # most of it goes; what stays is the skin's reach under the 4 cm top (about a voxel, 1.6 cm here) and the legs'
     # visual hull (module doc); the grown skin reaches 2 voxels under it
     assert 0.8 * truth <= v <= 0.45 * kept
-    grown = _geo(pf, views, resolution=64, hidden_skin="grown").volumes[0].sum()
-    print("grown skin", grown)
-    assert v <= 0.9 * grown
+    # the skins compared at one pass (passes bring the grown skin's layers down too)
+    one = _geo(pf, views, resolution=64, hidden_passes=1).volumes[0].sum()
+    grown = _geo(pf, views, resolution=64, hidden_skin="grown", hidden_passes=1).volumes[0].sum()
+    print("one pass", one, "grown skin", grown)
+    assert v <= one <= 0.9 * grown
     # the top itself stays: the solid's voxels at the top's height cover its footprint
     z = np.asarray(geo.grid.origin)[2] + (np.arange(geo.grid.shape[2]) + 0.5) * geo.grid.voxel_size
     at_top = geo.solid[:, :, np.abs(z - 0.52) < 0.01].any(2)

@@ -53,14 +53,17 @@ keeps a thick top whose upper face's skin does not reach its lower part: its sid
 across, as they close the majority's (tests/test_hidden_space.py). At seed 3131 the room's table went from 1.61x to
 1.36x its volume, at 3232 from 1.46x to 1.24x (benchmarks/README.md, session 29). None = the majority alone.
 
-Passes (``passes``, :func:`without_hidden_space`; ``GeometryConfig.hidden_passes``, default 1). What one pass
+Passes (``passes``, :func:`without_hidden_space`; ``GeometryConfig.hidden_passes``, default 8). What one pass
 removes is not the object, so it is open space to the rays of the next: from the voxels between the stray skin and
 the top, the rays that ran down through the removed layer now leave the solid there. Run until a pass removes
 nothing (at most ``passes``), the rules reach a fixed point: a closed object whose first pass removes nothing is
-unchanged. On the CPU demo rooms at 8 passes the table went from 1.36x to 1.20x its volume at seed 3131 and from
-1.24x to 1.09x at 3232 (1.27x to 1.17x at 3333). Over the suite at three CPU seeds every object moved by at most
-0.011 of the truth except the mug, whose unseen fill inside the cup went too at two of them (0.85x -> 0.80x and
-0.995x -> 0.923x of its mass). Not measured on the GPU, so it is off by default (benchmarks/README.md, session 29).
+unchanged. On the GPU rooms at fresh seeds 10808 and 10909 (60 views, 512 px) the table went from 1.57x to 1.28x and
+from 1.38x to 1.26x its volume; the GPU suite at 10707 moved by at most 0.001 of the truth (benchmarks/README.md,
+session 30). On the CPU demo rooms the table went from 1.36x to 1.20x at seed 3131, from 1.24x to 1.09x at 3232 and
+from 1.27x to 1.17x at 3333. Over the CPU suite at three seeds every object moved by at most 0.011 of the truth
+except the mug (0.85x -> 0.80x and 0.995x -> 0.923x of its mass at two of them): the passes carve more of its cup's
+unseen inside, its hollow body's carved volume comes down to about its wall's (area x thickness), and the mass takes
+the smaller of the two in each sample, so the variants that carve a little more pull it down. 1 = one pass.
 
 Limits: the space within the skin's reach under a seen edge stays (the skin of a top's side faces encloses the
 layer under the top sideways), so a thin top shot only from above keeps about a voxel of hidden space under it. The

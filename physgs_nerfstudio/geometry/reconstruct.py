@@ -134,9 +134,10 @@ class GeometryConfig:
     (those with a positive, or a negative, step along one of the grid's axes) and in one across it (:mod:`.hidden`,
     "The open half"): the layer under a seen top that the Gaussians of its partly seen underside enclose sideways;
     None = the majority alone (session 28); documented range 8-9"""
-    hidden_passes: int = 1
+    hidden_passes: int = 8
     """the rules run again on what they leave, at most this many times in all, until a pass removes nothing: the
-    space a pass removed is open to the rays of the next (:mod:`.hidden`, "Passes"); 1 = one pass"""
+    space a pass removed is open to the rays of the next (:mod:`.hidden`, "Passes"); 1 = one pass (session 29);
+    documented range 1-8"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall,
