@@ -106,8 +106,9 @@ def test_within_support_cuts_the_unseen_slab_under_an_object():
 @pytest.mark.parametrize("depth", [1.0, 2.0])
 def test_polytope_layer_is_the_layer_over_the_cut_not_the_seen_faces(depth):
     """The interval's shrunk-extent variant (GeometryConfig.extent_shrink_voxels): the box of the test above, carved
-    down to z = -0.3 and cut to its points' polytope, loses the ``depth`` voxel layers over its unseen bottom (where
-    the cut, not the views, ends it) and nothing at its sides and top (where the views end it)."""
+    down to z = -0.3 and half a voxel over its top, and cut to its points' polytope, loses the ``depth`` voxel layers
+    over its unseen bottom (where the cut, not the views, ends it) and nothing at its sides and top (where the views
+    end it, whatever the cut took over the top)."""
     from physgs_nerfstudio.geometry.reconstruct import _polytope_layer
     rng = np.random.default_rng(1)
     u = rng.uniform(size=(4000, 2))
@@ -115,7 +116,9 @@ def test_polytope_layer_is_the_layer_over_the_cut_not_the_seen_faces(depth):
     grid = VoxelGrid.from_bounds(torch.tensor([-0.3, -0.3, -0.3]), torch.tensor([1.3, 1.3, 1.3]), 32)
     ijk = np.argwhere(np.ones(grid.shape, bool))
     x = grid.centres(torch.from_numpy(ijk)).double().numpy().reshape(*grid.shape, 3)
-    carved = ((x[..., 0] > 0) & (x[..., 0] < 1) & (x[..., 1] > 0) & (x[..., 1] < 1) & (x[..., 2] < 1))
+    h = grid.voxel_size
+    # the views kept space down to z = -0.3 (the unseen bottom) and half a voxel over the seen top (its depth margin)
+    carved = ((x[..., 0] > 0) & (x[..., 0] < 1) & (x[..., 1] > 0) & (x[..., 1] < 1) & (x[..., 2] < 1 + h))
     idx = tuple(np.argwhere(carved).T)
     excess = support_excess(grid, torch.from_numpy(pts).float(), carved)
     inside = np.zeros_like(carved)
@@ -123,7 +126,6 @@ def test_polytope_layer_is_the_layer_over_the_cut_not_the_seen_faces(depth):
     solid, beyond = carved & inside, carved & ~inside
     layer = _polytope_layer(idx, excess, beyond, 0.0, depth)
     assert not (layer & ~solid).any()
-    h = grid.voxel_size
     z = x[..., 2]
     assert layer[solid & (z < depth * h - 1e-6)].all()  # the voxels within depth of the bottom face
     assert not layer[solid & (z > (depth + 1) * h)].any()  # the sides and the top keep theirs

@@ -195,6 +195,21 @@ def test_lifting_falls_back_to_one_view_per_call_when_a_group_runs_out_of_gpu_me
     assert float(expect[0].sum()) > 0
 
 
+def test_shrunk_extent_variant_takes_the_layer_over_the_unseen_bottom_only(box):
+    """``extent_shrink_voxels``: with every view above the box (its bottom unseen, the Gaussians' polytope ends the
+    solid there), the variant is the nominal solid less about one voxel layer of the bottom's area; the seen top keeps
+    its voxels. Off (None) by default: no such variant."""
+    pf, _ = box
+    views = ring_views(pf, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0))
+    assert not any(n.startswith("extent-") for n in _geo(pf, views, resolution=40).variant_names)
+    geo = _geo(pf, views, resolution=40, extent_shrink_voxels=1.0)
+    assert geo.variant_names[-1] == "extent-1vox"
+    h = geo.grid.voxel_size
+    lost = float(geo.volumes[0].sum() - geo.volumes[-1].sum())
+    print("nominal", geo.volumes[0].sum(), "layer lost", lost, "bottom x voxel", 0.4 * 0.3 * h)
+    assert 0.6 * 0.4 * 0.3 * h <= lost <= 1.6 * 0.4 * 0.3 * h
+
+
 def test_sphere_volume_and_area():
     R = 0.25
     means, scales, quats = shell_sphere(R, 0.015)

@@ -102,12 +102,14 @@ class GeometryConfig:
     """the mass interval also samples the nominal carving cut to the polytope grown by this many more voxels: where
     the polytope ends the solid (an underside no view sees past), the surface is placed by the scatter of a few
     Gaussians, to about a voxel; None = no such variant"""
-    extent_shrink_voxels: float | None = 1.0
+    extent_shrink_voxels: float | None = None
     """the mass interval also samples the nominal carving without the voxels that lie within this many voxels inside
     the polytope where the polytope ends the solid (next to space that the views kept and the polytope cut): the
     other side of ``extent_variant_voxels``, since the few Gaussians' scatter places such a face either way (the GPU
-    lamp at seed 10404: a voxel layer of false solid under its steel base, benchmarks/README.md, session 30). Seen
-    faces, where the views end the solid, keep their voxels. None = no such variant"""
+    lamp at seed 10404: a voxel layer of false solid under its steel base). Seen faces, where the views end the
+    solid, keep their voxels. None (default) = no such variant: at 1.0 it widened the GPU suite's intervals (median
+    width 0.28 -> 0.31 of the prediction at seed 10707, the lamp's 0.33 -> 0.50) and covered no more objects there or
+    at three CPU seeds (benchmarks/README.md, session 30)"""
     hidden_skin_voxels: int | None = 2
     """the solid loses its *hidden open space* (:mod:`.hidden`): voxels that no view could carve (under a table top
     shot from above, under a chair's seat) and that, in most directions, no seen surface encloses. The seen surface
@@ -439,7 +441,8 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
     that much more, as one more variant, and (unless ``extent_shrink_voxels`` is None) the first variant's solid
-    without its voxels within that much inside the polytope next to the voxels the cut removed, as one more; the first
+    without its voxels within that much inside the polytope next to the voxels the cut removed from it, as one more;
+    the first
     variant's visual hull (:func:`.carve.hull_from_votes`); and the
     voxels that the views kept (in a solid or the hull) and the polytope cut (None without a cut). ``scales`` and
     ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
@@ -470,22 +473,26 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
         cut.append(solids[0] & wider)
     beyond = candidates & ~inside
     if extent_shrink_voxels is not None:  # the nominal carving where the polytope ends it, a little inside
-        cut.append(cut[0] & ~_polytope_layer(idx, excess, beyond, extent_pad_voxels, extent_shrink_voxels))
+        cut.append(cut[0] & ~_polytope_layer(idx, excess, solids[0] & ~inside, extent_pad_voxels, extent_shrink_voxels))
     return cut, hull & inside, beyond
 
 
 def _polytope_layer(idx: tuple[np.ndarray, ...], excess: np.ndarray, beyond: np.ndarray, pad: float,
                     depth: float) -> np.ndarray:  # fmt: skip
     """bool [X, Y, Z]: the candidates (``idx``, with their ``excess`` beyond the polytope in voxels) within ``depth``
-    voxels inside the polytope grown by ``pad`` (``excess > pad - depth``) and within ``ceil(depth) + 1``
-    26-connected steps of ``beyond`` (the space the views kept and the polytope cut): the layer next to where the
-    polytope, not the views, ends the solid. Seen faces, where no kept space lies beyond, lose nothing."""
+    voxels inside the polytope grown by ``pad`` (``excess > pad - depth``) and within ``ceil(depth) + 2``
+    26-connected steps of the voxels of ``beyond`` (the carved solid's voxels that the polytope cut) more than a
+    voxel past it: the layer next to where the polytope, not the views, ends the solid (no view saw past the space
+    under it). A seen face loses nothing: the carving keeps at most about a voxel past it (its depth margin)."""
     from scipy import ndimage  # lazily, as elsewhere in the geometry
     out = np.zeros_like(beyond)
-    if not beyond.any() or depth <= 0:
+    deep = np.zeros_like(beyond)
+    deep[idx] = excess > pad + 1.0
+    deep &= beyond
+    if not deep.any() or depth <= 0:
         return out
     out[idx] = (excess > pad - depth) & (excess <= pad)
-    near = ndimage.binary_dilation(beyond, np.ones((3, 3, 3), bool), iterations=math.ceil(depth) + 1)
+    near = ndimage.binary_dilation(deep, np.ones((3, 3, 3), bool), iterations=math.ceil(depth) + 2)
     return out & near
 
 
