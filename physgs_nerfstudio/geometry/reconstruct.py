@@ -104,12 +104,13 @@ class GeometryConfig:
     Gaussians, to about a voxel; None = no such variant"""
     extent_shrink_voxels: float | None = None
     """the mass interval also samples the nominal carving without the voxels that lie within this many voxels inside
-    the polytope where the polytope ends the solid (next to space that the views kept and the polytope cut): the
-    other side of ``extent_variant_voxels``, since the few Gaussians' scatter places such a face either way (the GPU
-    lamp at seed 10404: a voxel layer of false solid under its steel base). Seen faces, where the views end the
-    solid, keep their voxels. None (default) = no such variant: at 1.0 it widened the GPU suite's intervals (median
-    width 0.28 -> 0.31 of the prediction at seed 10707, the lamp's 0.33 -> 0.50) and covered no more objects there or
-    at three CPU seeds (benchmarks/README.md, session 30)"""
+    the polytope where the polytope ends the solid (next to carved space more than a voxel past the polytope: no view
+    saw past it): the other side of ``extent_variant_voxels``, since the few Gaussians' scatter places such a face
+    either way (the GPU lamp at seed 10404: a voxel layer of false solid under its steel base). Seen faces, where the
+    views end the solid, keep their voxels. None (default) = no such variant: at 1.0 it widened the intervals (a
+    first version: median width 0.28 -> 0.31 of the prediction on the GPU at seed 10707, the lamp's 0.33 -> 0.50;
+    this one: the CPU lamps' lower ends down by up to a quarter) and covered no more objects at one GPU and three CPU
+    seeds (benchmarks/README.md, session 30)"""
     hidden_skin_voxels: int | None = 2
     """the solid loses its *hidden open space* (:mod:`.hidden`): voxels that no view could carve (under a table top
     shot from above, under a chair's seat) and that, in most directions, no seen surface encloses. The seen surface
@@ -441,10 +442,8 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
     that much more, as one more variant, and (unless ``extent_shrink_voxels`` is None) the first variant's solid
-    without its voxels within that much inside the polytope next to the voxels the cut removed from it, as one more;
-    the first
-    variant's visual hull (:func:`.carve.hull_from_votes`); and the
-    voxels that the views kept (in a solid or the hull) and the polytope cut (None without a cut). ``scales`` and
+    without its layer that deep where the polytope ends it (:func:`_polytope_layer`), as one more; the first
+    variant's visual hull (:func:`.carve.hull_from_votes`); and the voxels that the views kept (in a solid or the hull) and the polytope cut (None without a cut). ``scales`` and
     ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
     def key(cc: CarveConfig) -> tuple[float, float, float]:  # the votes depend on these settings only
         return cc.mask_margin_px, cc.depth_margin_voxels, cc.extent_multiple()
@@ -473,7 +472,8 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
         cut.append(solids[0] & wider)
     beyond = candidates & ~inside
     if extent_shrink_voxels is not None:  # the nominal carving where the polytope ends it, a little inside
-        cut.append(cut[0] & ~_polytope_layer(idx, excess, solids[0] & ~inside, extent_pad_voxels, extent_shrink_voxels))
+        layer = _polytope_layer(idx, excess, solids[0] & ~inside, extent_pad_voxels, extent_shrink_voxels)
+        cut.append(cut[0] & ~layer)
     return cut, hull & inside, beyond
 
 
