@@ -355,6 +355,28 @@ def test_mass_interval_from_the_same_samples(box):
     assert 0.9 * 700 * 0.024 <= solid.mean_kg <= 1.15 * 700 * 0.024
 
 
+def test_the_widest_wall_cap_is_no_lower_than_each_variants(box):
+    """MassConfig.wall_cap: a hollow part's wall is capped by its carved volume, the sample's own variant's or the
+    widest variant's. With one variant carved to 0.01% of the box, the variant cap crushes that variant's samples to
+    almost nothing; the widest cap keeps them walls, and no sample is lighter than with the variant cap."""
+    from dataclasses import replace
+
+    pf, views = box
+    geo = _geo(pf, views)
+    scale = np.ones((geo.volumes.shape[0], 1))
+    scale[1] = 1e-4
+    thin = replace(geo, volumes=geo.volumes * scale)
+    cfg = dict(n_samples=2000, seed=3, structure="hollow")
+    own = integrate_mass(pf, thin, MassConfig(**cfg, wall_cap="variant"), keep_samples=True).samples
+    widest = integrate_mass(pf, thin, MassConfig(**cfg), keep_samples=True).samples  # the default
+    assert np.all(widest >= own - 1e-12)
+    crushed = np.mean(own < 0.1 * widest)  # the samples of the thin variant: about 1 in G
+    G = geo.volumes.shape[0]
+    assert 0.5 / G < crushed < 2.0 / G
+    with pytest.raises(ValueError, match="wall_cap"):
+        MassConfig(wall_cap="smallest")
+
+
 def test_material_quantiles_keep_spatial_shares_and_switch_ambiguous_parts_together():
     """A part whose voxels are sure but differ keeps its volume shares at every level; a part whose voxels are
     all equally unsure switches material as a whole at the mixture's cumulative weight (brute-force oracle)."""

@@ -33,7 +33,10 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   volume unchanged (no part below 0). Which side of a seam holds the volume decides its density and whether it
   weighs at all (the inside of a hollow part does not), so this moves the mass where parts of unlike weight meet
   and not elsewhere.
-* Part mass: ``rho x V_p`` (solid) or ``rho x min(V_p, W_p(t_p))`` (hollow); the object's mass is the sum. The
+* Part mass: ``rho x V_p`` (solid) or ``rho x min(V*_p, W_p(t_p))`` (hollow); the object's mass is the sum. The
+  cap ``V*_p`` is the part's largest volume over the variants (``wall_cap="widest"``): the wall lies inside the
+  object, and the carving that kept the most of it bounds it, while a variant that carves more only samples where
+  the surface lies (with its own ``V_p`` as the cap, a cup carved down to its wall came out 4-7% light). The
   wall's volume ``W_p`` (:func:`wall_volume`) is ``A_p t_p`` where the faces are sheets (both sides of the wall
   reconstructed: their half areas add up to its middle surface) and shrinks with the mean curvature where the wall
   lies inside a fully counted face (a closed bottle's glass, a tube's wall; ``wall_curvature``).
@@ -76,6 +79,13 @@ class MassConfig:
     larger of the voxel and the pixel footprint), one draw per sample shared by every part (module doc, "Surface
     offset"); 0: the variants alone"""
 
+    wall_cap: Literal["variant", "widest"] = "widest"
+    """a hollow part's wall holds at most the carved volume of its part: that of the widest carving variant (the
+    largest of the part's volumes over the variants; the variants that carve more sample where the surface lies and
+    are no bound on the material), or ("variant", session 29) that of the sample's own variant, which pulled a cup
+    whose carved inside came down to its wall's volume 4-7% light (module doc, "Part mass"; benchmarks/README.md,
+    session 30)"""
+
     seam_offset_voxels: float = 1.0
     """spread (one standard deviation) of each seam between two parts inside the object, in units of the carving's
     resolution, one draw per seam and sample (module doc, "Seams"). 1.0: the root mean square of the seams' offsets
@@ -85,6 +95,8 @@ class MassConfig:
     def __post_init__(self) -> None:
         if not 0 < self.level < 1:
             raise ValueError(f"MassConfig.level must be in (0, 1), got {self.level}.")
+        if self.wall_cap not in ("variant", "widest"):
+            raise ValueError(f"MassConfig.wall_cap must be 'variant' or 'widest', got {self.wall_cap!r}.")
         if not (math.isfinite(self.surface_offset_voxels) and self.surface_offset_voxels >= 0):
             raise ValueError(f"MassConfig.surface_offset_voxels must be finite and >= 0, got "
                              f"{self.surface_offset_voxels}.")
@@ -243,6 +255,10 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
     if cfg.seam_offset_voxels > 0 and geo.seam_areas is not None:  # drawn last
         moved = seam_transfer(geo.seam_areas * mpu**2, cfg.seam_offset_voxels * unit * mpu, rng, S)
         V, V_solid = (np.maximum(x + moved, 0.0) for x in (V, V_solid))
+    else:
+        moved = 0.0
+    if cfg.wall_cap == "widest":  # the bound from the carving that kept the most of each part
+        V = np.maximum(geo.volumes.max(0)[None, :] * mpu**3 + moved, 0.0)
     if cfg.wall_curvature and geo.curvatures is not None and geo.full_areas is not None:
         wall = wall_volume(A, geo.full_areas[gi] * mpu**2, geo.curvatures[gi] * mpu, thick)
     else:
