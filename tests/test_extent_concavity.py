@@ -13,7 +13,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
-from physgs_nerfstudio.geometry.extent import support_directions, support_excess, support_heights, within_support
+from physgs_nerfstudio.geometry.extent import (
+    polytope_layer,
+    support_directions,
+    support_excess,
+    support_heights,
+    within_support,
+)
 from physgs_nerfstudio.render.projection import quat_to_rotmat
 from physgs_nerfstudio.geometry.grid import VoxelGrid
 from physgs_nerfstudio.geometry.parts import concavities, part_areas
@@ -109,7 +115,6 @@ def test_polytope_layer_is_the_layer_over_the_cut_not_the_seen_faces(depth):
     down to z = -0.3 and half a voxel over its top, and cut to its points' polytope, loses the ``depth`` voxel layers
     over its unseen bottom (where the cut, not the views, ends it) and nothing at its sides and top (where the views
     end it, whatever the cut took over the top)."""
-    from physgs_nerfstudio.geometry.reconstruct import _polytope_layer
     rng = np.random.default_rng(1)
     u = rng.uniform(size=(4000, 2))
     pts = np.concatenate([np.insert(u, axis, v, axis=1) for axis in range(3) for v in (0.0, 1.0)])
@@ -124,12 +129,12 @@ def test_polytope_layer_is_the_layer_over_the_cut_not_the_seen_faces(depth):
     inside = np.zeros_like(carved)
     inside[idx] = excess <= 0.0
     solid, beyond = carved & inside, carved & ~inside
-    layer = _polytope_layer(idx, excess, beyond, 0.0, depth)
+    layer = polytope_layer(idx, excess, beyond, 0.0, depth)
     assert not (layer & ~solid).any()
     z = x[..., 2]
     assert layer[solid & (z < depth * h - 1e-6)].all()  # the voxels within depth of the bottom face
     assert not layer[solid & (z > (depth + 1) * h)].any()  # the sides and the top keep theirs
-    assert _polytope_layer(idx, excess, np.zeros_like(beyond), 0.0, depth).sum() == 0  # nothing cut: no layer
+    assert polytope_layer(idx, excess, np.zeros_like(beyond), 0.0, depth).sum() == 0  # nothing cut: no layer
 
 
 @settings(max_examples=20, deadline=None)

@@ -25,7 +25,7 @@ from torch import Tensor
 from ..render.projection import quat_to_rotmat
 from .grid import VoxelGrid
 
-__all__ = ["support_directions", "support_excess", "within_support"]
+__all__ = ["polytope_layer", "support_directions", "support_excess", "within_support"]
 
 
 def support_directions(n_fibonacci: int = 100) -> Float[Tensor, "D 3"]:
@@ -95,3 +95,22 @@ def within_support(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.
     k = support_excess(grid, means, candidates, n_fibonacci, scales, quats, skip) <= pad_voxels
     out[tuple(idx[k].T)] = True
     return out
+
+
+def polytope_layer(idx: tuple[np.ndarray, ...], excess: np.ndarray, beyond: np.ndarray, pad: float,
+                   depth: float) -> np.ndarray:  # fmt: skip
+    """bool [X, Y, Z]: the candidates (``idx``, with their ``excess`` beyond the polytope in voxels) within ``depth``
+    voxels inside the polytope grown by ``pad`` (``excess > pad - depth``) and within ``ceil(depth) + 2``
+    26-connected steps of the voxels of ``beyond`` (the carved solid's voxels that the polytope cut) more than a
+    voxel past it: the layer next to where the polytope, not the views, ends the solid (no view saw past the space
+    under it). A seen face loses nothing: the carving keeps at most about a voxel past it (its depth margin)."""
+    from scipy import ndimage  # lazily: the cut itself needs no SciPy
+    out = np.zeros_like(beyond)
+    deep = np.zeros_like(beyond)
+    deep[idx] = excess > pad + 1.0
+    deep &= beyond
+    if not deep.any() or depth <= 0:
+        return out
+    out[idx] = (excess > pad - depth) & (excess <= pad)
+    near = ndimage.binary_dilation(deep, np.ones((3, 3, 3), bool), iterations=math.ceil(depth) + 2)
+    return out & near

@@ -33,7 +33,7 @@ from .carve import (
     solid_from_votes,
 )
 from .errors import GeometryError
-from .extent import support_excess
+from .extent import polytope_layer, support_excess
 from .gaussians import ViewRender, render_depth, surface_views
 from .grid import VoxelGrid
 from .hidden import gaussian_samples, skin_centred, skin_from_points, without_hidden_space
@@ -442,7 +442,7 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
     that much more, as one more variant, and (unless ``extent_shrink_voxels`` is None) the first variant's solid
-    without its layer that deep where the polytope ends it (:func:`_polytope_layer`), as one more; the first
+    without its layer that deep where the polytope ends it (:func:`.extent.polytope_layer`), as one more; the first
     variant's visual hull (:func:`.carve.hull_from_votes`); and the voxels that the views kept (in a solid or the hull) and the polytope cut (None without a cut). ``scales`` and
     ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
     def key(cc: CarveConfig) -> tuple[float, float, float]:  # the votes depend on these settings only
@@ -472,28 +472,9 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
         cut.append(solids[0] & wider)
     beyond = candidates & ~inside
     if extent_shrink_voxels is not None:  # the nominal carving where the polytope ends it, a little inside
-        layer = _polytope_layer(idx, excess, solids[0] & ~inside, extent_pad_voxels, extent_shrink_voxels)
+        layer = polytope_layer(idx, excess, solids[0] & ~inside, extent_pad_voxels, extent_shrink_voxels)
         cut.append(cut[0] & ~layer)
     return cut, hull & inside, beyond
-
-
-def _polytope_layer(idx: tuple[np.ndarray, ...], excess: np.ndarray, beyond: np.ndarray, pad: float,
-                    depth: float) -> np.ndarray:  # fmt: skip
-    """bool [X, Y, Z]: the candidates (``idx``, with their ``excess`` beyond the polytope in voxels) within ``depth``
-    voxels inside the polytope grown by ``pad`` (``excess > pad - depth``) and within ``ceil(depth) + 2``
-    26-connected steps of the voxels of ``beyond`` (the carved solid's voxels that the polytope cut) more than a
-    voxel past it: the layer next to where the polytope, not the views, ends the solid (no view saw past the space
-    under it). A seen face loses nothing: the carving keeps at most about a voxel past it (its depth margin)."""
-    from scipy import ndimage  # lazily, as elsewhere in the geometry
-    out = np.zeros_like(beyond)
-    deep = np.zeros_like(beyond)
-    deep[idx] = excess > pad + 1.0
-    deep &= beyond
-    if not deep.any() or depth <= 0:
-        return out
-    out[idx] = (excess > pad - depth) & (excess <= pad)
-    near = ndimage.binary_dilation(deep, np.ones((3, 3, 3), bool), iterations=math.ceil(depth) + 2)
-    return out & near
 
 
 def _resting_plane(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:

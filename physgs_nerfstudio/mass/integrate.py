@@ -249,21 +249,19 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
     hollow, thick = _structure_draws(geo, cfg, rng)
     unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)  # the carving's resolution, scene units
     V_solid = V
+    # a hollow part's wall holds at most this: the carving that kept the most of the part, or the sample's own
+    cap = geo.volumes.max(0)[None, :] * mpu**3 if cfg.wall_cap == "widest" else V
     if cfg.surface_offset_voxels > 0:  # drawn after the others: they stay unchanged
         d = cfg.surface_offset_voxels * unit * rng.standard_normal(S)
         V_solid = np.maximum(geo.volumes[gi] + geo.surface_areas[gi] * d[:, None], 0.0) * mpu**3
     if cfg.seam_offset_voxels > 0 and geo.seam_areas is not None:  # drawn last
         moved = seam_transfer(geo.seam_areas * mpu**2, cfg.seam_offset_voxels * unit * mpu, rng, S)
-        V, V_solid = (np.maximum(x + moved, 0.0) for x in (V, V_solid))
-    else:
-        moved = 0.0
-    if cfg.wall_cap == "widest":  # the bound from the carving that kept the most of each part
-        V = np.maximum(geo.volumes.max(0)[None, :] * mpu**3 + moved, 0.0)
+        cap, V_solid = (np.maximum(x + moved, 0.0) for x in (cap, V_solid))
     if cfg.wall_curvature and geo.curvatures is not None and geo.full_areas is not None:
         wall = wall_volume(A, geo.full_areas[gi] * mpu**2, geo.curvatures[gi] * mpu, thick)
     else:
         wall = A * thick
-    vol = np.where(hollow, np.minimum(V, wall), V_solid)
+    vol = np.where(hollow, np.minimum(cap, wall), V_solid)
     m_pk = share * rho[:, None, :] * vol[:, :, None]  # [S, P, K]
     m = m_pk.sum(-1)  # [S, P]
     total = m.sum(1)
