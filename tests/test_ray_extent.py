@@ -98,7 +98,7 @@ def test_rendered_extent_is_the_blend_of_the_gaussians_extents():
 def test_front_extent_must_not_be_negative():
     with pytest.raises(ValueError, match="front_extent"):
         CarveConfig(front_extent=-1.0)
-    assert CarveConfig(depth_render="expected").extent_multiple() == 1.0
+    assert CarveConfig(depth_render="expected").extent_multiple() == 2.0
     assert CarveConfig(depth_render="median").extent_multiple() == 0.0
     assert CarveConfig(depth_render="expected", front_extent=0.0).extent_multiple() == 0.0
 
