@@ -355,6 +355,26 @@ def test_mass_interval_from_the_same_samples(box):
     assert 0.9 * 700 * 0.024 <= solid.mean_kg <= 1.15 * 700 * 0.024
 
 
+def test_the_report_says_how_much_one_resolution_unit_of_surface_holds(box):
+    """``surface_layer_share`` = S u / V of the solid parts: the carved box's against the true box's (0.52 m^2 of
+    surface, 0.024 m^3); the printed caption calls a solid coarse from half of its volume in one unit on, and says
+    whether a finer grid or finer views would help."""
+    from physgs_nerfstudio.export.report import _layer_caption
+
+    pf, views = box
+    rep = integrate_mass(pf, _geo(pf, views), MassConfig(n_samples=200, structure="solid"))
+    g = rep.geometry
+    assert g["surface_layer_share"] == pytest.approx(0.52 * g["resolution_unit_m"] / 0.024, rel=0.15)
+    assert sum(p["volume_m3"] for p in rep.parts) == pytest.approx(rep.volume_m3)
+    assert g["surface_layer_share"] < 0.5 and "coarse" not in _layer_caption(g)
+    assert f"{100 * g['surface_layer_share']:.0f}% of the solid" in _layer_caption(g)
+    thin = {**g, "surface_layer_share": 1.0, "pixel_footprint_voxels": 0.67, "grid": {"shape": [128, 102, 117]}}
+    assert "coarse" in _layer_caption(thin) and "~50%" in _layer_caption(thin)
+    assert "--mass.geometry.resolution (now 128)" in _layer_caption(thin)
+    assert "more or closer views" in _layer_caption({**thin, "pixel_footprint_voxels": 1.5})
+    assert _layer_caption({}) == ""
+
+
 def test_the_widest_wall_cap_is_no_lower_than_each_variants(box):
     """MassConfig.wall_cap: a hollow part's wall is capped by its carved volume, the sample's own variant's or the
     widest variant's. With one variant carved to 0.01% of the box, the variant cap crushes that variant's samples to

@@ -27,6 +27,29 @@ def write_report(report: MassReport | None, path: Path, extra: dict[str, Any] | 
     return path
 
 
+COARSE_LAYER_SHARE = 0.5
+"""a solid whose one resolution unit of surface holds at least this share of its volume is called coarse"""
+
+
+def _layer_caption(geometry: dict[str, Any]) -> str:
+    """The caption's line on how much of the solid one resolution unit of surface holds (integrate's
+    ``surface_layer_share``), with what to do where that is coarse; "" without it."""
+    share, unit = geometry.get("surface_layer_share"), geometry.get("resolution_unit_m")
+    if share is None or unit is None:
+        return ""
+    line = f"\none resolution unit ({unit * 1000:.3g} mm) of surface holds {100 * share:.0f}% of the solid's volume"
+    if share < COARSE_LAYER_SHARE:
+        return line
+    footprint = geometry.get("pixel_footprint_voxels") or 1.0
+    grid = geometry.get("grid") or {}
+    shape = grid.get("shape")
+    now = f" (now {max(shape)})" if shape else ""
+    fix = (f"a finer --mass.geometry.resolution{now}: the views resolve {footprint:.2g} voxel" if footprint < 0.9
+           else "more or closer views: the grid is already as fine as the views' pixels")
+    return line + f": coarse for this object (every face placed half a unit out moves its mass by up to ~{50 * share:.0f}%); " \
+        f"{fix}"
+
+
 def mass_table(report: MassReport, title: str | None = None, truth_kg: float | None = None):
     """A rich Table: one row per material present (volume share > 0.1% or mass share > 0.1%), then the total."""
     from rich.table import Table
@@ -35,7 +58,7 @@ def mass_table(report: MassReport, title: str | None = None, truth_kg: float | N
     sim = " [SIMULATED VLM]" if report.simulated else ""
     table = Table(title=(title or "Mass estimate") + sim, caption=(
         f"{report.n_samples} Monte Carlo samples, seed {report.seed}; scale {report.metres_per_unit:.4g} m/unit "
-        f"({report.scale_source})"))  # fmt: skip
+        f"({report.scale_source})" + _layer_caption(report.geometry or {})))  # fmt: skip
     for col, just in (("material", "left"), ("model", "left"), ("volume share", "right"),
                       ("density kg/m^3", "right"), ("mass mean kg", "right"), (f"{pct}% interval kg", "right")):
         table.add_column(col, justify=just)  # type: ignore[arg-type]

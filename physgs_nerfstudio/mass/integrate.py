@@ -41,7 +41,10 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   reconstructed: their half areas add up to its middle surface) and shrinks with the mean curvature where the wall
   lies inside a fully counted face (a closed bottle's glass, a tube's wall; ``wall_curvature``).
 
-The reported mean, median and central ``level`` interval all come from these same samples.
+The reported mean, median and central ``level`` interval all come from these same samples. The report also gives,
+per part and for the solid parts together, ``surface_layer_share`` = ``S u / V`` (:func:`_layer_share`): how much of
+the volume one resolution unit of surface holds, i.e. how far the mass moves when the faces are placed a unit off
+(about ``2 / n`` for a slab ``n`` units thick).
 """
 
 from __future__ import annotations
@@ -300,11 +303,14 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
                       "surface_area_m2": float(Sn[p]), "seams_m2": _seams(geo, p, mpu),
                       "wall_mean_curvature_per_m": _mean_curvature(geo, p, mpu),
                       "sheet_share": float(geo.sheet_share[p]), "structure": s,
+                      "surface_layer_share": _layer_share(Sn[p], Vn[p], unit * mpu),
                       "mass_mean_kg": float(m[:, p].mean()), "mass_interval_kg": q(m[:, p])})  # fmt: skip
+    solid_p = st.p_hollow < 0.5
     info = {**geo.summary(), "voxel_size_m": geo.grid.voxel_size * mpu, "structure_mode": cfg.structure,
             "density_draw": cfg.density_draw, "num_gaussians": int(pf.num_gaussians),
             "surface_offset_voxels": cfg.surface_offset_voxels, "seam_offset_voxels": cfg.seam_offset_voxels,
-            "surface_area_m2": float(Sn.sum()),
+            "surface_area_m2": float(Sn.sum()), "resolution_unit_m": unit * mpu,
+            "surface_layer_share": _layer_share(Sn[solid_p].sum(), Vn[solid_p].sum(), unit * mpu),
             "volume_by_variant_m3": {n: float(v.sum() * mpu**3) for n, v in zip(geo.variant_names, geo.volumes)}}
     return MassReport(
         mean_kg=mean, median_kg=float(np.median(total)), interval_kg=q(total), level=cfg.level, n_samples=S,
@@ -312,6 +318,13 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
         metres_per_unit=mpu, scale_source=pf.scale_source, simulated=pf.simulated, geometry=info, parts=parts,
         samples=total if keep_samples else None,
     )  # fmt: skip
+
+
+def _layer_share(surface_m2: float, volume_m3: float, unit_m: float) -> float | None:
+    """The share of a solid's volume that one resolution unit of its surface holds, ``S u / V`` (None without
+    volume): how far its mass moves when every face is placed a unit off. A slab ``n`` units thick gives about
+    ``2 / n``: a two-voxel table top 1, so half a voxel on each face moves it by half (README, "Limits")."""
+    return float(surface_m2 * unit_m / volume_m3) if volume_m3 > 0 else None
 
 
 def _seams(geo: ObjectGeometry, p: int, mpu: float) -> dict[str, float]:
