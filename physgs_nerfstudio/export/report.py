@@ -37,17 +37,19 @@ def _layer_caption(geometry: dict[str, Any]) -> str:
     share, unit = geometry.get("surface_layer_share"), geometry.get("resolution_unit_m")
     if share is None or unit is None:
         return ""
-    line = f"\none resolution unit ({unit * 1000:.3g} mm) of surface holds {100 * share:.0f}% of the solid's volume"
+    line = (f"\none resolution unit ({unit * 1000:.3g} mm) of surface holds {100 * share:.0f}% of the "
+            "solid's volume")
     if share < COARSE_LAYER_SHARE:
         return line
     footprint = geometry.get("pixel_footprint_voxels") or 1.0
-    grid = geometry.get("grid") or {}
-    shape = grid.get("shape")
+    shape = (geometry.get("grid") or {}).get("shape")
     now = f" (now {max(shape)})" if shape else ""
-    fix = (f"a finer --mass.geometry.resolution{now}: the views resolve {footprint:.2g} voxel" if footprint < 0.9
-           else "more or closer views: the grid is already as fine as the views' pixels")
-    return line + f": coarse for this object (every face placed half a unit out moves its mass by up to ~{50 * share:.0f}%); " \
-        f"{fix}"
+    if footprint < 0.9:
+        fix = f"a finer --mass.geometry.resolution{now}: the views resolve {footprint:.2g} voxel"
+    else:
+        fix = "more or closer views: the grid is already as fine as the views' pixels"
+    moved = f"every face placed half a unit out moves its mass by up to ~{50 * share:.0f}%"
+    return f"{line}: coarse for this object ({moved}); {fix}"
 
 
 def mass_table(report: MassReport, title: str | None = None, truth_kg: float | None = None):

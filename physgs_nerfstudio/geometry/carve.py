@@ -63,13 +63,14 @@ whatever the voxel: benchmarks/README.md, session 16). ``front_extent`` moves th
 camera by k times the pixel's blended *along-ray extent* (:func:`.gaussians.ray_extent`: each Gaussian's standard
 deviation along the ray through it, ``1 / sqrt(d^T Sigma^-1 d)``, rendered as a colour channel): a flat Gaussian
 lying in a face adds its thickness across the face, not its in-plane size, and a face of thin Gaussians is not moved.
-k = 2 with the expected depth (the default, gsplat's depth), 0 with the median depth (the CPU's reference rasterizer),
-which already lies in front of a layer's centres; the mass interval samples k - 1 and k + 1 as geometry variants,
-since where the surface lies within a Gaussian's extent is known only to about one extent. Session 17 set k = 1 (GPU
-seed 5252: median APE 0.146 -> 0.099, median volume error 0.148 -> 0.074). With k = 1 the GPU suite's solids still
-came out a median 9-16% under their enclosed volumes at five later seeds (the metal plates' faces rendered 0.3-0.7
-voxel behind them, session 22), and k = 2 brought every one of those seeds closer; at the two fresh seeds exported
-both ways the median APE went 0.070 -> 0.047 and 0.059 -> 0.045 (benchmarks/README.md, session 31).
+k = 2 with the expected depth (the default, gsplat's depth), 0 with the median depth (the CPU's reference
+rasterizer), which already lies in front of a layer's centres; the mass interval samples k - 1 and k + 1 as
+geometry variants, since where the surface lies within a Gaussian's extent is known only to about one extent.
+Session 17 set k = 1 (GPU seed 5252: median APE 0.146 -> 0.099, median volume error 0.148 -> 0.074). With k =
+1 the GPU suite's solids still came out a median 5-17% under their enclosed volumes at five later seeds (the
+metal plates' faces rendered 0.3-0.7 voxel behind them, session 22), and k = 2 came closer at four of them; at
+the two fresh seeds exported both ways the median APE went 0.070 -> 0.047 and 0.059 -> 0.045
+(benchmarks/README.md, session 31).
 
 Depth consensus. The vote's fraction is low (15% of the views that frame a voxel) because most views cannot see
 a given empty voxel at all: it is hidden behind the object in them. But then a surface voxel is carved as soon as
@@ -125,7 +126,7 @@ __all__ = [
 ]
 
 EXPECTED_DEPTH_EXTENT = 2.0
-"""the default ``front_extent`` where the expected depth carves (gsplat): k of the module doc ("The Gaussians' depth")"""
+"""the default ``front_extent`` where the expected depth carves (gsplat): the module doc's k"""
 
 
 @dataclass
@@ -166,8 +167,8 @@ class CarveConfig:
     front_extent: float | None = None
     """carve with the rendered depth moved this many of its pixel's blended along-ray extents
     (:func:`.gaussians.ray_extent`) towards the camera (module doc, "The Gaussians' depth"); 0 = the depth as
-    rendered; None (default): :data:`EXPECTED_DEPTH_EXTENT` (2) with the expected depth, 0 with the median and "first"
-    depths, which already lie in front of the centres (:meth:`extent_multiple`)"""
+    rendered; None (default): :data:`EXPECTED_DEPTH_EXTENT` (2) with the expected depth, 0 with the median and
+    "first" depths, which already lie in front of the centres (:meth:`extent_multiple`)"""
     min_direct_fraction: float = 2.0
     """... or at least this fraction of the views that see it directly see past it by depth (module doc);
     > 1 (the default) switches the direct rule off: over the generated suite at seed 101 it carved the space
@@ -208,9 +209,9 @@ class CarveConfig:
                              f"{self.depth_margin_voxels} and {self.depth_margin_rel}.")
 
     def extent_multiple(self) -> float:
-        """``front_extent`` resolved: as set, or (None) :data:`EXPECTED_DEPTH_EXTENT` where the depth that carves is the
-        expected depth, else 0 (an unresolved ``depth_render="auto"`` carves with the median where the render has
-        one)."""
+        """``front_extent`` resolved: as set, or (None) :data:`EXPECTED_DEPTH_EXTENT` where the depth that carves
+        is the expected depth, else 0 (an unresolved ``depth_render="auto"`` carves with the median where the
+        render has one)."""
         if self.front_extent is not None:
             return float(self.front_extent)
         return EXPECTED_DEPTH_EXTENT if self.depth_render == "expected" else 0.0
