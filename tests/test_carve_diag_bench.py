@@ -23,7 +23,7 @@ def cd():
 def test_auto_resolves_per_rasterizer(cd):
     assert cd.rule_config({}, "reference").depth_render == "median"
     assert cd.rule_config({}, "gsplat").depth_render == "expected"
-    assert cd.rule_config({}, "gsplat").extent_multiple() == 2.0  # the export's GPU rule: expected - 2 extents
+    assert cd.rule_config({}, "gsplat").extent_multiple() == 2.0  # the GPU rule: expected - 2 extents
     assert cd.rule_config({"depth_render": "median"}, "gsplat").depth_render == "median"
     assert cd.rule_config({"depth_margin_voxels": 1.0}, "reference").depth_margin_voxels == 1.0
 

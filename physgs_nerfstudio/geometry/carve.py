@@ -209,9 +209,9 @@ class CarveConfig:
                              f"{self.depth_margin_voxels} and {self.depth_margin_rel}.")
 
     def extent_multiple(self) -> float:
-        """``front_extent`` resolved: as set, or (None) :data:`EXPECTED_DEPTH_EXTENT` where the depth that carves
-        is the expected depth, else 0 (an unresolved ``depth_render="auto"`` carves with the median where the
-        render has one)."""
+        """``front_extent`` resolved: as set, or (None) :data:`EXPECTED_DEPTH_EXTENT` where the depth that
+        carves is the expected depth, else 0 (an unresolved ``depth_render="auto"`` carves with the median
+        where the render has one)."""
         if self.front_extent is not None:
             return float(self.front_extent)
         return EXPECTED_DEPTH_EXTENT if self.depth_render == "expected" else 0.0

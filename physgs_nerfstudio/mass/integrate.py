@@ -42,9 +42,9 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   lies inside a fully counted face (a closed bottle's glass, a tube's wall; ``wall_curvature``).
 
 The reported mean, median and central ``level`` interval all come from these same samples. The report also
-gives, per part and for the solid parts together, ``surface_layer_share`` = ``S u / V`` (:func:`_layer_share`):
-how much of the volume one resolution unit of surface holds, i.e. how far the mass moves when the faces are
-placed a unit off (about ``2 / n`` for a slab ``n`` units thick).
+gives, per part and for the solid parts together, ``surface_layer_share`` = ``S u / V``
+(:func:`_layer_share`): how much of the volume one resolution unit of surface holds, i.e. how far the mass
+moves when the faces are placed a unit off (about ``2 / n`` for a slab ``n`` units thick).
 """
 
 from __future__ import annotations
