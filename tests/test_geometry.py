@@ -356,9 +356,9 @@ def test_mass_interval_from_the_same_samples(box):
 
 
 def test_the_report_says_how_much_one_resolution_unit_of_surface_holds(box):
-    """``surface_layer_share`` = S u / V of the solid parts: the carved box's against the true box's (0.52 m^2 of
-    surface, 0.024 m^3); the printed caption calls a solid coarse from half of its volume in one unit on, and says
-    whether a finer grid or finer views would help."""
+    """``surface_layer_share`` = S u / V of the solid parts: the carved box's against the true box's (0.52 m^2
+    of surface, 0.024 m^3); the printed caption calls a solid coarse from half of its volume in one unit on, and
+    says whether a finer grid or finer views would help."""
     from physgs_nerfstudio.export.report import _layer_caption
 
     pf, views = box
@@ -368,7 +368,8 @@ def test_the_report_says_how_much_one_resolution_unit_of_surface_holds(box):
     assert sum(p["volume_m3"] for p in rep.parts) == pytest.approx(rep.volume_m3)
     assert g["surface_layer_share"] < 0.5 and "coarse" not in _layer_caption(g)
     assert f"{100 * g['surface_layer_share']:.0f}% of the solid" in _layer_caption(g)
-    thin = {**g, "surface_layer_share": 1.0, "pixel_footprint_voxels": 0.67, "grid": {"shape": [128, 102, 117]}}
+    thin = {**g, "surface_layer_share": 1.0, "pixel_footprint_voxels": 0.67,
+            "grid": {"shape": [128, 102, 117]}}
     assert "coarse" in _layer_caption(thin) and "~50%" in _layer_caption(thin)
     assert "--mass.geometry.resolution (now 128)" in _layer_caption(thin)
     assert "more or closer views" in _layer_caption({**thin, "pixel_footprint_voxels": 1.5})
