@@ -357,8 +357,8 @@ def test_mass_interval_from_the_same_samples(box):
 
 def test_the_report_says_how_much_one_resolution_unit_of_surface_holds(box):
     """``surface_layer_share`` = S u / V of the solid parts: the carved box's against the true box's (0.52 m^2
-    of surface, 0.024 m^3); the printed caption calls a solid coarse from half of its volume in one unit on, and
-    says whether a finer grid or finer views would help."""
+    of surface, 0.024 m^3); the printed caption calls a solid coarse from half of its volume in one unit on,
+    and says whether a finer grid or finer views would help."""
     from physgs_nerfstudio.export.report import _layer_caption
 
     pf, views = box
