@@ -356,24 +356,31 @@ def test_mass_interval_from_the_same_samples(box):
 
 
 def test_the_report_says_how_much_one_resolution_unit_of_surface_holds(box):
-    """``surface_layer_share`` = S u / V of the solid parts: the carved box's against the true box's (0.52 m^2
-    of surface, 0.024 m^3); the printed caption calls a solid coarse from half of its volume in one unit on,
-    and says whether a finer grid or finer views would help."""
+    """``surface_layer_share`` = S u / V: the carved box's against the true box's (0.52 m^2 of surface,
+    0.024 m^3), the object's the same for one solid part; the printed caption calls an object coarse from half
+    of its mass in one unit on, and says whether a finer grid or finer views would help."""
     from physgs_nerfstudio.export.report import _layer_caption
 
     pf, views = box
     rep = integrate_mass(pf, _geo(pf, views), MassConfig(n_samples=200, structure="solid"))
     g = rep.geometry
     assert g["surface_layer_share"] == pytest.approx(0.52 * g["resolution_unit_m"] / 0.024, rel=0.15)
-    assert sum(p["volume_m3"] for p in rep.parts) == pytest.approx(rep.volume_m3)
+    (part,) = rep.parts
+    assert part["surface_layer_share"] == pytest.approx(g["surface_layer_share"])
     assert g["surface_layer_share"] < 0.5 and "coarse" not in _layer_caption(g)
-    assert f"{100 * g['surface_layer_share']:.0f}% of the solid" in _layer_caption(g)
+    assert f"{100 * g['surface_layer_share']:.0f}% of the mass" in _layer_caption(g)
     thin = {**g, "surface_layer_share": 1.0, "pixel_footprint_voxels": 0.67,
             "grid": {"shape": [128, 102, 117]}}
     assert "coarse" in _layer_caption(thin) and "~50%" in _layer_caption(thin)
     assert "--mass.geometry.resolution (now 128)" in _layer_caption(thin)
     assert "more or closer views" in _layer_caption({**thin, "pixel_footprint_voxels": 1.5})
     assert _layer_caption({}) == ""
+    # a hollow part's wall does not move with its faces: a mug whose solid is its light handle is not coarse
+    from physgs_nerfstudio.mass.integrate import _mass_layer_share
+
+    mass, surf, vol = np.array([1.0, 3.0]), np.array([0.5, 1.0]), np.array([0.01, 0.1])
+    assert _mass_layer_share(mass, surf, vol, np.array([True, False]), 0.01) == pytest.approx(0.5 * 1 / 4)
+    assert _mass_layer_share(mass, surf, vol, np.array([False, False]), 0.01) is None
 
 
 def test_the_widest_wall_cap_is_no_lower_than_each_variants(box):

@@ -28,17 +28,17 @@ def write_report(report: MassReport | None, path: Path, extra: dict[str, Any] | 
 
 
 COARSE_LAYER_SHARE = 0.5
-"""a solid whose one resolution unit of surface holds at least this share of its volume is called coarse"""
+"""an object is coarse where one resolution unit of its solid parts' surface holds this share of its mass"""
 
 
 def _layer_caption(geometry: dict[str, Any]) -> str:
-    """The caption's line on how much of the solid one resolution unit of surface holds (integrate's
-    ``surface_layer_share``), with what to do where that is coarse; "" without it."""
+    """The caption's line on how much of the mass one resolution unit of the solid parts' surface holds
+    (integrate's ``surface_layer_share``), with what to do where that is coarse; "" without it."""
     share, unit = geometry.get("surface_layer_share"), geometry.get("resolution_unit_m")
     if share is None or unit is None:
         return ""
-    line = (f"\none resolution unit ({unit * 1000:.3g} mm) of surface holds {100 * share:.0f}% of the "
-            "solid's volume")
+    line = (f"\none resolution unit ({unit * 1000:.3g} mm) of the solid parts' surface holds "
+            f"{100 * share:.0f}% of the mass")
     if share < COARSE_LAYER_SHARE:
         return line
     footprint = geometry.get("pixel_footprint_voxels") or 1.0

@@ -42,9 +42,10 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   lies inside a fully counted face (a closed bottle's glass, a tube's wall; ``wall_curvature``).
 
 The reported mean, median and central ``level`` interval all come from these same samples. The report also
-gives, per part and for the solid parts together, ``surface_layer_share`` = ``S u / V``
-(:func:`_layer_share`): how much of the volume one resolution unit of surface holds, i.e. how far the mass
-moves when the faces are placed a unit off (about ``2 / n`` for a slab ``n`` units thick).
+gives, per part, ``surface_layer_share`` = ``S u / V`` (:func:`_layer_share`): how much of its volume one
+resolution unit of surface holds, i.e. how far its mass moves when its faces are placed a unit off (about
+``2 / n`` for a slab ``n`` units thick); the object's is the solid parts' shares weighted by their mass, over
+the whole mass (:func:`_mass_layer_share`).
 """
 
 from __future__ import annotations
@@ -310,7 +311,7 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
             "density_draw": cfg.density_draw, "num_gaussians": int(pf.num_gaussians),
             "surface_offset_voxels": cfg.surface_offset_voxels, "seam_offset_voxels": cfg.seam_offset_voxels,
             "surface_area_m2": float(Sn.sum()), "resolution_unit_m": unit * mpu,
-            "surface_layer_share": _layer_share(Sn[solid_p].sum(), Vn[solid_p].sum(), unit * mpu),
+            "surface_layer_share": _mass_layer_share(m.mean(0), Sn, Vn, solid_p, unit * mpu),
             "volume_by_variant_m3": {n: float(v.sum() * mpu**3) for n, v in zip(geo.variant_names, geo.volumes)}}
     return MassReport(
         mean_kg=mean, median_kg=float(np.median(total)), interval_kg=q(total), level=cfg.level, n_samples=S,
@@ -325,6 +326,17 @@ def _layer_share(surface_m2: float, volume_m3: float, unit_m: float) -> float | 
     volume): how far its mass moves when every face is placed a unit off. A slab ``n`` units thick gives about
     ``2 / n``: a two-voxel table top 1, so half a voxel on each face moves it by half (README, "Limits")."""
     return float(surface_m2 * unit_m / volume_m3) if volume_m3 > 0 else None
+
+
+def _mass_layer_share(mass: np.ndarray, surface: np.ndarray, volume: np.ndarray, solid: np.ndarray,
+                      unit_m: float) -> float | None:  # fmt: skip
+    """The share of the object's mass that one resolution unit of its solid parts' surface holds: each solid
+    part's mean mass times its ``S u / V``, over the whole mean mass (a hollow part's wall does not move with
+    its faces). None where no solid part has volume."""
+    keep = solid & (volume > 0)
+    if not keep.any() or mass.sum() <= 0:
+        return None
+    return float((mass[keep] * surface[keep] * unit_m / volume[keep]).sum() / mass.sum())
 
 
 def _seams(geo: ObjectGeometry, p: int, mpu: float) -> dict[str, float]:
