@@ -18,6 +18,7 @@ import argparse
 import itertools
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -108,7 +109,7 @@ def main() -> None:
     sel = select_object(pf, views, cfg.select, backend=cfg.backend)
     sub = reconstruct._Subset(pf, sel.selected)
     renders = render_depth(sub, views, backend=cfg.backend, depth="both", extent=True)
-    k = float(cfg.carve.front_extent) if cfg.carve.front_extent is not None else 1.0  # gsplat's default
+    k = replace(cfg.carve, depth_render="expected").extent_multiple()  # the multiple gsplat's expected depth carves with
     rows: dict[str, dict[str, list]] = {n: {"front": [], "expected": [], "median": [], "cos": [], "face": []}
                                       for n in names}  # fmt: skip
     for v, r in zip(views, renders):
