@@ -109,7 +109,7 @@ def main() -> None:
     sel = select_object(pf, views, cfg.select, backend=cfg.backend)
     sub = reconstruct._Subset(pf, sel.selected)
     renders = render_depth(sub, views, backend=cfg.backend, depth="both", extent=True)
-    k = replace(cfg.carve, depth_render="expected").extent_multiple()  # what gsplat's expected depth carves with
+    k = replace(cfg.carve, depth_render="expected").extent_multiple()  # gsplat's multiple
     rows: dict[str, dict[str, list]] = {n: {"front": [], "expected": [], "median": [], "cos": [], "face": []}
                                       for n in names}  # fmt: skip
     for v, r in zip(views, renders):
