@@ -378,9 +378,10 @@ def test_the_report_says_how_much_one_resolution_unit_of_surface_holds(box):
     # a hollow part's wall does not move with its faces: a mug whose solid is its light handle is not coarse
     from physgs_nerfstudio.mass.integrate import _mass_layer_share
 
-    mass, surf, vol = np.array([1.0, 3.0]), np.array([0.5, 1.0]), np.array([0.01, 0.1])
-    assert _mass_layer_share(mass, surf, vol, np.array([True, False]), 0.01) == pytest.approx(0.5 * 1 / 4)
-    assert _mass_layer_share(mass, surf, vol, np.array([False, False]), 0.01) is None
+    mass, layer = np.array([1.0, 3.0]), [0.5, 0.1]
+    assert _mass_layer_share(mass, layer, np.array([True, False])) == pytest.approx(0.5 * 1 / 4)
+    assert _mass_layer_share(mass, layer, np.array([False, False])) is None
+    assert _mass_layer_share(mass, [None, 0.1], np.array([True, False])) is None
 
 
 def test_the_widest_wall_cap_is_no_lower_than_each_variants(box):

@@ -443,7 +443,8 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
     that much more, as one more variant, and (unless ``extent_shrink_voxels`` is None) the first variant's solid
     without its layer that deep where the polytope ends it (:func:`.extent.polytope_layer`), as one more; the first
-    variant's visual hull (:func:`.carve.hull_from_votes`); and the voxels that the views kept (in a solid or the hull) and the polytope cut (None without a cut). ``scales`` and
+    variant's visual hull (:func:`.carve.hull_from_votes`); and the voxels that the views kept (in a solid or the
+    hull) and the polytope cut (None without a cut). ``scales`` and
     ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
     def key(cc: CarveConfig) -> tuple[float, float, float]:  # the votes depend on these settings only
         return cc.mask_margin_px, cc.depth_margin_voxels, cc.extent_multiple()

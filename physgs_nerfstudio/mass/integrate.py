@@ -294,6 +294,7 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
             density_mean=float(rho_mean[k]), density_interval=q(rho[:, k]), mass_mean_kg=float(per.mean()),
             mass_interval_kg=q(per), mass_share=float(per.mean() / mean) if mean > 0 else 0.0,
         ))  # fmt: skip
+    layer = [_layer_share(Sn[p], Vn[p], unit * mpu) for p in range(P)]
     parts = []
     for p, s in enumerate(st.to_list()):
         top = np.argsort(-geo.part_mixture[p])[:3]
@@ -304,14 +305,14 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
                       "surface_area_m2": float(Sn[p]), "seams_m2": _seams(geo, p, mpu),
                       "wall_mean_curvature_per_m": _mean_curvature(geo, p, mpu),
                       "sheet_share": float(geo.sheet_share[p]), "structure": s,
-                      "surface_layer_share": _layer_share(Sn[p], Vn[p], unit * mpu),
+                      "surface_layer_share": layer[p],
                       "mass_mean_kg": float(m[:, p].mean()), "mass_interval_kg": q(m[:, p])})  # fmt: skip
     solid_p = st.p_hollow < 0.5
     info = {**geo.summary(), "voxel_size_m": geo.grid.voxel_size * mpu, "structure_mode": cfg.structure,
             "density_draw": cfg.density_draw, "num_gaussians": int(pf.num_gaussians),
             "surface_offset_voxels": cfg.surface_offset_voxels, "seam_offset_voxels": cfg.seam_offset_voxels,
             "surface_area_m2": float(Sn.sum()), "resolution_unit_m": unit * mpu,
-            "surface_layer_share": _mass_layer_share(m.mean(0), Sn, Vn, solid_p, unit * mpu),
+            "surface_layer_share": _mass_layer_share(m.mean(0), layer, solid_p),
             "volume_by_variant_m3": {n: float(v.sum() * mpu**3) for n, v in zip(geo.variant_names, geo.volumes)}}
     return MassReport(
         mean_kg=mean, median_kg=float(np.median(total)), interval_kg=q(total), level=cfg.level, n_samples=S,
@@ -328,15 +329,14 @@ def _layer_share(surface_m2: float, volume_m3: float, unit_m: float) -> float | 
     return float(surface_m2 * unit_m / volume_m3) if volume_m3 > 0 else None
 
 
-def _mass_layer_share(mass: np.ndarray, surface: np.ndarray, volume: np.ndarray, solid: np.ndarray,
-                      unit_m: float) -> float | None:  # fmt: skip
+def _mass_layer_share(mass: np.ndarray, layer: list[float | None], solid: np.ndarray) -> float | None:
     """The share of the object's mass that one resolution unit of its solid parts' surface holds: each solid
-    part's mean mass times its ``S u / V``, over the whole mean mass (a hollow part's wall does not move with
-    its faces). None where no solid part has volume."""
-    keep = solid & (volume > 0)
-    if not keep.any() or mass.sum() <= 0:
+    part's mean ``mass`` times its ``layer`` share (:func:`_layer_share`), over the whole mean mass (a hollow
+    part's wall does not move with its faces). None where no solid part has volume."""
+    keep = [p for p, x in enumerate(layer) if solid[p] and x is not None]
+    if not keep or mass.sum() <= 0:
         return None
-    return float((mass[keep] * surface[keep] * unit_m / volume[keep]).sum() / mass.sum())
+    return float(sum(mass[p] * layer[p] for p in keep) / mass.sum())
 
 
 def _seams(geo: ObjectGeometry, p: int, mpu: float) -> dict[str, float]:
