@@ -210,6 +210,31 @@ def test_shrunk_extent_variant_takes_the_layer_over_the_unseen_bottom_only(box):
     assert 0.6 * 0.4 * 0.3 * h <= lost <= 1.6 * 0.4 * 0.3 * h
 
 
+def test_the_extent_of_the_seen_gaussians_ends_an_unseen_bottom_at_the_seen_faces(box):
+    """``extent_seen`` (the default): Gaussians hidden under a box's unseen bottom (a slab of them two voxels under it, every view
+    above the box) stretch the Gaussians' polytope, and the solid under the bottom that no view carves stays;
+    with the polytope of the seen Gaussians only, the bottom ends where the seen side faces end."""
+    pf, _ = box
+    means, scales, quats = box_surface((0.4, 0.3, 0.2), 0.02)
+    h = 0.42 / 40  # about the voxel of a 40-voxel grid over the box and its padding
+    g = torch.arange(-0.12, 0.1201, 0.02)
+    X, Y = torch.meshgrid(g, g[(g > -0.1) & (g < 0.1)], indexing="ij")
+    under = torch.stack([X.reshape(-1), Y.reshape(-1), torch.full((X.numel(),), -0.1 - 2.5 * h)], 1)
+    s_means, s_scales, s_quats = _flat(under.double(), torch.tensor([[0.0, 0.0, 1.0]]).double().expand_as(under), 0.01)
+    pf2 = field_from(torch.cat([means, s_means]), torch.cat([scales, s_scales]), torch.cat([quats, s_quats]),
+                     densities=[700.0], names=["oak"], thickness_m=[None])
+    views = ring_views(pf2, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0))
+    all_g = _geo(pf2, views, resolution=40, variants=False, extent_seen=False)
+    seen = _geo(pf2, views, resolution=40, variants=False)  # the default
+    plain = _geo(pf, ring_views(pf, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0)), resolution=40, variants=False)
+    v_all, v_seen, v_plain = (float(x.volumes[0].sum()) for x in (all_g, seen, plain))
+    print("box", 0.024, "without strays", v_plain, "strays, all Gaussians", v_all, "seen only", v_seen)
+    slab = 0.24 * 0.18 * h  # the strays' footprint, a voxel deep
+    assert v_all >= v_plain + 1.5 * slab  # the strays keep solid under the bottom
+    assert abs(v_seen - v_plain) <= 0.5 * slab  # the seen faces end it where the box without strays ends
+    assert abs(v_seen / 0.024 - 1) < 0.1
+
+
 def test_sphere_volume_and_area():
     R = 0.25
     means, scales, quats = shell_sphere(R, 0.015)

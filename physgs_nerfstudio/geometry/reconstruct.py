@@ -92,6 +92,12 @@ class GeometryConfig:
     along each direction: a flat Gaussian on a face adds nothing across it, and on a curved surface sampled by a
     few Gaussians their extent spans the gaps between them) or only their means (inscribed in a curved surface
     between the means: a 4 cm rod at 8 mm voxels kept 0.81 of its volume)"""
+    extent_seen: bool = True
+    """the polytope supports only the object's Gaussians that some view sees on its rendered surface
+    (:func:`.gaussians.surface_views`, within a voxel behind it; all of them where fewer than 50 are): Gaussians
+    under an unseen underside, which no view sees, do not place where the solid ends there; the seen faces around it
+    do. False: every selected Gaussian (the GPU lamp's steel base kept a layer of false solid under its bottom, and
+    the lamp came out 1.14-1.17x at 3 of 5 seeds; benchmarks/README.md, session 32)"""
     extent_outlier_fraction: float = 0.001
     """the polytope of all but this fraction of the object's Gaussians along each of its directions (the outermost
     ones, :func:`.extent.support_heights`): a few strays under an object's unseen bottom face otherwise set where its
@@ -621,12 +627,17 @@ def reconstruct_object(
     variants = _variants(cfg)
     wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
     shrink = cfg.extent_shrink_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
-    ext = {"scales": g.scales[selection.selected], "quats": g.quats[selection.selected]} \
-        if cfg.extent_of == "ellipsoids" else {}
+    ext_idx = torch.nonzero(selection.selected).squeeze(1)
+    if cfg.extent_seen:
+        seen = surface_views(g.means[ext_idx], obj_views, renders, grid.voxel_size) > 0
+        if int(seen.sum()) >= 50:
+            ext_idx = ext_idx[seen]
+    ext = {"scales": g.scales[ext_idx], "quats": g.quats[ext_idx]} if cfg.extent_of == "ellipsoids" else {}
+    # the outlier count of the whole selection: the seen Gaussians' polytope is never wider than all of theirs
     ext["extent_skip"] = int(cfg.extent_outlier_fraction * selection.num_selected)
     ext["extent_shrink_voxels"] = shrink
     solids, hull, beyond = _carve_variants(grid, obj_views, renders, variants, sdf, device,
-                                           g.means[selection.selected], cfg.extent_pad_voxels, wider, **ext)
+                                           g.means[ext_idx], cfg.extent_pad_voxels, wider, **ext)
     lo, hi = _solid_bounds(grid, np.logical_or.reduce(solids))
     if lo is not None and float((hi - lo).max()) < cfg.refit_fraction * float(np.max(grid.shape)) * grid.voxel_size:
         # the solid fills a small part of a domain that outliers of the selection stretched: carve again on a grid
@@ -637,7 +648,7 @@ def reconstruct_object(
         logger.info("the carved object spans %.0f%% of the selection's box: carved again on a grid fitted to it",
                     100 * share)
         solids, hull, beyond = _carve_variants(grid, obj_views, renders, variants, sdf, device,
-                                               g.means[selection.selected], cfg.extent_pad_voxels, wider, **ext)
+                                               g.means[ext_idx], cfg.extent_pad_voxels, wider, **ext)
     solids, hull = _cut_below(grid, solids, hull, selection.plane)
     sel = selection.selected
     band = (cfg.evidence_surface_voxels if cfg.evidence_surface_voxels is not None else 1.0) * grid.voxel_size
