@@ -211,9 +211,10 @@ def test_shrunk_extent_variant_takes_the_layer_over_the_unseen_bottom_only(box):
 
 
 def test_the_extent_of_the_seen_gaussians_ends_an_unseen_bottom_at_the_seen_faces(box):
-    """``extent_seen`` (the default): Gaussians hidden under a box's unseen bottom (a slab of them two voxels under it, every view
-    above the box) stretch the Gaussians' polytope, and the solid under the bottom that no view carves stays;
-    with the polytope of the seen Gaussians only, the bottom ends where the seen side faces end."""
+    """``extent_seen`` (the default): Gaussians hidden under a box's unseen bottom (a slab of them 2.5
+    voxels under it, every view above the box) stretch the Gaussians' polytope, and the solid under the
+    bottom that no view carves stays; with the polytope of the seen Gaussians only, the bottom ends where
+    the seen side faces end."""
     pf, _ = box
     means, scales, quats = box_surface((0.4, 0.3, 0.2), 0.02)
     h = 0.42 / 40  # about the voxel of a 40-voxel grid over the box and its padding
@@ -231,6 +232,7 @@ def test_the_extent_of_the_seen_gaussians_ends_an_unseen_bottom_at_the_seen_face
     print("box", 0.024, "without strays", v_plain, "strays, all Gaussians", v_all, "seen only", v_seen)
     slab = 0.24 * 0.18 * h  # the strays' footprint, a voxel deep
     assert v_all >= v_plain + 1.5 * slab  # the strays keep solid under the bottom
+    assert v_seen <= v_all  # the seen Gaussians' polytope is never wider than all of theirs
     assert abs(v_seen - v_plain) <= 0.5 * slab  # the seen faces end it where the box without strays ends
     assert abs(v_seen / 0.024 - 1) < 0.1
 
