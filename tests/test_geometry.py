@@ -221,13 +221,15 @@ def test_the_extent_of_the_seen_gaussians_ends_an_unseen_bottom_at_the_seen_face
     g = torch.arange(-0.12, 0.1201, 0.02)
     X, Y = torch.meshgrid(g, g[(g > -0.1) & (g < 0.1)], indexing="ij")
     under = torch.stack([X.reshape(-1), Y.reshape(-1), torch.full((X.numel(),), -0.1 - 2.5 * h)], 1)
-    s_means, s_scales, s_quats = _flat(under.double(), torch.tensor([[0.0, 0.0, 1.0]]).double().expand_as(under), 0.01)
+    up = torch.tensor([[0.0, 0.0, 1.0]]).double().expand_as(under)
+    s_means, s_scales, s_quats = _flat(under.double(), up, 0.01)
     pf2 = field_from(torch.cat([means, s_means]), torch.cat([scales, s_scales]), torch.cat([quats, s_quats]),
                      densities=[700.0], names=["oak"], thickness_m=[None])
     views = ring_views(pf2, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0))
     all_g = _geo(pf2, views, resolution=40, variants=False, extent_seen=False)
     seen = _geo(pf2, views, resolution=40, variants=False)  # the default
-    plain = _geo(pf, ring_views(pf, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0)), resolution=40, variants=False)
+    above = ring_views(pf, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0))
+    plain = _geo(pf, above, resolution=40, variants=False)
     v_all, v_seen, v_plain = (float(x.volumes[0].sum()) for x in (all_g, seen, plain))
     print("box", 0.024, "without strays", v_plain, "strays, all Gaussians", v_all, "seen only", v_seen)
     slab = 0.24 * 0.18 * h  # the strays' footprint, a voxel deep
@@ -409,6 +411,36 @@ def test_the_report_says_how_much_one_resolution_unit_of_surface_holds(box):
     assert _mass_layer_share(mass, layer, np.array([True, False])) == pytest.approx(0.5 * 1 / 4)
     assert _mass_layer_share(mass, layer, np.array([False, False])) is None
     assert _mass_layer_share(mass, [None, 0.1], np.array([True, False])) is None
+
+
+def test_the_report_says_how_much_of_the_surface_no_view_saw(box):
+    """``unseen_surface_share``: the box seen from all around (cameras above and below it) has every face
+    placed by the views; seen only from above, its bottom (0.12 of its 0.52 m^2) ends where the polytope of
+    the seen Gaussians ends it, and the caption says so. The face count against a loop over voxels."""
+    from physgs_nerfstudio.export.report import _unseen_caption
+    from physgs_nerfstudio.geometry.reconstruct import unseen_face_share
+
+    pf, views = box
+    around = _geo(pf, views, variants=False)
+    above = _geo(pf, ring_views(pf, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0)), variants=False)
+    assert around.unseen_surface_share < 0.03
+    assert above.unseen_surface_share == pytest.approx(0.12 / 0.52, abs=0.06)
+    assert above.summary()["unseen_surface_share"] == above.unseen_surface_share
+    line = _unseen_caption({"unseen_surface_share": 0.23})
+    assert "23% of the solid's surface lies where no view saw" in line
+    assert _unseen_caption({"unseen_surface_share": 0.01}) == "" and _unseen_caption({}) == ""
+    rng = np.random.default_rng(0)
+    solid, unseen = rng.random((6, 5, 7)) < 0.5, rng.random((6, 5, 7)) < 0.3
+    total = hidden = 0
+    for i, j, k in np.argwhere(solid):
+        for d in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)):
+            n = (i + d[0], j + d[1], k + d[2])
+            inside = all(0 <= n[a] < solid.shape[a] for a in range(3))
+            if inside and solid[n]:
+                continue
+            total += 1
+            hidden += bool(inside and unseen[n])
+    assert unseen_face_share(solid, unseen) == pytest.approx(hidden / total)
 
 
 def test_the_widest_wall_cap_is_no_lower_than_each_variants(box):

@@ -52,6 +52,20 @@ def _layer_caption(geometry: dict[str, Any]) -> str:
     return f"{line}: coarse for this object ({moved}); {fix}"
 
 
+UNSEEN_SURFACE_SHARE = 0.05
+"""the caption names the solid's unseen surface from this share of its faces on"""
+
+
+def _unseen_caption(geometry: dict[str, Any]) -> str:
+    """The caption's line on the share of the solid's surface that no view placed (the reconstruction's
+    ``unseen_surface_share``: an underside, a cup's hidden inside); "" below ``UNSEEN_SURFACE_SHARE``."""
+    share = geometry.get("unseen_surface_share")
+    if share is None or share < UNSEEN_SURFACE_SHARE:
+        return ""
+    return (f"\n{100 * share:.0f}% of the solid's surface lies where no view saw past it (an underside, a "
+            "hidden inside): the seen faces around it place it; views from those sides would")
+
+
 def mass_table(report: MassReport, title: str | None = None, truth_kg: float | None = None):
     """A rich Table: one row per material present (volume share > 0.1% or mass share > 0.1%), then the total."""
     from rich.table import Table
@@ -60,7 +74,8 @@ def mass_table(report: MassReport, title: str | None = None, truth_kg: float | N
     sim = " [SIMULATED VLM]" if report.simulated else ""
     table = Table(title=(title or "Mass estimate") + sim, caption=(
         f"{report.n_samples} Monte Carlo samples, seed {report.seed}; scale {report.metres_per_unit:.4g} m/unit "
-        f"({report.scale_source})" + _layer_caption(report.geometry or {})))  # fmt: skip
+        f"({report.scale_source})" + _layer_caption(report.geometry or {})
+        + _unseen_caption(report.geometry or {})))  # fmt: skip
     for col, just in (("material", "left"), ("model", "left"), ("volume share", "right"),
                       ("density kg/m^3", "right"), ("mass mean kg", "right"), (f"{pct}% interval kg", "right")):
         table.add_column(col, justify=just)  # type: ignore[arg-type]

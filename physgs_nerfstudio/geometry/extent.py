@@ -12,12 +12,13 @@ splat's only evidence of surface: the object ends at its outermost Gaussians. So
 capture is cut exactly. It does not cut concavities (the space under a table top between its legs): those are
 left to the views, which see them.
 
-Which Gaussians (``GeometryConfig.extent_seen``, the default since session 32): those that some view sees on its
-rendered surface (:func:`.gaussians.surface_views`). A Gaussian is evidence of surface only where a view sees it;
-under an unseen underside the splat keeps Gaussians that no view sees, and the outermost of them set where the solid
-ended: the GPU lamp's steel base kept a layer of false solid under its bottom (1.16x its volume at seed 13535). With
-the seen Gaussians the seen faces around the underside end it there (0.99x). The outlier count stays that of the
-whole selection, so the seen Gaussians' polytope is never wider than all of theirs.
+Which Gaussians (``GeometryConfig.extent_seen``, the default since session 32): those that some view sees on
+its rendered surface (:func:`.gaussians.surface_views`). A Gaussian is evidence of surface only where a view
+sees it; under an unseen underside the splat keeps Gaussians that no view sees, and the outermost of them set
+where the solid ended: the GPU lamp's steel base kept a layer of false solid under its bottom (1.16x its
+volume at seed 13535). With the seen Gaussians the seen faces around the underside end it there (0.99x). The
+outlier count stays that of the whole selection, so the seen Gaussians' polytope is never wider than all of
+theirs.
 """
 
 from __future__ import annotations

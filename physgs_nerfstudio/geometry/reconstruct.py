@@ -94,10 +94,10 @@ class GeometryConfig:
     between the means: a 4 cm rod at 8 mm voxels kept 0.81 of its volume)"""
     extent_seen: bool = True
     """the polytope supports only the object's Gaussians that some view sees on its rendered surface
-    (:func:`.gaussians.surface_views`, within a voxel behind it; all of them where fewer than 50 are): Gaussians
-    under an unseen underside, which no view sees, do not place where the solid ends there; the seen faces around it
-    do. False: every selected Gaussian (the GPU lamp's steel base kept a layer of false solid under its bottom, and
-    the lamp came out 1.14-1.17x at 3 of 5 seeds; benchmarks/README.md, session 32)"""
+    (:func:`.gaussians.surface_views`, within a voxel behind it; all of them where fewer than 50 are):
+    Gaussians under an unseen underside, which no view sees, do not place where the solid ends there; the seen
+    faces around it do. False: every selected Gaussian (the GPU lamp's steel base kept a layer of false solid
+    under its bottom, and the lamp came out 1.14-1.17x at 3 of 5 seeds; benchmarks/README.md, session 32)"""
     extent_outlier_fraction: float = 0.001
     """the polytope of all but this fraction of the object's Gaussians along each of its directions (the outermost
     ones, :func:`.extent.support_heights`): a few strays under an object's unseen bottom face otherwise set where its
@@ -297,6 +297,12 @@ class ObjectGeometry:
     seam_areas: np.ndarray | None = None
     """[P, P] area between each two parts inside the nominal solid, scene units^2
     (:func:`physgs_nerfstudio.geometry.parts.seam_areas`); None: no seams (the mass moves none)"""
+    unseen_surface_share: float = 0.0
+    """the share of the nominal solid's voxel faces that no view placed: faces onto space the views kept (no
+    view saw past it) that the support plane's cut, the Gaussians' polytope or the hidden open space rule
+    removed (an unseen underside; :func:`unseen_face_share`)"""
+    extent_gaussians: int = 0
+    """the Gaussians whose polytope ends the solid (``GeometryConfig.extent_seen``: those some view sees)"""
     hidden_removed: dict[str, int] | None = None
     """the nominal solid's voxels removed as hidden open space (:mod:`.hidden`), by the rule that removed them:
     "majority", "open_half"; None = the rule is off"""
@@ -314,7 +320,9 @@ class ObjectGeometry:
                 "support_plane_in_masks": self.selection.support is not None,
                 "on_support_gaussians": self.selection.on_support, "clusters": self.selection.num_clusters,
                 "split_from_gaussians": self.selection.split_from,
-                "hidden_open_voxels": self.hidden_removed, "pixel_footprint_voxels": self.pixel_voxels}  # fmt: skip
+                "hidden_open_voxels": self.hidden_removed, "pixel_footprint_voxels": self.pixel_voxels,
+                "unseen_surface_share": self.unseen_surface_share,
+                "extent_gaussians": self.extent_gaussians}  # fmt: skip
 
 
 def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
@@ -443,15 +451,15 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
                     means: torch.Tensor | None = None, extent_pad_voxels: float | None = None,
                     extent_variant_voxels: float | None = None, scales: torch.Tensor | None = None,
                     quats: torch.Tensor | None = None, extent_skip: int = 0, extent_shrink_voxels: float | None = None
-                    ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None]:  # fmt: skip
+                    ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:  # fmt: skip
     """The solid of every variant, from one voting pass per distinct (mask margin, depth margin), cut to the
     support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
     that much more, as one more variant, and (unless ``extent_shrink_voxels`` is None) the first variant's solid
     without its layer that deep where the polytope ends it (:func:`.extent.polytope_layer`), as one more; the first
     variant's visual hull (:func:`.carve.hull_from_votes`); and the voxels that the views kept (in a solid or the
-    hull) and the polytope cut (None without a cut). ``scales`` and
-    ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
+    hull) and the polytope cut (None without a cut); and the first variant's solid before the cut. ``scales``
+    and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
     def key(cc: CarveConfig) -> tuple[float, float, float]:  # the votes depend on these settings only
         return cc.mask_margin_px, cc.depth_margin_voxels, cc.extent_multiple()
 
@@ -463,7 +471,7 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     hull = hull_from_votes(cache[key(variants[0][1])], grid, variants[0][1])
     solids = [solid_from_votes(cache[key(cc)], grid, cc) for _, cc in variants]
     if means is None or extent_pad_voxels is None:
-        return solids, hull, None
+        return solids, hull, None, solids[0]
     candidates = np.logical_or.reduce(solids) | hull
     # how far beyond the polytope each candidate lies, once for both pads (no means: no cut)
     idx = tuple(np.argwhere(candidates).T)
@@ -481,7 +489,7 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     if extent_shrink_voxels is not None:  # the nominal carving where the polytope ends it, a little inside
         layer = polytope_layer(idx, excess, solids[0] & ~inside, extent_pad_voxels, extent_shrink_voxels)
         cut.append(cut[0] & ~layer)
-    return cut, hull & inside, beyond
+    return cut, hull & inside, beyond, solids[0]
 
 
 def _resting_plane(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
@@ -502,6 +510,31 @@ def _resting_plane(g: Any, selection: ObjectSelection, views: Sequence[CaptureVi
         logger.info("object: resting on a plane found among the Gaussians around it (%.0f%% of them on it); the "
                     "solid ends there", 100 * plane.share)  # fmt: skip
     selection.plane = plane
+
+
+def _beyond_kept(raw: np.ndarray, beyond: np.ndarray) -> np.ndarray:
+    """The space that the views kept (``raw``: the nominal carving before any cut) beyond the polytope, less
+    its slivers: on a seen face the carving keeps up to a voxel past the Gaussians (a morphological opening
+    removes that), while under an unseen underside the views keep a wedge of space many voxels deep."""
+    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
+
+    return ndimage.binary_opening(raw & beyond)
+
+
+def unseen_face_share(solid: np.ndarray, unseen: np.ndarray) -> float:
+    """The share of ``solid``'s voxel faces (between a solid voxel and a 6-neighbour outside it, the grid's
+    border counted as outside) whose outside voxel is in ``unseen`` (bool, the grid's shape)."""
+    total = hidden = 0
+    padded_s = np.pad(solid, 1)
+    padded_u = np.pad(unseen & ~solid, 1)
+    inner = (slice(1, -1),) * 3
+    for axis in range(3):
+        for step in (-1, 1):
+            nb = tuple(slice(1 + step, padded_s.shape[a] - 1 + step) if a == axis else inner[a]
+                       for a in range(3))
+            total += int((solid & ~padded_s[nb]).sum())
+            hidden += int((solid & padded_u[nb]).sum())
+    return hidden / total if total else 0.0
 
 
 def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plane: SupportPlane | None
@@ -631,13 +664,16 @@ def reconstruct_object(
     if cfg.extent_seen:
         seen = surface_views(g.means[ext_idx], obj_views, renders, grid.voxel_size) > 0
         if int(seen.sum()) >= 50:
+            logger.info("object extent: %d of %d selected Gaussians are seen by a view; the unseen ones "
+                        "do not set where the solid ends", int(seen.sum()), len(ext_idx))  # fmt: skip
             ext_idx = ext_idx[seen]
     ext = {"scales": g.scales[ext_idx], "quats": g.quats[ext_idx]} if cfg.extent_of == "ellipsoids" else {}
     # the outlier count of the whole selection: the seen Gaussians' polytope is never wider than all of theirs
     ext["extent_skip"] = int(cfg.extent_outlier_fraction * selection.num_selected)
     ext["extent_shrink_voxels"] = shrink
-    solids, hull, beyond = _carve_variants(grid, obj_views, renders, variants, sdf, device,
-                                           g.means[ext_idx], cfg.extent_pad_voxels, wider, **ext)
+    solids, hull, beyond, raw_nominal = _carve_variants(grid, obj_views, renders, variants, sdf, device,
+                                                        g.means[ext_idx], cfg.extent_pad_voxels, wider,
+                                                        **ext)  # fmt: skip
     lo, hi = _solid_bounds(grid, np.logical_or.reduce(solids))
     if lo is not None and float((hi - lo).max()) < cfg.refit_fraction * float(np.max(grid.shape)) * grid.voxel_size:
         # the solid fills a small part of a domain that outliers of the selection stretched: carve again on a grid
@@ -647,8 +683,10 @@ def reconstruct_object(
         grid = VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad), cfg.resolution)
         logger.info("the carved object spans %.0f%% of the selection's box: carved again on a grid fitted to it",
                     100 * share)
-        solids, hull, beyond = _carve_variants(grid, obj_views, renders, variants, sdf, device,
-                                               g.means[ext_idx], cfg.extent_pad_voxels, wider, **ext)
+        solids, hull, beyond, raw_nominal = _carve_variants(grid, obj_views, renders, variants, sdf, device,
+                                                            g.means[ext_idx], cfg.extent_pad_voxels, wider,
+                                                            **ext)  # fmt: skip
+    before_cuts = solids[0]
     solids, hull = _cut_below(grid, solids, hull, selection.plane)
     sel = selection.selected
     band = (cfg.evidence_surface_voxels if cfg.evidence_surface_voxels is not None else 1.0) * grid.voxel_size
@@ -657,6 +695,9 @@ def reconstruct_object(
     if cfg.hidden_skin_voxels is not None:
         surf = _Subset(g, torch.nonzero(sel).squeeze(1)[on_surface])
         solids, hidden_removed = _without_hidden(grid, solids, surf, beyond, selection.plane, cfg)
+    unseen = before_cuts & ~solids[0]  # kept by the views, removed by the plane's cut or as hidden open space
+    if beyond is not None:
+        unseen = unseen | _beyond_kept(raw_nominal, beyond)
     names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else []) \
         + ([f"extent-{shrink:g}vox"] if shrink is not None else [])
     union = np.logical_or.reduce(solids)
@@ -746,5 +787,6 @@ def reconstruct_object(
         mask_sources=sources, material_levels=levels, surface_areas=np.stack([gm.surface for gm in geos]),
         pixel_voxels=pixel_voxels, full_areas=np.stack([gm.full_area for gm in geos]),
         curvatures=np.stack([gm.curvature for gm in geos]), seam_areas=seam_areas(nominal_parts, P, grid.voxel_size),
-        hidden_removed=hidden_removed,
+        hidden_removed=hidden_removed, unseen_surface_share=unseen_face_share(solids[0], unseen),
+        extent_gaussians=len(ext_idx),
     )  # fmt: skip
