@@ -661,8 +661,10 @@ def reconstruct_object(
     wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
     shrink = cfg.extent_shrink_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
     ext_idx = torch.nonzero(selection.selected).squeeze(1)
+    seen_band, seen_views = grid.voxel_size, None  # each selected Gaussian's views that see it within a voxel
     if cfg.extent_seen:
-        seen = surface_views(g.means[ext_idx], obj_views, renders, grid.voxel_size) > 0
+        seen_views = surface_views(g.means[ext_idx], obj_views, renders, seen_band)
+        seen = seen_views > 0
         if int(seen.sum()) >= 50:
             logger.info("object extent: %d of %d selected Gaussians are seen by a view; the unseen ones "
                         "do not set where the solid ends", int(seen.sum()), len(ext_idx))  # fmt: skip
@@ -690,7 +692,9 @@ def reconstruct_object(
     solids, hull = _cut_below(grid, solids, hull, selection.plane)
     sel = selection.selected
     band = (cfg.evidence_surface_voxels if cfg.evidence_surface_voxels is not None else 1.0) * grid.voxel_size
-    on_surface = surface_views(g.means[sel], obj_views, renders, band) > 0
+    if seen_views is None or band != seen_band:  # (the same band on the same grid: the extent's counts)
+        seen_views = surface_views(g.means[sel], obj_views, renders, band)
+    on_surface = seen_views > 0
     hidden_removed = None
     if cfg.hidden_skin_voxels is not None:
         surf = _Subset(g, torch.nonzero(sel).squeeze(1)[on_surface])
