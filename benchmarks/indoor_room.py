@@ -55,6 +55,9 @@ def main() -> None:
                          "default: the export's)")  # fmt: skip
     ap.add_argument("--passes", type=int, default=None,
                     help="GeometryConfig.hidden_passes (default: the export's)")
+    ap.add_argument("--skin-seen", type=str, default=None,
+                    help="GeometryConfig.hidden_skin_seen in voxels ('none': every axis end samples the "
+                         "skin; default: the export's)")  # fmt: skip
     ap.add_argument("--no-split", action="store_true",
                     help="keep the coarse cluster over a support plane (SelectConfig.split_on_plane = False)")
     ap.add_argument("--run", type=Path, default=None,
@@ -92,6 +95,8 @@ def main() -> None:
         geometry.hidden_min_open_half = None if a.open_half.lower() == "none" else int(a.open_half)
     if a.passes is not None:
         geometry.hidden_passes = a.passes
+    if a.skin_seen is not None:
+        geometry.hidden_skin_seen = None if a.skin_seen.lower() == "none" else float(a.skin_seen)
     geo = object_geometry(run, geometry)
     pf = run.field
     T, s = _transform(cfg_path.parent)
@@ -113,6 +118,7 @@ def main() -> None:
         "seed": int(truth.get("seed", a.seed)), "demo_settings": given, "export_resolution": resolution,
         "contact_band": geometry.select.contact_band, "split_on_plane": geometry.select.split_on_plane,
         "hidden_min_open_half": geometry.hidden_min_open_half, "hidden_passes": geometry.hidden_passes,
+        "hidden_skin_seen": geometry.hidden_skin_seen,
         "selected_gaussians": int(sel.sum()), "selected_on": counts,
         "selected_on_ground": int(ground.sum()), "selected_off_every_part": int((on < 0).sum()),
         "object": chosen, "carved_volume_m3": carved, "true_enclosed_volume_m3": true_vol,

@@ -158,16 +158,20 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
 
 @torch.no_grad()
 def surface_views(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], renders: Sequence[ViewRender],
-                  band: float, min_alpha: float = 0.5) -> Float[Tensor, " N"]:  # fmt: skip
+                  band: float | Float[Tensor, " N"], min_alpha: float = 0.5
+                  ) -> Float[Tensor, " N"]:  # fmt: skip
     """For each Gaussian, how many of ``views`` see its centre on their rendered surface: it projects into the image
     on a pixel at least ``min_alpha`` opaque (nearest pixel), in front of the camera, and its camera depth lies at most
-    ``band`` (scene units) behind that pixel's rendered depth. A Gaussian under the surface that every view sees
-    (inside a solid, under a shell) scores 0, however its lifted labels came to it (a sliver of blending weight
-    through the surface in front of it counts a view in the lifting, :mod:`physgs_nerfstudio.nerfstudio.pipeline`)."""
+    ``band`` (scene units; one for all or one per point) behind that pixel's rendered depth. A Gaussian
+    under the surface that every view sees (inside a solid, under a shell) scores 0, however its lifted labels
+    came to it (a sliver of blending weight through the surface in front of it counts a view in the lifting,
+    :mod:`physgs_nerfstudio.nerfstudio.pipeline`)."""
     out = torch.zeros(len(means), dtype=torch.float32, device=means.device)
     if not len(means):
         return out
     x = means.float()
+    if isinstance(band, Tensor):
+        band = band.to(x)
     for v, r in zip(views, renders):
         vm = v.viewmat.to(x)
         K = v.K.to(x)

@@ -135,6 +135,13 @@ class GeometryConfig:
     """the skin's samples are the surface Gaussians' means and the ends of their axes at this many standard
     deviations (:func:`.hidden.gaussian_samples`: a few large Gaussians cover a surface their means alone leave
     gappy); 0 = the means only"""
+    hidden_skin_seen: float | None = 1.0
+    """the skin's samples at the ends of the Gaussians' axes count only where some view sees them on its
+    rendered surface (:func:`.gaussians.surface_views`), at most this many voxels plus their Gaussian's
+    own thickness (its smallest standard deviation, at ``hidden_skin_sigmas``) behind it, as the Gaussians'
+    means are seen: an axis end that pokes through the seen surface into space no view sees (a long thin
+    Gaussian tilted across a table top, under its unseen underside) is no sample of that surface
+    (:mod:`.hidden`, "Seen samples"). None = every axis end counts (session 32)"""
     hidden_min_open_fraction: float = 0.5
     """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
     than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""
@@ -547,11 +554,14 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
 
 
 def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, beyond: np.ndarray | None,
-                    plane: SupportPlane | None, cfg: GeometryConfig) -> tuple[list[np.ndarray], dict[str, int]]:  # fmt: skip
+                    plane: SupportPlane | None, cfg: GeometryConfig, seen_by: Any = None
+                    ) -> tuple[list[np.ndarray], dict[str, int]]:  # fmt: skip
     """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is sampled by ``surface``, the
     Gaussians some view sees on its surface (``means``, ``scales``, ``quats``); rays that leave the solid below the
     support plane or into space that the views kept and the Gaussians' polytope cut (``beyond``) are enclosed (the
-    object's unseen underside). Also returns the nominal solid's voxels that each rule removed."""
+    object's unseen underside). Also returns the nominal solid's voxels that each rule removed.
+    ``seen_by(points, thickness)``: how many views see each point on their rendered surface, within the band
+    plus its ``thickness`` (``hidden_skin_seen``: the axis ends' test)."""
     dev = surface.means.device
     reach = int(cfg.hidden_skin_voxels or 0)
     origin = np.asarray(grid.origin)
@@ -559,6 +569,14 @@ def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, bey
         skin = skin_from_points(surface.means, origin, grid.voxel_size, grid.shape, reach)
     else:
         samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, cfg.hidden_skin_sigmas)
+        n = len(surface.means)
+        if seen_by is not None and len(samples) > n:
+            # the means are seen; the axis ends that some view sees too, within the band plus their
+            # Gaussian's own thickness (its smallest standard deviation): a thick Gaussian's shortest axis
+            # ends that far behind
+            ends = samples[n:]
+            thick = (cfg.hidden_skin_sigmas * surface.scales.min(1).values).repeat_interleave(6)
+            samples = torch.cat([samples[:n], ends[seen_by(ends, thick) > 0]])
         skin = skin_centred(samples, origin, grid.voxel_size, grid.shape, reach, cfg.hidden_skin_tolerance)
     closed = np.zeros(grid.shape, bool) if beyond is None else beyond.copy()
     if plane is not None:
@@ -698,7 +716,11 @@ def reconstruct_object(
     hidden_removed = None
     if cfg.hidden_skin_voxels is not None:
         surf = _Subset(g, torch.nonzero(sel).squeeze(1)[on_surface])
-        solids, hidden_removed = _without_hidden(grid, solids, surf, beyond, selection.plane, cfg)
+        def seen_by(points: torch.Tensor, thick: torch.Tensor) -> torch.Tensor:
+            return surface_views(points, obj_views, renders, cfg.hidden_skin_seen * grid.voxel_size + thick)
+
+        solids, hidden_removed = _without_hidden(grid, solids, surf, beyond, selection.plane, cfg,
+                                                 seen_by if cfg.hidden_skin_seen is not None else None)
     unseen = before_cuts & ~solids[0]  # kept by the views, removed by the plane's cut or as hidden open space
     if beyond is not None:
         unseen = unseen | _beyond_kept(raw_nominal, beyond)
