@@ -5,6 +5,7 @@ above through the whole reconstruction."""
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -364,6 +365,48 @@ def test_a_table_shot_from_above_loses_the_space_under_its_top():
     assert at_top.sum() * geo.grid.voxel_size**2 >= 0.9 * 0.4
     legs = geo.solid[:, :, np.abs(z - 0.25) < 0.01].any(2)
     assert legs.sum() * geo.grid.voxel_size**2 >= 0.9 * 4 * 0.04**2
+
+
+def _with(pf, means: torch.Tensor, scales: torch.Tensor, quats: torch.Tensor):
+    """``pf`` with more Gaussians of its first Gaussian's opacity and material evidence."""
+    from dataclasses import replace
+
+    n = len(means)
+    return replace(pf, means=torch.cat([pf.means, means.float()]),
+                   scales=torch.cat([pf.scales, scales.float()]), quats=torch.cat([pf.quats, quats.float()]),
+                   opacities=torch.cat([pf.opacities, pf.opacities[:1].expand(n)]),
+                   alpha=torch.cat([pf.alpha, pf.alpha[:1].expand(n, -1)]),
+                   sh_dc=torch.cat([pf.sh_dc, torch.zeros(n, 3)]))
+
+
+def test_axis_ends_that_no_view_sees_do_not_sample_the_skin():
+    """Long thin Gaussians lie on the table's top face tilted 60 degrees below it, as a GPU splat's needles
+    do: the end of each one's long axis pokes 2 cm under the 4 cm top, where no view sees, and with every axis
+    end as a skin sample that skin encloses the hidden space under the top. Counting only the ends that some
+    view sees on its rendered surface (``hidden_skin_seen``, within a voxel plus the Gaussian's own
+    thickness), the table keeps the volume it has without the needles."""
+    from test_geometry import _geo, ring_views
+
+    pf, only_obj = _table_on_floor()
+    g = torch.arange(-0.36, 0.37, 0.06)
+    X, Y = torch.meshgrid(g, torch.arange(-0.21, 0.22, 0.06), indexing="ij")
+    means = torch.stack([X.reshape(-1), Y.reshape(-1), torch.full((X.numel(),), 0.54)], 1)
+    half = math.radians(60.0) / 2  # about y: the long x axis turns to (cos 60, 0, -sin 60)
+    quats = torch.tensor([math.cos(half), 0.0, math.sin(half), 0.0]).expand(len(means), 4)
+    scales = torch.tensor([0.07, 1e-3, 1e-3]).expand(len(means), 3)
+    needled, only_needled = _with(pf, means, scales, quats), _with(only_obj, means, scales, quats)
+    truth = 0.8 * 0.5 * 0.04 + 4 * 0.04 * 0.04 * 0.5
+
+    def volume(field, mask_field, **kw):
+        views = ring_views(field, (0, 0, 0.3), 2.2, n=18, elevations=(35.0, 55.0, 75.0), mask_pf=mask_field)
+        return _geo(field, views, resolution=64, **kw).volumes[0].sum() / truth
+
+    plain = volume(pf, only_obj)
+    every_end = volume(needled, only_needled, hidden_skin_seen=None)
+    seen_ends = volume(needled, only_needled)
+    print("plain", plain, "every axis end", every_end, "seen axis ends", seen_ends)
+    assert every_end > 1.25 * plain  # the needles' ends enclose a layer under the top
+    assert seen_ends == pytest.approx(plain, rel=0.02)
 
 
 @pytest.mark.parametrize("bad", [{"hidden_skin": "dilated"}, {"hidden_skin_tolerance": 0.0},
