@@ -36,6 +36,8 @@ SETTINGS: dict[str, list[str]] = {
     "hidden_skin_tolerance=2": ["--mass.geometry.hidden-skin-tolerance", "2"],
     "hidden_min_open_half=8": ["--mass.geometry.hidden-min-open-half", "8"],
     "hidden_passes=1": ["--mass.geometry.hidden-passes", "1"],
+    "hidden_skin_seen=0.5": ["--mass.geometry.hidden-skin-seen", "0.5"],
+    "hidden_skin_seen=2": ["--mass.geometry.hidden-skin-seen", "2"],
     "min_voxel_evidence=0.25": ["--mass.geometry.min-voxel-evidence", "0.25"],
     "min_voxel_evidence=1": ["--mass.geometry.min-voxel-evidence", "1"],
     "hull_vote_fraction=0.35": ["--mass.geometry.select.hull-vote-fraction", "0.35"],
@@ -73,13 +75,16 @@ def main() -> None:
     ap.add_argument("--base-args", default="", help="extra `physgs export` flags for every setting, one quoted "
                     "string (a geometry option's stability under another default); results then go to "
                     "stability_NAME/ and mass_stability_NAME.json")
-    ap.add_argument("--name", default="", help="NAME for --base-args")
+    ap.add_argument("--name", default="", help="NAME for --base-args (or --settings)")
+    ap.add_argument("--settings", nargs="+", default=None, choices=list(SETTINGS), metavar="S",
+                    help="only these settings (the default export always runs first)")
     a = ap.parse_args()
     extra, tag = a.base_args.split(), f"_{a.name}" if a.name else ""
+    chosen = {k: SETTINGS[k] for k in SETTINGS if a.settings is None or k == "default" or k in a.settings}
     for run in a.runs:
         with ThreadPoolExecutor(max(1, a.jobs)) as pool:
-            rows = list(pool.map(export, [run] * len(SETTINGS), SETTINGS, SETTINGS.values(), [extra] * len(SETTINGS),
-                                 [tag] * len(SETTINGS)))
+            rows = list(pool.map(export, [run] * len(chosen), chosen, chosen.values(), [extra] * len(chosen),
+                                 [tag] * len(chosen)))
         base = rows[0].get("mean_kg")
         for r in rows:
             if base and "mean_kg" in r:

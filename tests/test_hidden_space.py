@@ -412,7 +412,8 @@ def test_axis_ends_that_no_view_sees_do_not_sample_the_skin():
 @pytest.mark.parametrize("bad", [{"hidden_skin": "dilated"}, {"hidden_skin_tolerance": 0.0},
                                  {"hidden_skin_sigmas": -1.0}, {"hidden_skin_voxels": -1},
                                  {"hidden_min_open_fraction": 1.0}, {"hidden_min_open_half": 0},
-                                 {"hidden_min_open_half": 10}, {"hidden_passes": 0}])  # fmt: skip
+                                 {"hidden_min_open_half": 10}, {"hidden_passes": 0},
+                                 {"hidden_skin_seen": -1.0}])  # fmt: skip
 def test_hidden_space_settings_are_checked(bad):
     from physgs_nerfstudio.geometry.reconstruct import GeometryConfig
 

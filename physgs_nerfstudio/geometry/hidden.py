@@ -28,13 +28,14 @@ voxel of an edge.
 Seen samples (``GeometryConfig.hidden_skin_seen``, default 1 voxel, session 33). The ends of the axes sample the
 surface only where the surface is. The GPU splats of `indoor_room` (60 views at 512 px) render its table's top with
 needles: the surface Gaussians' axes are 1.8, 0.05 and 0.01 voxel (medians, 12 mm voxels), and a needle tilted
-across the 25 mm top puts one end of its long axis under the top's underside, where no view sees. With those ends the
-skin reached a voxel or more under the top and enclosed the layer there (at seed 15252, 5.5 L of the table's 6.9 L
-of false solid lay under its top). So an axis end counts only where some view sees it on its rendered surface, as the means are seen
-(:func:`.gaussians.surface_views`), within the band plus its Gaussian's smallest standard deviation: the end of a
-thick Gaussian's shortest axis lies that far behind the face it renders, and on a thin plate it is the sample that
-holds the plate's lower part (the CPU demo's Gaussians are about a voxel thick each way; with the plain 1-voxel band
-the CPU rooms' tables lost up to a tenth of their own volume). None = every end counts.
+across the 25 mm top puts one end of its long axis under the top's underside, where no view sees. With those ends
+the skin reached a voxel or more under the top and enclosed the layer there (at seed 15252, 5.5 L of the table's
+6.9 L of false solid lay under its top). So an axis end counts only where some view sees it on its rendered
+surface, as the means are seen (:func:`.gaussians.surface_views`), within the band plus its Gaussian's smallest
+standard deviation: the end of a thick Gaussian's shortest axis lies that far behind the face it renders, and on a
+thin plate it is the sample that holds the plate's lower part (the CPU demo's Gaussians are about a voxel thick
+each way; with the plain 1-voxel band the CPU rooms' tables lost up to a tenth of their own volume). None = every
+end counts.
 
 Session 23 grew the samples' voxels by ``window`` 6-connected steps instead (:func:`skin_from_points`,
 ``hidden_skin="grown"``). That closes every gap but also grows each face by 2 voxels off itself and past its edges,

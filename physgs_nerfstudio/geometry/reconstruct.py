@@ -141,7 +141,7 @@ class GeometryConfig:
     own thickness (its smallest standard deviation, at ``hidden_skin_sigmas``) behind it, as the Gaussians'
     means are seen: an axis end that pokes through the seen surface into space no view sees (a long thin
     Gaussian tilted across a table top, under its unseen underside) is no sample of that surface
-    (:mod:`.hidden`, "Seen samples"). None = every axis end counts (session 32)"""
+    (:mod:`.hidden`, "Seen samples"). None = every axis end counts (session 32); documented range 0.5-2"""
     hidden_min_open_fraction: float = 0.5
     """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
     than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""
@@ -247,6 +247,9 @@ class GeometryConfig:
         if not self.hidden_skin_tolerance > 0 or not self.hidden_skin_sigmas >= 0:
             raise ValueError("GeometryConfig.hidden_skin_tolerance must be > 0 and hidden_skin_sigmas >= 0, got "
                              f"{self.hidden_skin_tolerance} and {self.hidden_skin_sigmas}.")
+        if self.hidden_skin_seen is not None and not self.hidden_skin_seen >= 0:
+            raise ValueError("GeometryConfig.hidden_skin_seen must be >= 0 (voxels) or None, got "
+                             f"{self.hidden_skin_seen}.")
         if not 0.0 <= self.hidden_min_open_fraction < 1.0:
             raise ValueError("GeometryConfig.hidden_min_open_fraction must be in [0, 1), got "
                              f"{self.hidden_min_open_fraction}.")
@@ -716,8 +719,10 @@ def reconstruct_object(
     hidden_removed = None
     if cfg.hidden_skin_voxels is not None:
         surf = _Subset(g, torch.nonzero(sel).squeeze(1)[on_surface])
+        skin_band = (cfg.hidden_skin_seen or 0.0) * grid.voxel_size
+
         def seen_by(points: torch.Tensor, thick: torch.Tensor) -> torch.Tensor:
-            return surface_views(points, obj_views, renders, cfg.hidden_skin_seen * grid.voxel_size + thick)
+            return surface_views(points, obj_views, renders, skin_band + thick)
 
         solids, hidden_removed = _without_hidden(grid, solids, surf, beyond, selection.plane, cfg,
                                                  seen_by if cfg.hidden_skin_seen is not None else None)
