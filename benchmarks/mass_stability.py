@@ -52,6 +52,7 @@ SETTINGS: dict[str, list[str]] = {
     "evidence_surface_voxels=0.5": ["--mass.geometry.evidence-surface-voxels", "0.5"],
     "evidence_surface_voxels=2": ["--mass.geometry.evidence-surface-voxels", "2"],
     "no_variants": ["--mass.geometry.no-variants"],
+    "structure_evidence=material": ["--mass.geometry.structure.evidence", "material"],
 }
 
 

@@ -99,6 +99,9 @@ class MaskObservation:
     level: str = "part"
     weight: float = 1.0
     """the fusion's weight of the mask's level (materials.json ``level_weights``: whole 0.5, part 1, subpart 1.5)"""
+    mask_id: int | None = None
+    """the mask's index in its view (observations.jsonl ``mask_id``): the candidates of one answer share it (None:
+    candidates share a mask when they share its array object)"""
 
 
 def _mask_file(data_dir: Path, view: str) -> Path:
@@ -250,7 +253,7 @@ def load_observations(data_dir: Path) -> list[MaskObservation]:
         out.append(MaskObservation(view, read[0][mid], str(rec.get("material")), float(rec.get("confidence", 0.0)),
                                    float(t) if isinstance(t, (int, float)) and t > 0 else None,
                                    str(rec.get("level", "part")),
-                                   level_w.get(str(rec.get("level", "part")), 1.0)))  # fmt: skip
+                                   level_w.get(str(rec.get("level", "part")), 1.0), mid))  # fmt: skip
     if missing:
         logger.info("%d observations without a readable mask were not used for the part structure", missing)
     return out

@@ -1,14 +1,36 @@
 """Solid or hollow, and the wall thickness, per 3-D part, fused from what perception said per mask.
 
 The triplet prompt asks, per mask, for ``thickness_m``: the wall thickness if the part is a hollow shell, null if
-solid (observations.jsonl, docs/architecture.md). One observation (a candidate of material ``c`` with confidence ``p``)
-concerns a 3-D part ``s`` with weight ``w = p x share_s x pi_sc``: ``share_s`` is the share of the mask's pixels
-where that part is the visible surface (a z-buffer of the solid's boundary voxels in the mask's view,
-:func:`part_maps`) and ``pi_sc`` the part's mixture weight of the candidate's material. A candidate's structure
-answer is conditional on its material ("if this is cast iron, it is a 4 mm shell"), so it counts as far as
-the part is made of that material.
+solid (observations.jsonl, docs/architecture.md). One observation is a candidate of material ``c`` with
+confidence ``p`` of one mask. Its share of 3-D part ``s``, ``share_s``, is the share of the mask's pixels where
+that part is the visible surface (a z-buffer of the solid's boundary voxels in the mask's view, :func:`part_maps`),
+and ``pi_sc`` is the part's mixture weight of ``c``.
 
-* Hollowness of part ``s``: Beta(a, b) with ``a = a0 + sum p w [hollow]``, ``b = b0 + sum p w [solid]``, the
+Evidence (``StructureConfig.evidence``):
+
+* The thickness is an answer about one material ("if this is cast iron, it is a 4 mm shell"). A candidate's
+  thickness counts for part ``s`` with ``p x share_s x pi_sc``: as far as the part is made of that material.
+* The call "hollow" or "solid" is one judgment per mask ("mask", the default since session 34): what the part
+  shows, whatever it is made of. The simulated VLM makes one per mask, and its candidates share it. Part ``s``
+  hears it with ``w_s = P x share_s x max(cover_s, share_s)``. ``P`` is the mask's summed confidence (at most 1).
+  ``cover_s`` is the part's mixture weight of the materials the mask named: the call is about the part as far as
+  the part is of one of them, or as far as the part is what the mask shows (it fills the mask). The larger of
+  the two is how far at least one of them holds. ``w_s`` is split among the candidates (they may call it
+  differently) by ``p x pi_sc``, or by ``p`` where no candidate's material is in the part's mixture.
+* ``w_s`` is never less than session 33's ``sum_c p_c x share_s x pi_sc`` ("material": the call counted like
+  the thickness), and never more than ``share_s``.
+
+Why: with "material", a part whose material the views split between two names heard only a fraction of what
+the views said about it. At CPU seed 16161 the export split the generated crate (a closed 4 mm cardboard box)
+into two parts. One was 0.63 paper and 0.28 cardboard, while its masks mostly named cardboard first. It heard 2.2
+observations' weight: solid with p = 0.19, and the crate came out at 6.1x its mass by the mean. It now hears 5.3
+(solid with p = 0.05; the crate 2.6x: benchmarks/README.md, session 34). Its share alone, with no material test,
+would give it 6.9 and the crate 1.5x. But then the generated shoe's rubber sole hears "hollow" from its leather
+upper's masks, which spill onto it in the z-buffer: the shoe went from 0.95x to 0.82x its mass at seed 9797, and
+from 1.00x to 0.81x at 17676. The material test keeps such spill out. The share lets a mask that is mostly the part
+speak for it.
+
+* Hollowness of part ``s``: Beta(a, b) with ``a = a0 + sum w_s [hollow]``, ``b = b0 + sum w_s [solid]``, the
   posterior of ``theta_s``, the rate at which a view of the part answers "hollow". The prior has
   ``prior_strength`` pseudo-observations with mean ``prior_hollow_if_library_shell`` when the part's dominant
   material has a typical wall thickness in the material library, else ``prior_hollow_otherwise``.
@@ -19,8 +41,9 @@ the part is made of that material.
   its wall volume would carry a 10% "solid" branch worth ~0.8x its mass. ``P(theta > 1/2)`` goes to 1 as
   agreeing answers accumulate and stays near 1/2 when they split, which is the uncertainty we want.
 * Wall thickness: a Normal-Inverse-Gamma posterior on ``log t`` (:func:`physgs_nerfstudio.bayes.nig_posterior`)
-  from the hollow answers (weights ``p w``), with prior mean the log of the library's typical thickness (else
-  ``default_thickness_m``), ``kappa0`` = 1 and a prior spread of a factor ``prior_thickness_spread`` (90%).
+  from the hollow answers (weights ``p x share_s x pi_sc``), with prior mean the log of the library's typical
+  thickness (else ``default_thickness_m``), ``kappa0`` = 1 and a prior spread of a factor
+  ``prior_thickness_spread`` (90%).
 
 So a table with solid steel legs and a steel pan both come out right: the legs' masks are answered solid, the
 pan's hollow, whatever their material has in the library.
@@ -31,6 +54,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import torch
@@ -53,12 +77,18 @@ class StructureConfig:
     default_thickness_m: float = 0.003
     prior_thickness_spread: float = 2.0
     """90% of the prior's thickness mass within [t / spread, t x spread]"""
+    evidence: Literal["mask", "material"] = "mask"
+    """how much of an answer's hollow-or-solid call concerns a part (module doc, "Evidence"): "mask", the mask's one
+    judgment, as far as the part fills the mask or is of a material the mask named; "material" (session 33 and
+    before), each candidate by its confidence times the part's mixture weight of its material"""
 
     def __post_init__(self) -> None:
         if self.prior_strength <= 0:
             raise ValueError(f"StructureConfig.prior_strength must be > 0, got {self.prior_strength}.")
         if self.prior_thickness_spread <= 1:
             raise ValueError("StructureConfig.prior_thickness_spread must be > 1.")
+        if self.evidence not in ("mask", "material"):
+            raise ValueError(f"StructureConfig.evidence must be 'mask' or 'material', got {self.evidence!r}.")
 
 
 @dataclass
@@ -68,7 +98,7 @@ class PartStructure:
     thickness: NIG
     """NIG on log(thickness in metres), shape [P]"""
     observations: np.ndarray
-    """[P] summed weights p w of the observations that concern each part"""
+    """[P] summed weights ``w_s`` of the hollow-or-solid calls that concern each part (module doc, "Evidence")"""
 
     @property
     def p_hollow(self) -> np.ndarray:
@@ -98,6 +128,39 @@ class PartStructure:
                  "log_thickness_nig": {"tau": float(t.tau[i]), "kappa": float(t.kappa[i]), "a": float(t.a[i]),
                                        "b": float(t.b[i])},
                  "observation_weight": float(self.observations[i])} for i in range(len(self.hollow_a))]  # fmt: skip
+
+
+def _evidence_weights(shares: Sequence[tuple[int, np.ndarray]], observations: Sequence[MaskObservation],
+                      part_mixture: np.ndarray, mat_index: dict[str, int], evidence: str
+                      ) -> list[tuple[np.ndarray, np.ndarray] | None]:  # fmt: skip
+    """Per shared observation, float64 [P] weights per part of its hollow-or-solid answer and of its thickness
+    (None: its material is not among the parts'), as the module doc's "Evidence" defines them."""
+    fit: list[np.ndarray | None] = []  # p_c share_s pi_sc: the answer as far as the part is of its material
+    for i, share in shares:
+        k = mat_index.get(observations[i].material)
+        fit.append(None if k is None else observations[i].confidence * share * part_mixture[:, k])
+    if evidence == "material":
+        return [None if f is None else (f, f) for f in fit]
+    groups: dict[tuple, list[int]] = {}  # the candidates of one mask
+    for j, (i, _) in enumerate(shares):
+        ob = observations[i]
+        if fit[j] is not None:
+            groups.setdefault((ob.view, ob.mask_id if ob.mask_id is not None else id(ob.mask)), []).append(j)
+    out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * len(shares)
+    for js in groups.values():
+        conf = min(sum(observations[shares[j][0]].confidence for j in js), 1.0)
+        match = np.stack([fit[j] for j in js])  # type: ignore[misc]  # [n, P]
+        total = match.sum(0)
+        share = shares[js[0]][1]
+        cover = part_mixture[:, sorted({mat_index[observations[shares[j][0]].material] for j in js})].sum(1)
+        mask_w = conf * share * np.maximum(cover, share)  # [P] how much of the mask's judgment is the part's
+        # split among the candidates by how well each one fits the part; where none does, by their confidences
+        p = np.array([observations[shares[j][0]].confidence for j in js])
+        by_conf = (p / max(p.sum(), 1e-300))[:, None]
+        resp = np.where(total > 0, match / np.where(total > 0, total, 1.0), by_conf)
+        for r, j in zip(resp, js):
+            out[j] = (mask_w * r, fit[j])  # type: ignore[assignment]
+    return out
 
 
 def fuse_structure(
@@ -130,19 +193,19 @@ def fuse_structure(
     mat_index = {n: i for i, n in enumerate(material_names)}
     if shares is None:
         shares = observation_shares(grid, parts, P, views, observations)
-    for i, share in shares:
+    weights = _evidence_weights(shares, observations, part_mixture, mat_index, cfg.evidence)
+    for (i, _share), w in zip(shares, weights):
         ob = observations[i]
-        k = mat_index.get(ob.material)
-        if k is None:
+        if w is None:
             continue
-        wt = ob.confidence * share * part_mixture[:, k]
+        wt, wthick = w
         seen += wt
         if ob.thickness_m is not None:
             a += wt
             lt = math.log(ob.thickness_m)
-            W += wt
-            S += wt * lt
-            Q += wt * lt * lt
+            W += wthick
+            S += wthick * lt
+            Q += wthick * lt * lt
         else:
             b += wt
     t0 = np.array([math.log(t if t is not None else cfg.default_thickness_m) for t in library_thickness])
