@@ -148,14 +148,14 @@ def _evidence_weights(shares: Sequence[tuple[int, np.ndarray]], observations: Se
             groups.setdefault((ob.view, ob.mask_id if ob.mask_id is not None else id(ob.mask)), []).append(j)
     out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * len(shares)
     for js in groups.values():
-        conf = min(sum(observations[shares[j][0]].confidence for j in js), 1.0)
+        cands = [observations[shares[j][0]] for j in js]
+        p = np.array([ob.confidence for ob in cands])
         match = np.stack([fit[j] for j in js])  # type: ignore[misc]  # [n, P]
         total = match.sum(0)
         share = shares[js[0]][1]
-        cover = part_mixture[:, sorted({mat_index[observations[shares[j][0]].material] for j in js})].sum(1)
-        mask_w = conf * share * np.maximum(cover, share)  # [P] how much of the mask's judgment is the part's
+        cover = part_mixture[:, sorted({mat_index[ob.material] for ob in cands})].sum(1)
+        mask_w = min(p.sum(), 1.0) * share * np.maximum(cover, share)  # [P] the mask's call, the part's share
         # split among the candidates by how well each one fits the part; where none does, by their confidences
-        p = np.array([observations[shares[j][0]].confidence for j in js])
         by_conf = (p / max(p.sum(), 1e-300))[:, None]
         resp = np.where(total > 0, match / np.where(total > 0, total, 1.0), by_conf)
         for r, j in zip(resp, js):
