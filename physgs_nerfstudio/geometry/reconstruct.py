@@ -36,7 +36,7 @@ from .errors import GeometryError
 from .extent import polytope_layer, support_excess
 from .gaussians import ViewRender, render_depth, surface_views
 from .grid import VoxelGrid
-from .hidden import gaussian_samples, skin_centred, skin_from_points, without_hidden_space
+from .hidden import gaussian_samples, hidden_boundary, skin_centred, skin_from_points, without_hidden_space
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .parts import (
     PartGeometry,
@@ -154,6 +154,10 @@ class GeometryConfig:
     """the rules run again on what they leave, at most this many times in all, until a pass removes nothing: the
     space a pass removed is open to the rays of the next (:mod:`.hidden`, "Passes"); 1 = one pass (session 29);
     documented range 1-8"""
+    hidden_boundary: Literal["half", "whole"] = "half"
+    """how a kept voxel on the boundary with the hidden open space counts in the volume (:mod:`.hidden`, "The
+    boundary with hidden open space"): "half", half a voxel, and the mass's Monte Carlo draws its occupancy in
+    [0, 1] (the object's unseen surface lies somewhere in it); "whole", a whole voxel (session 34)"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall,
@@ -257,6 +261,8 @@ class GeometryConfig:
                                                           and self.extent_shrink_voxels > 0):  # fmt: skip
             raise ValueError("GeometryConfig.extent_shrink_voxels must be finite and > 0 (or None: no such variant), "
                              f"got {self.extent_shrink_voxels}.")
+        if self.hidden_boundary not in ("half", "whole"):
+            raise ValueError(f"GeometryConfig.hidden_boundary must be 'half' or 'whole', got {self.hidden_boundary!r}.")
         if self.hidden_passes < 1:
             raise ValueError(f"GeometryConfig.hidden_passes must be >= 1, got {self.hidden_passes}.")
         if self.hidden_min_open_half is not None and not 1 <= self.hidden_min_open_half <= 9:
@@ -316,6 +322,12 @@ class ObjectGeometry:
     hidden_removed: dict[str, int] | None = None
     """the nominal solid's voxels removed as hidden open space (:mod:`.hidden`), by the rule that removed them:
     "majority", "open_half"; None = the rule is off"""
+    hidden_boundary: np.ndarray | None = None
+    """[G, P] volume per variant and part of the kept voxels on the boundary with the hidden open space, whole
+    voxels, scene units^3 (:func:`.hidden.hidden_boundary`); ``volumes`` counts them at ``hidden_boundary_fill``,
+    and the mass draws their occupancy uniformly in [0, 1]. None = none (the rule off, or "whole")"""
+    hidden_boundary_fill: float = 1.0
+    """the share of a boundary voxel that ``volumes`` counts: 0.5 ("half"), 1 ("whole")"""
 
     @property
     def num_parts(self) -> int:
@@ -331,6 +343,9 @@ class ObjectGeometry:
                 "on_support_gaussians": self.selection.on_support, "clusters": self.selection.num_clusters,
                 "split_from_gaussians": self.selection.split_from,
                 "hidden_open_voxels": self.hidden_removed, "pixel_footprint_voxels": self.pixel_voxels,
+                "hidden_boundary_voxels": (int(round(float(self.hidden_boundary[0].sum())
+                                                     / float(self.grid.voxel_size) ** 3))
+                                           if self.hidden_boundary is not None else None),
                 "unseen_surface_share": self.unseen_surface_share,
                 "extent_gaussians": self.extent_gaussians}  # fmt: skip
 
@@ -558,11 +573,12 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
 
 def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, beyond: np.ndarray | None,
                     plane: SupportPlane | None, cfg: GeometryConfig, seen_by: Any = None
-                    ) -> tuple[list[np.ndarray], dict[str, int]]:  # fmt: skip
+                    ) -> tuple[list[np.ndarray], dict[str, int], list[np.ndarray]]:  # fmt: skip
     """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is sampled by ``surface``, the
     Gaussians some view sees on its surface (``means``, ``scales``, ``quats``); rays that leave the solid below the
     support plane or into space that the views kept and the Gaussians' polytope cut (``beyond``) are enclosed (the
-    object's unseen underside). Also returns the nominal solid's voxels that each rule removed.
+    object's unseen underside). Also returns the nominal solid's voxels that each rule removed, and each variant's
+    kept voxels on the boundary with the space removed (:func:`.hidden.hidden_boundary`).
     ``seen_by(points, thickness)``: how many views see each point on their rendered surface, within the band
     plus its ``thickness`` (``hidden_skin_seen``: the axis ends' test)."""
     dev = surface.means.device
@@ -585,14 +601,16 @@ def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, bey
     if plane is not None:
         closed |= ~plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
-    done = [without_hidden_space(torch.from_numpy(s).to(dev), skin, closed_t, cfg.hidden_min_open_fraction,
-                                 cfg.hidden_min_open_half, cfg.hidden_passes) for s in solids]  # fmt: skip
+    before = [torch.from_numpy(s).to(dev) for s in solids]
+    done = [without_hidden_space(s, skin, closed_t, cfg.hidden_min_open_fraction, cfg.hidden_min_open_half,
+                                 cfg.hidden_passes) for s in before]  # fmt: skip
     out = [kept.cpu().numpy() for kept, _ in done]
+    edges = [hidden_boundary(kept, s & ~kept).cpu().numpy() for (kept, _), s in zip(done, before)]
     removed = done[0][1]  # the nominal solid's
     if removed["majority"] or removed["open_half"]:
         logger.info("hidden open space: %d of %d solid voxels that no seen surface encloses removed (%d by the open "
                     "half)", removed["majority"] + removed["open_half"], int(solids[0].sum()), removed["open_half"])
-    return out, removed
+    return out, removed, edges
 
 
 def _up_weight(views: Sequence[CaptureView], weight: float) -> float:
@@ -717,6 +735,7 @@ def reconstruct_object(
         seen_views = surface_views(g.means[sel], obj_views, renders, band)
     on_surface = seen_views > 0
     hidden_removed = None
+    edges: list[np.ndarray] | None = None
     if cfg.hidden_skin_voxels is not None:
         surf = _Subset(g, torch.nonzero(sel).squeeze(1)[on_surface])
         skin_band = (cfg.hidden_skin_seen or 0.0) * grid.voxel_size
@@ -724,8 +743,8 @@ def reconstruct_object(
         def seen_by(points: torch.Tensor, thick: torch.Tensor) -> torch.Tensor:
             return surface_views(points, obj_views, renders, skin_band + thick)
 
-        solids, hidden_removed = _without_hidden(grid, solids, surf, beyond, selection.plane, cfg,
-                                                 seen_by if cfg.hidden_skin_seen is not None else None)
+        solids, hidden_removed, edges = _without_hidden(grid, solids, surf, beyond, selection.plane, cfg,
+                                                        seen_by if cfg.hidden_skin_seen is not None else None)
     unseen = before_cuts & ~solids[0]  # kept by the views, removed by the plane's cut or as hidden open space
     if beyond is not None:
         unseen = unseen | _beyond_kept(raw_nominal, beyond)
@@ -811,13 +830,21 @@ def reconstruct_object(
     lib = library_thickness if library_thickness is not None else [None] * K
     structure = fuse_structure(grid, nominal_parts, P, views, observations, [lib[k] for k in dom], pm, mat_names,
                                cfg.structure, shares=shares)  # fmt: skip
+    volumes = np.stack([gm.volume for gm in geos])
+    boundary, fill = None, 1.0
+    if edges is not None and cfg.hidden_boundary == "half" and any(e.any() for e in edges):
+        # the kept voxels on the boundary with the hidden open space: half a voxel each (:mod:`.hidden`)
+        boundary = np.stack([np.bincount(parts[e & (parts >= 0)], minlength=P)[:P] for e in edges]) * grid.voxel_size**3
+        fill = 0.5
+        volumes = volumes - (1.0 - fill) * boundary
     return ObjectGeometry(
         grid=grid, solid=solids[0], parts=parts, part_mixture=pm, mixture=mixture, variant_names=names,
-        volumes=np.stack([gm.volume for gm in geos]), areas=np.stack([gm.area for gm in geos]),
+        volumes=volumes, areas=np.stack([gm.area for gm in geos]),
         sheet_share=geos[0].sheet_share, structure=structure, selection=selection, views_used=len(views),
         mask_sources=sources, material_levels=levels, surface_areas=np.stack([gm.surface for gm in geos]),
         pixel_voxels=pixel_voxels, full_areas=np.stack([gm.full_area for gm in geos]),
         curvatures=np.stack([gm.curvature for gm in geos]), seam_areas=seam_areas(nominal_parts, P, grid.voxel_size),
         hidden_removed=hidden_removed, unseen_surface_share=unseen_face_share(solids[0], unseen),
+        hidden_boundary=boundary, hidden_boundary_fill=fill,
         extent_gaussians=len(ext_idx),
     )  # fmt: skip

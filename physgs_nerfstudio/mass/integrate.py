@@ -33,6 +33,12 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   volume unchanged (no part below 0). Which side of a seam holds the volume decides its density and whether it
   weighs at all (the inside of a hollow part does not), so this moves the mass where parts of unlike weight meet
   and not elsewhere.
+* **Unseen boundary** (``GeometryConfig.hidden_boundary`` "half", the default): the kept voxels on the boundary
+  with the hidden open space (a top's unseen underside: :mod:`physgs_nerfstudio.geometry.hidden`, "The boundary with
+  hidden open space") hold the object's surface somewhere inside them, or just past them. ``V_p`` counts them at
+  half a voxel; each sample draws their occupancy ``o ~ U(0, 1)``, one for every such voxel of the object (one
+  unseen face, one offset), so a solid part's volume becomes ``V_p + (o - 1/2) B_p``, ``B_p`` the part's volume of
+  them as whole voxels (drawn after the seams: the draws above stay unchanged).
 * Part mass: ``rho x V_p`` (solid) or ``rho x min(V*_p, W_p(t_p))`` (hollow); the object's mass is the sum. The
   cap ``V*_p`` is the part's largest volume over the variants (``wall_cap="widest"``): the wall lies inside the
   object, and the carving that kept the most of it bounds it, while a variant that carves more only samples where
@@ -261,6 +267,9 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
     if cfg.seam_offset_voxels > 0 and geo.seam_areas is not None:  # drawn last
         moved = seam_transfer(geo.seam_areas * mpu**2, cfg.seam_offset_voxels * unit * mpu, rng, S)
         cap, V_solid = (np.maximum(x + moved, 0.0) for x in (cap, V_solid))
+    if geo.hidden_boundary is not None:  # drawn after the seams
+        o = rng.random(S) - geo.hidden_boundary_fill
+        V_solid = np.maximum(V_solid + o[:, None] * geo.hidden_boundary[gi] * mpu**3, 0.0)
     if cfg.wall_curvature and geo.curvatures is not None and geo.full_areas is not None:
         wall = wall_volume(A, geo.full_areas[gi] * mpu**2, geo.curvatures[gi] * mpu, thick)
     else:
