@@ -343,8 +343,8 @@ class ObjectGeometry:
                 "on_support_gaussians": self.selection.on_support, "clusters": self.selection.num_clusters,
                 "split_from_gaussians": self.selection.split_from,
                 "hidden_open_voxels": self.hidden_removed, "pixel_footprint_voxels": self.pixel_voxels,
-                "hidden_boundary_voxels": (int(round(float(self.hidden_boundary[0].sum())
-                                                     / float(self.grid.voxel_size) ** 3))
+                "hidden_boundary_voxels": (round(float(self.hidden_boundary[0].sum())
+                                                 / float(self.grid.voxel_size) ** 3)
                                            if self.hidden_boundary is not None else None),
                 "unseen_surface_share": self.unseen_surface_share,
                 "extent_gaussians": self.extent_gaussians}  # fmt: skip
