@@ -53,6 +53,7 @@ SETTINGS: dict[str, list[str]] = {
     "evidence_surface_voxels=2": ["--mass.geometry.evidence-surface-voxels", "2"],
     "no_variants": ["--mass.geometry.no-variants"],
     "structure_evidence=material": ["--mass.geometry.structure.evidence", "material"],
+    "hidden_boundary=whole": ["--mass.geometry.hidden-boundary", "whole"],
 }
 
 
