@@ -81,6 +81,20 @@ def test_the_volume_counts_the_boundary_at_half(table_geometries):
     assert abs(half.volumes[0].sum() - truth) < abs(whole.volumes[0].sum() - truth)
 
 
+def test_the_voxel_grid_writes_the_fill_that_the_volume_counts(table_geometries, tmp_path):
+    """voxels.npz's ``fill`` is 1 in the solid, 0.5 on the boundary, 0 outside, and sums to the nominal volume."""
+    from physgs_nerfstudio.export.voxel import load_voxel_grid, write_voxel_grid
+
+    pf, half, whole = table_geometries
+    for geo in (half, whole):
+        d = load_voxel_grid(write_voxel_grid(pf, tmp_path / "voxels.npz", geo))
+        fill = d["fill"]
+        assert fill.dtype == np.float32 and set(np.unique(fill)) <= {0.0, 0.5, 1.0}
+        np.testing.assert_array_equal(fill > 0, d["occupancy"] > 0)
+        assert float(fill.sum()) * geo.grid.voxel_size**3 == pytest.approx(float(geo.volumes[0].sum()), rel=1e-6)
+    assert (d["fill"] == 0.5).sum() == 0  # "whole": no half voxel
+
+
 def test_the_mass_draws_the_boundary_occupancy(table_geometries):
     """The Monte Carlo's part volume is V_g + (o - 1/2) B_g, the variant g drawn uniformly and o ~ U(0, 1): its
     interval against the quantiles of that mixture of uniforms (root finding on its CDF, an oracle that shares

@@ -6,6 +6,9 @@ Arrays are indexed ``[i, j, k]`` = ``[x, y, z]`` (C order); voxel (i, j, k) has 
 origin scaled, nerfstudio's dataparser transform is not undone). Contents:
 
 * ``occupancy`` uint8: 1 inside the object's carved solid (the nominal carving, :mod:`physgs_nerfstudio.geometry`)
+* ``fill`` float32: the share of each voxel that the object's volume and mass count: 1 inside, 0.5 on the boundary
+  with hidden open space (a top's unseen underside: :mod:`physgs_nerfstudio.geometry.hidden`), 0 outside;
+  ``sum(fill) x voxel_size_m^3`` is the nominal volume of the report
 * ``part_id`` int32: the voxel's 3-D part (index into ``meta["parts"]``, solid or hollow per part), -1 outside
 * ``material_index`` int16: dominant material (legend index 0..K-1), -1 outside
 * ``material_prob`` float32 [X, Y, Z, K]: per-voxel material mixture (0 outside)
@@ -40,6 +43,7 @@ def write_voxel_grid(pf: PropertyField, path: Path, geo: ObjectGeometry) -> Path
     pi = geo.mixture[idx]  # [M, K]
     out: dict[str, Any] = {}
     out["occupancy"] = geo.solid.astype(np.uint8)
+    out["fill"] = geo.fill()
     out["part_id"] = np.where(geo.solid, geo.parts, -1).astype(np.int32)
     mat = np.full(shape, -1, dtype=np.int16)
     mat[idx] = np.argmax(pi, axis=1).astype(np.int16)

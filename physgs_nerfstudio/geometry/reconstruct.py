@@ -328,6 +328,16 @@ class ObjectGeometry:
     and the mass draws their occupancy uniformly in [0, 1]. None = none (the rule off, or "whole")"""
     hidden_boundary_fill: float = 1.0
     """the share of a boundary voxel that ``volumes`` counts: 0.5 ("half"), 1 ("whole")"""
+    hidden_edge: np.ndarray | None = None
+    """bool [X, Y, Z]: the nominal solid's voxels on that boundary (None with ``hidden_boundary``)"""
+
+    def fill(self) -> np.ndarray:
+        """float32 [X, Y, Z]: the share of each voxel that the nominal volume counts (1 in the solid,
+        ``hidden_boundary_fill`` on the boundary with hidden open space, 0 outside)."""
+        out = self.solid.astype(np.float32)
+        if self.hidden_edge is not None:
+            out[self.hidden_edge & self.solid] = self.hidden_boundary_fill
+        return out
 
     @property
     def num_parts(self) -> int:
@@ -845,6 +855,6 @@ def reconstruct_object(
         pixel_voxels=pixel_voxels, full_areas=np.stack([gm.full_area for gm in geos]),
         curvatures=np.stack([gm.curvature for gm in geos]), seam_areas=seam_areas(nominal_parts, P, grid.voxel_size),
         hidden_removed=hidden_removed, unseen_surface_share=unseen_face_share(solids[0], unseen),
-        hidden_boundary=boundary, hidden_boundary_fill=fill,
+        hidden_boundary=boundary, hidden_boundary_fill=fill, hidden_edge=edges[0] if boundary is not None else None,
         extent_gaussians=len(ext_idx),
     )  # fmt: skip
