@@ -114,8 +114,8 @@ from torch import Tensor
 
 from ..render.projection import quat_to_rotmat
 
-__all__ = ["LATTICE_DIRECTIONS", "gaussian_samples", "hidden_boundary", "hidden_open_rules", "hidden_open_space", "open_counts",
-           "open_fraction", "skin_centred", "skin_from_points", "without_hidden_space"]
+__all__ = ["LATTICE_DIRECTIONS", "gaussian_samples", "hidden_boundary", "hidden_open_rules", "hidden_open_space",
+           "open_counts", "open_fraction", "skin_centred", "skin_from_points", "without_hidden_space"]
 
 LATTICE_DIRECTIONS: tuple[tuple[int, int, int], ...] = tuple(
     d for d in itertools.product((-1, 0, 1), repeat=3) if any(d))  # fmt: skip

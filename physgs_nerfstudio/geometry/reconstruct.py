@@ -262,7 +262,8 @@ class GeometryConfig:
             raise ValueError("GeometryConfig.extent_shrink_voxels must be finite and > 0 (or None: no such variant), "
                              f"got {self.extent_shrink_voxels}.")
         if self.hidden_boundary not in ("half", "whole"):
-            raise ValueError(f"GeometryConfig.hidden_boundary must be 'half' or 'whole', got {self.hidden_boundary!r}.")
+            raise ValueError("GeometryConfig.hidden_boundary must be 'half' or 'whole', got "
+                             f"{self.hidden_boundary!r}.")
         if self.hidden_passes < 1:
             raise ValueError(f"GeometryConfig.hidden_passes must be >= 1, got {self.hidden_passes}.")
         if self.hidden_min_open_half is not None and not 1 <= self.hidden_min_open_half <= 9:
@@ -844,7 +845,8 @@ def reconstruct_object(
     boundary, fill = None, 1.0
     if edges is not None and cfg.hidden_boundary == "half" and any(e.any() for e in edges):
         # the kept voxels on the boundary with the hidden open space: half a voxel each (:mod:`.hidden`)
-        boundary = np.stack([np.bincount(parts[e & (parts >= 0)], minlength=P)[:P] for e in edges]) * grid.voxel_size**3
+        counts = [np.bincount(parts[e & (parts >= 0)], minlength=P)[:P] for e in edges]
+        boundary = np.stack(counts) * grid.voxel_size**3
         fill = 0.5
         volumes = volumes - (1.0 - fill) * boundary
     return ObjectGeometry(
@@ -855,6 +857,7 @@ def reconstruct_object(
         pixel_voxels=pixel_voxels, full_areas=np.stack([gm.full_area for gm in geos]),
         curvatures=np.stack([gm.curvature for gm in geos]), seam_areas=seam_areas(nominal_parts, P, grid.voxel_size),
         hidden_removed=hidden_removed, unseen_surface_share=unseen_face_share(solids[0], unseen),
-        hidden_boundary=boundary, hidden_boundary_fill=fill, hidden_edge=edges[0] if boundary is not None else None,
+        hidden_boundary=boundary, hidden_boundary_fill=fill,
+        hidden_edge=edges[0] if edges is not None and boundary is not None else None,
         extent_gaussians=len(ext_idx),
     )  # fmt: skip

@@ -264,7 +264,7 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
     if cfg.surface_offset_voxels > 0:  # drawn after the others: they stay unchanged
         d = cfg.surface_offset_voxels * unit * rng.standard_normal(S)
         V_solid = np.maximum(geo.volumes[gi] + geo.surface_areas[gi] * d[:, None], 0.0) * mpu**3
-    if cfg.seam_offset_voxels > 0 and geo.seam_areas is not None:  # drawn last
+    if cfg.seam_offset_voxels > 0 and geo.seam_areas is not None:  # drawn after the offset
         moved = seam_transfer(geo.seam_areas * mpu**2, cfg.seam_offset_voxels * unit * mpu, rng, S)
         cap, V_solid = (np.maximum(x + moved, 0.0) for x in (cap, V_solid))
     if geo.hidden_boundary is not None:  # drawn after the seams
