@@ -327,17 +327,20 @@ class ObjectGeometry:
     """[G, P] volume per variant and part of the kept voxels on the boundary with the hidden open space, whole
     voxels, scene units^3 (:func:`.hidden.hidden_boundary`); ``volumes`` counts them at ``hidden_boundary_fill``,
     and the mass draws their occupancy uniformly in [0, 1]. None = none (the rule off, or "whole")"""
-    hidden_boundary_fill: float = 1.0
-    """the share of a boundary voxel that ``volumes`` counts: 0.5 ("half"), 1 ("whole")"""
     hidden_edge: np.ndarray | None = None
     """bool [X, Y, Z]: the nominal solid's voxels on that boundary (None with ``hidden_boundary``)"""
+
+    @property
+    def hidden_boundary_fill(self) -> float:
+        """The share of a boundary voxel that ``volumes`` counts: 0.5 ("half"), 1 ("whole", or no boundary)."""
+        return 0.5 if self.hidden_boundary is not None else 1.0
 
     def fill(self) -> np.ndarray:
         """float32 [X, Y, Z]: the share of each voxel that the nominal volume counts (1 in the solid,
         ``hidden_boundary_fill`` on the boundary with hidden open space, 0 outside)."""
         out = self.solid.astype(np.float32)
-        if self.hidden_edge is not None:
-            out[self.hidden_edge & self.solid] = self.hidden_boundary_fill
+        if self.hidden_edge is not None:  # a subset of the nominal solid
+            out[self.hidden_edge] = self.hidden_boundary_fill
         return out
 
     @property
@@ -584,12 +587,12 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
 
 def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, beyond: np.ndarray | None,
                     plane: SupportPlane | None, cfg: GeometryConfig, seen_by: Any = None
-                    ) -> tuple[list[np.ndarray], dict[str, int], list[np.ndarray]]:  # fmt: skip
+                    ) -> tuple[list[np.ndarray], dict[str, int], list[np.ndarray] | None]:  # fmt: skip
     """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is sampled by ``surface``, the
     Gaussians some view sees on its surface (``means``, ``scales``, ``quats``); rays that leave the solid below the
     support plane or into space that the views kept and the Gaussians' polytope cut (``beyond``) are enclosed (the
     object's unseen underside). Also returns the nominal solid's voxels that each rule removed, and each variant's
-    kept voxels on the boundary with the space removed (:func:`.hidden.hidden_boundary`).
+    kept voxels on the boundary with the space removed (:func:`.hidden.hidden_boundary`; None with "whole").
     ``seen_by(points, thickness)``: how many views see each point on their rendered surface, within the band
     plus its ``thickness`` (``hidden_skin_seen``: the axis ends' test)."""
     dev = surface.means.device
@@ -616,7 +619,8 @@ def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, bey
     done = [without_hidden_space(s, skin, closed_t, cfg.hidden_min_open_fraction, cfg.hidden_min_open_half,
                                  cfg.hidden_passes) for s in before]  # fmt: skip
     out = [kept.cpu().numpy() for kept, _ in done]
-    edges = [hidden_boundary(kept, s & ~kept).cpu().numpy() for (kept, _), s in zip(done, before)]
+    edges = ([hidden_boundary(kept, s & ~kept).cpu().numpy() for (kept, _), s in zip(done, before)]
+             if cfg.hidden_boundary == "half" else None)
     removed = done[0][1]  # the nominal solid's
     if removed["majority"] or removed["open_half"]:
         logger.info("hidden open space: %d of %d solid voxels that no seen surface encloses removed (%d by the open "
@@ -842,13 +846,12 @@ def reconstruct_object(
     structure = fuse_structure(grid, nominal_parts, P, views, observations, [lib[k] for k in dom], pm, mat_names,
                                cfg.structure, shares=shares)  # fmt: skip
     volumes = np.stack([gm.volume for gm in geos])
-    boundary, fill = None, 1.0
-    if edges is not None and cfg.hidden_boundary == "half" and any(e.any() for e in edges):
+    boundary = None
+    if edges is not None and any(e.any() for e in edges):  # edges only with "half"
         # the kept voxels on the boundary with the hidden open space: half a voxel each (:mod:`.hidden`)
         counts = [np.bincount(parts[e & (parts >= 0)], minlength=P)[:P] for e in edges]
         boundary = np.stack(counts) * grid.voxel_size**3
-        fill = 0.5
-        volumes = volumes - (1.0 - fill) * boundary
+        volumes = volumes - 0.5 * boundary
     return ObjectGeometry(
         grid=grid, solid=solids[0], parts=parts, part_mixture=pm, mixture=mixture, variant_names=names,
         volumes=volumes, areas=np.stack([gm.area for gm in geos]),
@@ -857,7 +860,6 @@ def reconstruct_object(
         pixel_voxels=pixel_voxels, full_areas=np.stack([gm.full_area for gm in geos]),
         curvatures=np.stack([gm.curvature for gm in geos]), seam_areas=seam_areas(nominal_parts, P, grid.voxel_size),
         hidden_removed=hidden_removed, unseen_surface_share=unseen_face_share(solids[0], unseen),
-        hidden_boundary=boundary, hidden_boundary_fill=fill,
-        hidden_edge=edges[0] if edges is not None and boundary is not None else None,
+        hidden_boundary=boundary, hidden_edge=edges[0] if edges is not None and boundary is not None else None,
         extent_gaussians=len(ext_idx),
     )  # fmt: skip
