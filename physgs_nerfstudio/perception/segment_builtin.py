@@ -19,6 +19,7 @@ Built by ``BuiltinSegmenterConfig.setup()``; the protocol, the mask type and the
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
@@ -97,6 +98,12 @@ def _lab(image: np.ndarray) -> np.ndarray:
 
 
 def _relabel(labels: np.ndarray) -> np.ndarray:
+    """Labels renumbered 0..n-1 in their sorted order (``np.unique``'s inverse; a lookup table where the labels are
+    small non-negative integers, which is faster than the sort)."""
+    flat = labels.reshape(-1)
+    if flat.size and flat.min() >= 0 and flat.max() < 8 * flat.size:
+        rank = np.cumsum(np.bincount(flat) > 0) - 1
+        return rank[labels].astype(np.int32)
     _, inv = np.unique(labels, return_inverse=True)
     return inv.reshape(labels.shape).astype(np.int32)
 
@@ -178,9 +185,12 @@ class _RegionMerger:
         return other
 
     def _dist(self, u: int, v: int) -> float:
-        colour = float(np.linalg.norm(self.sum[u] / self.count[u] - self.sum[v] / self.count[v]))
         bs, bc = self.edges[u][v]
-        return self.colour_weight * colour + (1.0 - self.colour_weight) * (bs / max(bc, 1.0))
+        step = bs / max(bc, 1.0)
+        if self.colour_weight == 0.0:  # the default: the boundary step alone (no colour distance to compute)
+            return step
+        colour = math.dist((self.sum[u] / self.count[u]).tolist(), (self.sum[v] / self.count[v]).tolist())
+        return self.colour_weight * colour + (1.0 - self.colour_weight) * step
 
     def merge(self, thresh: float) -> _RegionMerger:
         import heapq
