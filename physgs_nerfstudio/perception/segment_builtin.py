@@ -11,7 +11,8 @@ majority material covers (what a VLM that names the mask's majority material get
 0.90 (the chair's aluminium 0.39 -> 0.77, the table's steel 0.60 -> 0.87, the dumbbell's steel bar 0.47 -> 0.62, the
 lamp's glass 0.31 -> 0.86); the stool's footrest stayed near 0.2-0.35 either way (its arcs, cut apart by the legs in
 front and split lengthwise by its highlight, are too small to keep). At 96 px (the CPU demo) such parts are 1-2 px wide
-and neither finds them (0.645 -> 0.674). benchmarks/README.md, "Thin parts in the built-in segmenter".
+and neither finds them (0.645 -> 0.656). The split costs about 0.9 s more per 512 px image on one core (the graph
+segmentation and the merging of its smaller regions). benchmarks/README.md, "Thin parts in the built-in segmenter".
 
 Built by ``BuiltinSegmenterConfig.setup()``; the protocol, the mask type and the shared mask operations are in
 :mod:`.segment`.
