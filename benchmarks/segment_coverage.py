@@ -29,11 +29,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from physgs_nerfstudio.perception.segment_builtin import BuiltinSegmenterConfig
 
 
-def _read(path: Path) -> np.ndarray:
-    a = np.asarray(Image.open(path))
-    return a[..., 0] if a.ndim == 3 else a
-
-
 def scene_coverage(root: Path, segmenter) -> tuple[dict[str, float], float, float]:
     """{material: covered share} over the scene's views, the masks per view, the whole masks' recall."""
     gt = json.loads((root / "ground_truth.json").read_text())
@@ -44,7 +39,7 @@ def scene_coverage(root: Path, segmenter) -> tuple[dict[str, float], float, floa
     n_masks = 0
     object_px = whole_px = 0
     for im in images:
-        truth = _read(root / "gt" / "material" / im.name)
+        truth = np.asarray(Image.open(root / "gt" / "material" / im.name))  # 8-bit material index, 0 = background
         masks = segmenter.segment(np.asarray(Image.open(im).convert("RGB")))
         n_masks += len(masks)
         covered = np.zeros(truth.shape, bool)
@@ -88,8 +83,8 @@ def main() -> None:
         for root in objects:
             cov, mpv, recall = scene_coverage(root, seg)
             per[root.name] = {"coverage": cov, "masks_per_view": mpv, "whole_recall": recall}
-            print(f"{mode:11s} {root.name:9s} masks/view {mpv:5.1f}  whole recall {recall:.2f}  " + " ".join(f"{k}:{v:.2f}" for k, v in cov.items()),
-                  flush=True)  # fmt: skip
+            shares = " ".join(f"{k}:{v:.2f}" for k, v in cov.items())
+            print(f"{mode:11s} {root.name:9s} masks/view {mpv:5.1f}  whole recall {recall:.2f}  {shares}", flush=True)
         shares = [v for o in per.values() for v in o["coverage"].values()]
         summary = {"mean_coverage": statistics.fmean(shares), "min_coverage": min(shares),
                    "masks_per_view": statistics.fmean(o["masks_per_view"] for o in per.values()),

@@ -2,17 +2,13 @@
 
 The superpixels are SLIC's, split along Felzenszwalb-Huttenlocher's graph segmentation by default
 (``oversegment="slic+graph"``). SLIC's superpixels are compact, about ``sqrt(h w / n_segments)`` pixels across (21 px
-at 512 px): a part thinner than that (a stool's steel footrest 5-6 px wide, a chair's aluminium legs, a table's steel
-legs) shares its superpixels with the background or the parts around it, and the merging can never take it apart
-again. The graph segmentation follows the pixels' colour edges at any width; each superpixel is split where the graph
-segmentation's regions cross it, so the merging starts from regions that a thin part's edges bound. On twelve
-generated objects at 512 px (8 views each, a fresh seed), the share of each material's pixels that a mask of that
-majority material covers (what a VLM that names the mask's majority material gets right) rose from a mean of 0.78 to
-0.90 (the chair's aluminium 0.39 -> 0.77, the table's steel 0.60 -> 0.87, the dumbbell's steel bar 0.47 -> 0.62, the
-lamp's glass 0.31 -> 0.86); the stool's footrest stayed near 0.2-0.35 either way (its arcs, cut apart by the legs in
-front and split lengthwise by its highlight, are too small to keep). At 96 px (the CPU demo) such parts are 1-2 px wide
-and neither finds them (0.645 -> 0.656). The split costs about 0.9 s more per 512 px image on one core (the graph
-segmentation and the merging of its smaller regions). benchmarks/README.md, "Thin parts in the built-in segmenter".
+at 512 px): a part thinner than that (a table's steel legs, a chair's aluminium legs) shares its superpixels with the
+background or its neighbours, and the merging can never take it apart again. Each superpixel is split where the
+graph segmentation's regions, which follow the pixels' colour edges at any width, cross it. At 512 px this raised the
+share of each material that a mask of that majority material covers from 0.78 to 0.90 on twelve generated objects
+(not the stool's footrest: its arcs stay too small to keep), at 96 px (the CPU demo, 4 px superpixels) from 0.645 to
+0.656, for about 0.9 s more per 512 px image on one core (benchmarks/README.md, "Thin parts in the built-in
+segmenter"; ``benchmarks/segment_coverage.py``).
 
 Built by ``BuiltinSegmenterConfig.setup()``; the protocol, the mask type and the shared mask operations are in
 :mod:`.segment`.
@@ -35,7 +31,8 @@ from .segment import LEVELS, Mask, check_image, deduplicate, sort_masks
 
 @dataclass
 class BuiltinSegmenterConfig:
-    """SLIC superpixels merged hierarchically by mean Lab colour (scikit-image), no learned weights."""
+    """SLIC superpixels split along a graph segmentation, merged hierarchically by mean Lab colour (scikit-image);
+    no learned weights."""
 
     name: ClassVar[str] = "builtin"
 
@@ -324,8 +321,8 @@ def _upscale(masks: list[Mask], width: int, height: int) -> list[Mask]:
 class BuiltinSegmenter:
     """Weight-free three-level segmenter (see module docstring; weaker than SAM).
 
-    Superpixels (SLIC's, split along the graph segmentation's regions: module doc) are merged hierarchically while adjacent regions' mean CIE Lab colours differ by less
-    than a threshold; the fine / medium / coarse thresholds give the subpart / part / whole levels:
+    Superpixels (SLIC's, split along the graph segmentation's regions: module doc) are merged hierarchically
+    while adjacent regions' mean CIE Lab colours differ by less than a threshold; the fine / medium / coarse thresholds give the subpart / part / whole levels:
 
     * whole: connected components of the foreground, where background = coarse regions holding a large
       share of the image border (``border_frac``);
