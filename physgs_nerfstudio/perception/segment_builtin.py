@@ -322,7 +322,8 @@ class BuiltinSegmenter:
     """Weight-free three-level segmenter (see module docstring; weaker than SAM).
 
     Superpixels (SLIC's, split along the graph segmentation's regions: module doc) are merged hierarchically
-    while adjacent regions' mean CIE Lab colours differ by less than a threshold; the fine / medium / coarse thresholds give the subpart / part / whole levels:
+    while adjacent regions' mean CIE Lab colours differ by less than a threshold; the fine / medium / coarse
+    thresholds give the subpart / part / whole levels:
 
     * whole: connected components of the foreground, where background = coarse regions holding a large
       share of the image border (``border_frac``);
