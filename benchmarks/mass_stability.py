@@ -54,6 +54,7 @@ SETTINGS: dict[str, list[str]] = {
     "no_variants": ["--mass.geometry.no-variants"],
     "structure_evidence=material": ["--mass.geometry.structure.evidence", "material"],
     "hidden_boundary=whole": ["--mass.geometry.hidden-boundary", "whole"],
+    "boundary_subsamples=3": ["--mass.geometry.boundary-subsamples", "3"],
 }
 
 

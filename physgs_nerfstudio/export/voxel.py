@@ -6,8 +6,10 @@ Arrays are indexed ``[i, j, k]`` = ``[x, y, z]`` (C order); voxel (i, j, k) has 
 origin scaled, nerfstudio's dataparser transform is not undone). Contents:
 
 * ``occupancy`` uint8: 1 inside the object's carved solid (the nominal carving, :mod:`physgs_nerfstudio.geometry`)
-* ``fill`` float32: the share of each voxel that the object's volume and mass count: 1 inside, 0.5 on the boundary
-  with hidden open space (a top's unseen underside: :mod:`physgs_nerfstudio.geometry.hidden`), 0 outside;
+* ``fill`` float32: the share of each voxel that the object's volume and mass count: 1 inside, the share behind
+  the rendered surface on the voxels that it cuts (the solid's boundary and, with ``occupancy`` 0 and ``part_id``
+  -1, the voxels just outside it: :mod:`physgs_nerfstudio.geometry.partial`), halved on the boundary with hidden
+  open space (a top's unseen underside: :mod:`physgs_nerfstudio.geometry.hidden`), 0 elsewhere;
   ``sum(fill) x voxel_size_m^3`` is the nominal volume of the report
 * ``part_id`` int32: the voxel's 3-D part (index into ``meta["parts"]``, solid or hollow per part), -1 outside
 * ``material_index`` int16: dominant material (legend index 0..K-1), -1 outside

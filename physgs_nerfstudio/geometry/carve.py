@@ -373,15 +373,18 @@ def carve_votes_many(
     chunk: int = 1 << 20,
     batch_points: int | None = None,
     device: torch.device | str = "cpu",
+    points: Tensor | None = None,
 ) -> list[CarveVotes]:
     """:func:`carve_votes` under several settings in one pass: each voxel centre is projected into each view,
     and its mask distance and rendered depth are looked up, once; then it is voted on under every setting
     (per setting the same arithmetic as a call of its own, so the votes are identical). Views of one image size
     are voted on together, ``batch_points`` (voxel, view) pairs at a time (default: 2^23 on a GPU, where it saves
-    kernel launches; one view at a time on the CPU): the same operations on every pair, so the same votes."""
+    kernel launches; one view at a time on the CPU): the same operations on every pair, so the same votes.
+    ``points`` [M, 3] (scene units): vote at these points instead of the grid's voxel centres (``grid`` then
+    gives only the voxel size, the margins' unit: :func:`boundary_fill`'s sub-voxel points)."""
     if batch_points is None:
         batch_points = default_batch_points(device)
-    M = grid.num_voxels
+    M = grid.num_voxels if points is None else len(points)
     G = len(cfgs)
     empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32, device=device) for _ in cfgs] for _ in range(3))
     counts_near = renders is not None and any(c.depth_consensus > 0 and c.use_depth for c in cfgs)
@@ -416,8 +419,11 @@ def carve_votes_many(
     batches = _ViewBatch.group(views, cams, sdf, depth, spreads, lookup == "bilinear", extents)
     for s0 in range(0, M, chunk):  # voxel centres once per chunk, then every view
         flat = torch.arange(s0, min(M, s0 + chunk), device=device)
-        ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
-        x = grid.centres(ijk)
+        if points is None:
+            ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
+            x = grid.centres(ijk)
+        else:
+            x = points[s0 : s0 + chunk].to(device=device, dtype=torch.float32)
         n_seen = torch.zeros(len(flat), dtype=torch.int32, device=device)
         # [G, n]: one row per setting
         n_empty, n_depth, n_direct = (torch.zeros(G, len(flat), dtype=torch.int32, device=device) for _ in range(3))
@@ -724,9 +730,9 @@ def mask_view_votes(x: Tensor, views: Sequence[CaptureView], sdf: Sequence[Tenso
     return framed, outside
 
 
-def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
-    """bool [X, Y, Z]: voxels not carved by the vote (module doc), without specks."""
-    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
+def carved_by_votes(votes: CarveVotes, cfg: CarveConfig) -> Tensor:
+    """bool [M]: the points that the vote carves (module doc), point by point (no specks dropped, no cavity
+    filled: :func:`solid_from_votes` does that on the grid)."""
     e = votes.empty.float()
     carved = (e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * votes.seen.float())
     if cfg.depth_consensus > 0 and votes.near is not None and votes.depth_empty is not None:
@@ -738,7 +744,13 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
     if votes.direct is not None and votes.depth_empty is not None and cfg.min_direct_fraction <= 1:
         d = votes.direct.float()
         carved |= (e >= cfg.min_votes) & (d > 0) & (votes.depth_empty.float() >= cfg.min_direct_fraction * d)
-    full = (~carved).reshape(grid.shape).cpu().numpy()
+    return carved
+
+
+def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
+    """bool [X, Y, Z]: voxels not carved by the vote (module doc), without specks."""
+    from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
+    full = (~carved_by_votes(votes, cfg)).reshape(grid.shape).cpu().numpy()
     if not full.any():
         return full
     # on the solid's bounding box with one empty voxel around it (the same components, and the same cavities: a
