@@ -62,6 +62,8 @@ def main() -> None:
                          "skin; default: the export's)")  # fmt: skip
     ap.add_argument("--boundary", choices=("half", "whole"), default=None,
                     help="GeometryConfig.hidden_boundary (default: the export's)")
+    ap.add_argument("--subsamples", type=int, default=None,
+                    help="GeometryConfig.boundary_subsamples (1: whole voxels; default: the export's)")
     ap.add_argument("--no-split", action="store_true",
                     help="keep the coarse cluster over a support plane (SelectConfig.split_on_plane = False)")
     ap.add_argument("--run", type=Path, default=None,
@@ -101,6 +103,8 @@ def main() -> None:
         geometry.hidden_passes = a.passes
     if a.boundary is not None:
         geometry.hidden_boundary = a.boundary
+    if a.subsamples is not None:
+        geometry.boundary_subsamples = a.subsamples
     if a.skin_seen is not None:
         geometry.hidden_skin_seen = None if a.skin_seen.lower() == "none" else float(a.skin_seen)
     geo = object_geometry(run, geometry)
@@ -128,6 +132,7 @@ def main() -> None:
         "contact_band": geometry.select.contact_band, "split_on_plane": geometry.select.split_on_plane,
         "hidden_min_open_half": geometry.hidden_min_open_half, "hidden_passes": geometry.hidden_passes,
         "hidden_skin_seen": geometry.hidden_skin_seen, "hidden_boundary": geometry.hidden_boundary,
+        "boundary_subsamples": geometry.boundary_subsamples,
         "hidden_boundary_voxels": geo.summary()["hidden_boundary_voxels"],
         "selected_gaussians": int(sel.sum()), "selected_on": counts,
         "selected_on_ground": int(ground.sum()), "selected_off_every_part": int((on < 0).sum()),

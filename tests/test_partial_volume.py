@@ -4,6 +4,8 @@ tolerance, no longer adds a layer of volume on the faces that only the depth pla
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -11,12 +13,13 @@ from test_geometry import _flat, _geo, box_surface, ring_views
 
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import CarveConfig, GeometryConfig, VoxelGrid
-from physgs_nerfstudio.geometry.carve import carve_votes_many, carved_by_votes, signed_mask_distances
+from physgs_nerfstudio.geometry.carve import carve_votes_many, carved_by_votes, signed_mask_distances, vote_key
 from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.geometry.partial import (
     boundary_fill,
     boundary_layers,
     boundary_voxels,
+    far_depth_voxels,
     outer_rim,
     part_volumes,
     rim_labels,
@@ -58,6 +61,29 @@ def test_rim_labels_and_part_volumes_give_a_share_outside_the_solid_to_a_neighbo
     assert np.allclose(part_volumes(fill, labels, 2, 0.1), np.array([4.25, 2.5]) * 1e-3)
 
 
+def test_vote_keys_tell_apart_every_setting_that_changes_the_votes():
+    base = CarveConfig()
+    keys = {vote_key(c) for c in (base, replace(base, mask_margin_px=0.5), replace(base, depth_margin_voxels=1.0),
+                                  replace(base, depth_margin_rel=0.01), replace(base, front_extent=1.0))}  # fmt: skip
+    assert len(keys) == 5
+    assert vote_key(replace(base, min_votes=3, min_vote_fraction=0.25)) == vote_key(base)  # the count, not the votes
+
+
+def test_a_relative_margin_reaches_as_many_layers_as_it_keeps():
+    assert boundary_layers(CarveConfig(depth_margin_rel=0.01), far_voxels=150.0) == 3  # 1.5 voxels kept in front
+    assert boundary_layers(CarveConfig(depth_margin_voxels=-0.5, depth_margin_rel=0.01), far_voxels=50.0) == 1
+
+
+def test_the_farthest_depth_bounds_every_voxel_centres_distance(box_render):
+    _, views, _ = box_render
+    grid = VoxelGrid((-0.27, -0.21, -0.15), 0.03, (18, 14, 10))
+    idx = np.argwhere(np.ones(grid.shape, bool))
+    centres = grid.centres(torch.from_numpy(idx)).double().numpy()
+    cams = np.stack([v.centre.double().numpy() for v in views])
+    far = np.sqrt(((cams[:, None] - centres[None]) ** 2).sum(-1)).max() / grid.voxel_size
+    assert far <= far_depth_voxels(grid, views) <= far + np.sqrt(3) / 2 + 1e-6  # a centre lies half a diagonal in
+
+
 def test_surface_config_keeps_a_negative_margin_and_drops_a_tolerance():
     assert surface_config(CarveConfig(depth_margin_voxels=1.0)).depth_margin_voxels == 0.0
     assert surface_config(CarveConfig(depth_margin_voxels=-0.5)).depth_margin_voxels == -0.5
@@ -72,16 +98,17 @@ def box_render():
     return pf, views, render_depth(pf, views, backend="reference", depth="median")
 
 
-@pytest.mark.parametrize("margin", [0.0, 1.0, -0.5])
-def test_a_boundary_voxels_share_is_the_carving_of_a_finer_grid(box_render, margin):
+@pytest.mark.parametrize(("margin", "rel"), [(0.0, 0.0), (1.0, 0.0), (-0.5, 0.0), (0.0, 0.015)])
+def test_a_boundary_voxels_share_is_the_carving_of_a_finer_grid(box_render, margin, rel):
     """The share of each boundary voxel (its n^3 sub-points voted on as points) against the carving of the grid n
     times finer, whose voxel centres are those sub-points (the grid's path of ``carve_votes_many``), at the
-    surface's setting."""
+    surface's setting. A relative margin (``rel``: 1.5% of a depth of about 1.5 m, most of a voxel) is a tolerance
+    as the absolute one is."""
     _, views, renders = box_render
     n, h = 2, 0.03
     grid = VoxelGrid((-0.27, -0.21, -0.15), h, (18, 14, 10))
     fine = VoxelGrid(grid.origin, h / n, tuple(s * n for s in grid.shape))
-    cfg = CarveConfig(depth_render="median", depth_margin_voxels=margin)
+    cfg = CarveConfig(depth_render="median", depth_margin_voxels=margin, depth_margin_rel=rel)
     sdf = signed_mask_distances([v.mask for v in views])
     votes = carve_votes_many(grid, views, renders, [cfg], sdf=sdf)[0]
     solid = (~carved_by_votes(votes, cfg)).reshape(grid.shape).numpy()
@@ -91,7 +118,7 @@ def test_a_boundary_voxels_share_is_the_carving_of_a_finer_grid(box_render, marg
     fine_votes = carve_votes_many(fine, views, renders, [in_finer_voxels(surf, n)], sdf=sdf)[0]
     kept = (~carved_by_votes(fine_votes, surf)).reshape(fine.shape).numpy()
     share = kept.reshape(grid.shape[0], n, grid.shape[1], n, grid.shape[2], n).mean((1, 3, 5))
-    edge = boundary_voxels(solid, boundary_layers(cfg))
+    edge = boundary_voxels(solid, boundary_layers(cfg, far_depth_voxels(grid, views)))
     rim = outer_rim(solid)  # every voxel outside this solid is carved by the vote
     assert edge.sum() > 100 and rim.sum() > 100
     for where in (edge, rim):
@@ -99,9 +126,9 @@ def test_a_boundary_voxels_share_is_the_carving_of_a_finer_grid(box_render, marg
         assert np.mean(diff > 1e-6) < 0.01  # a sub-point exactly on a surface may round either way
     assert np.array_equal(fill[solid & ~edge], np.ones(int((solid & ~edge).sum()), np.float32))
     assert not fill[~solid & ~rim].any()
-    if margin <= 0:  # the surface cuts voxels whose centres lie in front of it (beyond a tolerance: none)
+    if margin <= 0 and rel == 0:  # the surface cuts voxels whose centres lie in front of it (beyond a tolerance: none)
         assert fill[rim].sum() > 0
-    if margin > 0:  # voxels that the tolerance alone keeps count less than whole
+    if margin > 0 or rel > 0:  # voxels that the tolerance alone keeps count less than whole
         assert fill[edge].mean() < 1.0
 
 

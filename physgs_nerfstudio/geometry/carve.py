@@ -116,6 +116,7 @@ __all__ = [
     "EXPECTED_DEPTH_EXTENT",
     "CarveConfig",
     "CarveVotes",
+    "VoteKey",
     "carve_votes",
     "carve_votes_many",
     "hull_from_votes",
@@ -123,6 +124,7 @@ __all__ = [
     "signed_mask_distance",
     "signed_mask_distances",
     "solid_from_votes",
+    "vote_key",
 ]
 
 EXPECTED_DEPTH_EXTENT = 2.0
@@ -360,6 +362,16 @@ def carve_votes(
 ) -> CarveVotes:
     """Empty and seen votes for every voxel of ``grid`` (flattened C order)."""
     return carve_votes_many(grid, views, renders, [cfg], sdf=sdf, chunk=chunk, device=device)[0]
+
+
+VoteKey = tuple[float, float, float, float]
+
+
+def vote_key(cfg: CarveConfig) -> VoteKey:
+    """The settings that the geometry variants and the partial-volume surface change and that the votes depend on
+    (mask margin, depth margin, absolute and relative, and the depth's move in front): settings whose keys are
+    equal, and whose other vote settings agree, share one voting pass."""
+    return cfg.mask_margin_px, cfg.depth_margin_voxels, cfg.depth_margin_rel, cfg.extent_multiple()
 
 
 @torch.no_grad()

@@ -42,12 +42,12 @@ from jaxtyping import Float
 from torch import Tensor
 
 from .capture import CaptureView
-from .carve import CarveConfig, carve_votes_many, carved_by_votes
+from .carve import CarveConfig, VoteKey, carve_votes_many, carved_by_votes, vote_key
 from .gaussians import ViewRender
 from .grid import VoxelGrid
 
-__all__ = ["boundary_fill", "boundary_layers", "boundary_voxels", "outer_rim", "part_volumes", "rim_labels",
-           "sub_offsets", "surface_config"]
+__all__ = ["boundary_fill", "boundary_layers", "boundary_voxels", "far_depth_voxels", "outer_rim", "part_volumes",
+           "rim_labels", "sub_offsets", "surface_config"]
 
 
 def surface_config(cfg: CarveConfig) -> CarveConfig:
@@ -66,10 +66,23 @@ def boundary_voxels(solid: np.ndarray, layers: int = 1) -> np.ndarray:
     return solid & ~inner
 
 
-def boundary_layers(cfg: CarveConfig) -> int:
+def boundary_layers(cfg: CarveConfig, far_voxels: float = 0.0) -> int:
     """How deep the voxels whose share is measured reach into the solid: one layer, plus the layers that a positive
-    depth margin keeps in front of the surface (under them lies the layer that the surface cuts; module doc)."""
-    return 1 + math.ceil(max(cfg.depth_margin_voxels, 0.0) - 1e-9)
+    depth margin keeps in front of the surface (under them lies the layer that the surface cuts; module doc). A
+    relative margin (``depth_margin_rel``) counts at ``far_voxels``, the farthest depth in voxels that a view has
+    on the grid (:func:`far_depth_voxels`)."""
+    margin = cfg.depth_margin_voxels + cfg.depth_margin_rel * far_voxels
+    return 1 + math.ceil(max(margin, 0.0) - 1e-9)
+
+
+def far_depth_voxels(grid: VoxelGrid, views: Sequence[CaptureView]) -> float:
+    """The largest distance from a view's camera to a corner of ``grid``, in voxels: no voxel lies deeper in any
+    view."""
+    lo = torch.tensor(grid.origin, dtype=torch.float64)
+    size = torch.tensor(grid.shape, dtype=torch.float64) * grid.voxel_size
+    corners = lo + torch.tensor([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=torch.float64) * size
+    centres = torch.stack([v.centre.double().cpu() for v in views]) if views else torch.zeros(1, 3, dtype=torch.float64)
+    return float(torch.cdist(centres, corners).max()) / grid.voxel_size
 
 
 def sub_offsets(n: int) -> Float[Tensor, "S 3"]:
@@ -134,7 +147,8 @@ def boundary_fill(
         return fills
     if len(cfgs) != len(solids):
         raise ValueError(f"boundary_fill: {len(solids)} solids but {len(cfgs)} carving settings.")
-    edges = [boundary_voxels(s, boundary_layers(c)) for s, c in zip(solids, cfgs)]
+    far = far_depth_voxels(grid, views) if any(c.depth_margin_rel > 0 for c in cfgs) else 0.0
+    edges = [boundary_voxels(s, boundary_layers(c, far)) for s, c in zip(solids, cfgs)]
     rims = [outer_rim(s) for s in solids]
     idx = np.argwhere(np.logical_or.reduce(edges) | np.logical_or.reduce(rims))
     if not len(idx):
@@ -146,17 +160,15 @@ def boundary_fill(
     points = (centres[:, None, :] + offsets * grid.voxel_size).reshape(-1, 3)
     surface = [surface_config(c) for c in cfgs]
 
-    def key(c: CarveConfig) -> tuple[float, float, float]:  # the votes depend on these settings only (variants)
-        return c.mask_margin_px, c.depth_margin_voxels, c.extent_multiple()
-
-    by_key: dict[tuple[float, float, float], CarveConfig] = {}
+    key = vote_key
+    by_key: dict[VoteKey, CarveConfig] = {}
     for c in surface:
         by_key.setdefault(key(c), c)
     votes = dict(zip(by_key, carve_votes_many(grid, views, renders, list(by_key.values()), sdf=sdf, device=device,
                                               points=points)))  # fmt: skip
     # the rim's centres under the variants' own votes where those differ from the surface's (a positive margin):
     # one point per voxel
-    own: dict[tuple[float, float, float], CarveConfig] = {}
+    own: dict[VoteKey, CarveConfig] = {}
     for c in cfgs:
         if key(c) not in by_key:
             own.setdefault(key(c), c)

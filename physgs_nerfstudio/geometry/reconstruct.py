@@ -26,11 +26,13 @@ from ..render.backend import resolve_backend
 from .capture import CaptureView, MaskObservation
 from .carve import (
     CarveConfig,
+    VoteKey,
     carve_votes_many,
     hull_from_votes,
     resolve_depth_render,
     signed_mask_distances,
     solid_from_votes,
+    vote_key,
 )
 from .errors import GeometryError
 from .extent import polytope_layer, support_excess
@@ -510,10 +512,8 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     variant's visual hull (:func:`.carve.hull_from_votes`); and the voxels that the views kept (in a solid or the
     hull) and the polytope cut (None without a cut); and the first variant's solid before the cut. ``scales``
     and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
-    def key(cc: CarveConfig) -> tuple[float, float, float]:  # the votes depend on these settings only
-        return cc.mask_margin_px, cc.depth_margin_voxels, cc.extent_multiple()
-
-    by_key: dict[tuple[float, float, float], CarveConfig] = {}
+    key = vote_key
+    by_key: dict[VoteKey, CarveConfig] = {}
     for _, cc in variants:
         by_key.setdefault(key(cc), cc)
     votes = carve_votes_many(grid, views, renders, list(by_key.values()), sdf=sdf, device=device)
