@@ -64,6 +64,9 @@ def main() -> None:
                     help="GeometryConfig.hidden_boundary (default: the export's)")
     ap.add_argument("--subsamples", type=int, default=None,
                     help="GeometryConfig.boundary_subsamples (1: whole voxels; default: the export's)")
+    ap.add_argument("--split-in-band", action="store_true",
+                    help="the split links parts through the contact band too (SelectConfig.split_in_band, before "
+                         "session 39)")  # fmt: skip
     ap.add_argument("--no-split", action="store_true",
                     help="keep the coarse cluster over a support plane (SelectConfig.split_on_plane = False)")
     ap.add_argument("--run", type=Path, default=None,
@@ -97,6 +100,7 @@ def main() -> None:
     if a.contact_band is not None:
         geometry.select.contact_band = None if a.contact_band.lower() == "none" else float(a.contact_band)
     geometry.select.split_on_plane = not a.no_split
+    geometry.select.split_in_band = a.split_in_band
     if a.open_half is not None:
         geometry.hidden_min_open_half = None if a.open_half.lower() == "none" else int(a.open_half)
     if a.passes is not None:
@@ -130,6 +134,7 @@ def main() -> None:
     res = {
         "seed": int(truth.get("seed", a.seed)), "demo_settings": given, "export_resolution": resolution,
         "contact_band": geometry.select.contact_band, "split_on_plane": geometry.select.split_on_plane,
+        "split_in_band": geometry.select.split_in_band,
         "hidden_min_open_half": geometry.hidden_min_open_half, "hidden_passes": geometry.hidden_passes,
         "hidden_skin_seen": geometry.hidden_skin_seen, "hidden_boundary": geometry.hidden_boundary,
         "boundary_subsamples": geometry.boundary_subsamples,

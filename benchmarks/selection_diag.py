@@ -7,8 +7,9 @@ RUN is a folder whose ``runs/`` holds a `ns-train physgs` config.yml, on a datas
 perceive`. Prints, for the foreground candidates of :func:`physgs_nerfstudio.geometry.select.select_object`
 (foreground probability >= ``min_prob``, opacity >= ``min_opacity``): how many lie on the ground, on each generated
 object or off every part (centre within ``--near-m`` of a part), how many of them no view sees (their probability is
-the prior's), and the support-plane search's outcome (:func:`physgs_nerfstudio.geometry.support.support_plane_or_reason`)
-on all the candidates and on the seen ones alone. Writes ``DIR/selection_diag.json`` and ``DIR/selection.npz`` (the
+the prior's), and the support-plane search's outcome (:func:`physgs_nerfstudio.geometry.support.support_plane_or_reason`):
+the export's own, with the views (``plane_export``), and without them (every point under the plane counts) on all
+the candidates and on the seen ones alone. Writes ``DIR/selection_diag.json`` and ``DIR/selection.npz`` (the
 candidates' means, opacities and view evidence, their part, the camera centres and the views' up direction: enough
 to rerun the plane search and the clusters offline).
 """
@@ -62,6 +63,10 @@ def main() -> None:
     up = views_up(views)
     res: dict = {"gaussians": int(len(means)), "candidates": int(cand.sum()),
                  "candidates_unseen": int((cand & ~seen).sum())}  # fmt: skip
+    # the export's own search, with the views (a point under the plane counts where a view sees it past the plane)
+    plane, why = support_plane_or_reason(means[cand], cams, up, cfg.support, views)
+    res["plane_export"] = why or {"share": plane.share, "tol": plane.tol, "size": plane.size}
+    # without the views: every point under the plane counts
     for name, sub in (("all", np.ones(int(cand.sum()), bool)), ("seen", seen[cand])):
         plane, why = support_plane_or_reason(means[cand][sub], cams, up, cfg.support)
         res[f"plane_{name}"] = why or {"share": plane.share, "tol": plane.tol, "size": plane.size}

@@ -306,6 +306,52 @@ def test_object_standing_close_to_another_on_a_floor_is_split_from_it(monkeypatc
     assert chosen.split_from == int(coarse.sum()) > chosen.num_selected
 
 
+def test_floaters_near_the_floor_do_not_link_a_chair_to_the_table_in_the_split(monkeypatch) -> None:
+    """The table and chair of the test above, with a layer of floaters 2-6 cm over the floor (within the band) between them and
+    around them (what linked the GPU `indoor_room`'s table to its chair and lamp at seed 21414): the split links its
+    parts only above the contact band at its own reach, so the chair goes and the table stays whole, its legs' feet
+    in the band included. Linked through the band (``split_in_band``, before session 39), the floaters link the chair
+    in."""
+    import types
+
+    import torch
+
+    import physgs_nerfstudio.geometry.select as sel
+
+    rng = np.random.default_rng(21)
+
+    def _solid(boxes: list, n: int) -> np.ndarray:
+        vol = np.array([np.prod(np.subtract(hi, lo)) ** (2 / 3) for lo, hi in boxes])
+        counts = np.maximum((n * vol / vol.sum()).astype(int), 200)
+        return np.concatenate([_box_surface(rng, lo, hi, k) for (lo, hi), k in zip(boxes, counts)])
+
+    legs = [((x - 0.03, y - 0.03, 0.0), (x + 0.03, y + 0.03, 0.72)) for x in (-0.55, 0.55) for y in (-0.35, 0.35)]
+    table = _solid([((-0.6, -0.4, 0.72), (0.6, 0.4, 0.76)), *legs], 12000)
+    cx = 0.6 + 0.19 + 0.2  # the chair's seat begins 19 cm from the table's edge
+    chair_legs = [((x - 0.02, y - 0.02, 0.0), (x + 0.02, y + 0.02, 0.45)) for x in (cx - 0.18, cx + 0.18)
+                  for y in (-0.18, 0.18)]  # fmt: skip
+    chair = _solid([((cx - 0.2, -0.2, 0.45), (cx + 0.2, 0.2, 0.49)), ((cx + 0.17, -0.2, 0.49), (cx + 0.2, 0.2, 0.9)),
+                    *chair_legs], 6000)  # fmt: skip
+    floaters = np.column_stack([rng.uniform(-0.9, cx + 0.4, 8000), rng.uniform(-0.6, 0.6, 8000),
+                                rng.uniform(0.02, 0.06, 8000)])  # fmt: skip
+    floor = _floor(rng, 2.5, 20000)
+    pts = np.concatenate([floor, table, chair, floaters]) - [0.0, 0.0, 0.74]  # the cameras look at the table's top
+    g = types.SimpleNamespace(means=torch.from_numpy(pts).float(), opacities=torch.ones(len(pts)))
+    ones = torch.ones(len(pts), dtype=torch.float64)
+    monkeypatch.setattr(sel, "lift_masks", lambda *a, **k: (10 * ones, 0 * ones))  # all foreground
+    views = _views(_ring(30, 3.5, 30, 60))
+    t0, c0, f0 = len(floor), len(floor) + len(table), len(floor) + len(table) + len(chair)
+    got = sel.select_object(g, views, sel.SelectConfig()).selected.numpy()
+    up = table[:, 2] > 0.03  # (the plane's tolerance drops the feet's lowest millimetres)
+    assert got[t0:c0][up].mean() > 0.99
+    coarse = sel.select_object(g, views, sel.SelectConfig(split_on_plane=False)).selected.numpy()
+    assert coarse[c0:f0][chair[:, 2] > 0.2].mean() > 0.99  # the coarse clusters join them
+    assert not (coarse[t0:c0] & ~got[t0:c0]).any()  # the split keeps every point of the table they had, feet too
+    assert not got[c0:f0].any() and not got[:t0].any()
+    loose = sel.select_object(g, views, sel.SelectConfig(split_in_band=True)).selected.numpy()
+    assert loose[t0:c0][up].mean() > 0.99 and loose[c0:f0][chair[:, 2] > 0.2].mean() > 0.99
+
+
 def test_clusters_grid_stays_bounded_for_a_fine_cell_over_a_wide_spread(monkeypatch) -> None:
     """A cell far finer than the points' spread (a small support plane's size over 48, among strays metres away)
     asked for tens of GB of labels; the grid is coarsened to fit (here a cap of 2M cells, not the default's 1,000M)

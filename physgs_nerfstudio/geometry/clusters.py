@@ -150,7 +150,8 @@ def _sorted_quantiles(x: Tensor, qs: Sequence[float]) -> Tensor:
 
 
 def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSettings, rounds: int = 8,
-                min_share: float = 0.01, spacing_quantile: float = 0.9) -> Tensor:
+                min_share: float = 0.01, spacing_quantile: float = 0.9, height: np.ndarray | None = None,
+                tol: float = 0.0) -> Tensor:  # fmt: skip
     """bool [N] over ``m``: the ``chosen`` points split into parts that lie farther apart than the clusters' reach at
     the chosen points' own resolution (``bridge_cells`` + 1 cells of their 5-95% extent's longest side over
     ``cluster_cells``, a cell no finer than 1.5 x the ``spacing_quantile`` of their nearest-neighbour spacings: a
@@ -159,13 +160,21 @@ def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSetti
     extent, and so the reach, of the first round). The parts are the connected components of each point's 16 nearest
     neighbours within the reach (SciPy), exact distances rather than the coarse clusters' dilated cells, which join
     points up to 4-7 cells apart. Only parts of at least ``min_share`` of the points (and 16) are split off: smaller
-    ones are gaps in the sampling of one surface or stray floaters, and each joins the part nearest it."""
+    ones are gaps in the sampling of one surface or stray floaters, and each joins the part nearest it.
+
+    ``height`` [N] (the points' heights above the support plane, ``tol`` its tolerance) with ``cfg.contact_band``:
+    the contact band of :func:`band_labels` at the split's own reach. The parts are linked only through the points
+    higher than ``tol`` + ``contact_band`` reaches above the plane, and each point in the band joins the part of the
+    linked point nearest it. Near a floor, what lies within a reach of it touches it, so it is no evidence that two
+    objects touch: on the GPU's `indoor_room` at seed 21414, faint Gaussians 3-17 cm above the floor linked the table
+    to a chair 19 cm away and to a lamp 35 cm away (2.71x the table's volume), at the split's reach of 10 cm."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
     cur = chosen.cpu().numpy().copy()
     pts = m.cpu().numpy()
+    banded = height is not None and cfg.contact_band is not None
     for _ in range(rounds):
         p = pts[cur]
         if len(p) < 16:
@@ -174,17 +183,27 @@ def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSetti
         tree = cKDTree(p)
         spacing = float(np.quantile(_nn_spacings(tree, p), spacing_quantile))
         reach = (cfg.bridge_cells + 1) * max(float((q[1] - q[0]).max()) / cfg.cluster_cells, 1.5 * spacing)
-        dist, j = tree.query(p, k=16, distance_upper_bound=reach)
+        linked = np.ones(len(p), bool)
+        if banded:  # (contact_band is not None)
+            linked = np.asarray(height)[cur] > tol + cfg.contact_band * reach  # type: ignore[operator]
+            if linked.sum() < 16:
+                linked[:] = True
+        pl = p[linked]
+        dist, j = (tree if linked.all() else cKDTree(pl)).query(pl, k=16, distance_upper_bound=reach)
         ok = np.isfinite(dist)
-        rows = np.broadcast_to(np.arange(len(p))[:, None], j.shape)[ok]
-        graph = coo_matrix((np.ones(int(ok.sum()), np.int8), (rows, j[ok])), shape=(len(p), len(p)))
-        n, comp = connected_components(graph, directed=False)
-        size = np.bincount(comp, minlength=n)
-        big = size >= max(16, min_share * len(p))
+        rows = np.broadcast_to(np.arange(len(pl))[:, None], j.shape)[ok]
+        graph = coo_matrix((np.ones(int(ok.sum()), np.int8), (rows, j[ok])), shape=(len(pl), len(pl)))
+        n, comp_linked = connected_components(graph, directed=False)
+        size = np.bincount(comp_linked, minlength=n)
+        big = size >= max(16, min_share * len(pl))
         if big.sum() <= 1:
             break
-        # crumbs (gaps in the sampling of one surface, stray floaters) are no objects: each joins the nearest part
-        crumb = ~big[comp]
+        # crumbs (gaps in the sampling of one surface, stray floaters) are no objects, and the contact band links
+        # nothing: each of their points joins the part of the nearest point in a part
+        comp = np.zeros(len(p), np.int64)
+        comp[linked] = comp_linked
+        crumb = ~linked
+        crumb[linked] = ~big[comp_linked]
         if crumb.any():
             _, k = cKDTree(p[~crumb]).query(p[crumb])
             comp[crumb] = comp[~crumb][k]
