@@ -13,7 +13,12 @@ from test_geometry import _flat, _geo, box_surface, ring_views
 
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import CarveConfig, GeometryConfig, VoxelGrid
-from physgs_nerfstudio.geometry.carve import carve_votes_many, carved_by_votes, signed_mask_distances, vote_key
+from physgs_nerfstudio.geometry.carve import (
+    carve_votes_many,
+    carved_by_votes,
+    signed_mask_distances,
+    vote_key,
+)
 from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.geometry.partial import (
     boundary_fill,
