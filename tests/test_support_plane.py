@@ -265,6 +265,25 @@ def test_contact_band_keeps_neighbours_joined_near_the_floor_apart(monkeypatch) 
         sel.SelectConfig(contact_band=-0.5)
 
 
+def _table_and_chair(rng: np.random.Generator, gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """Surface points of a 1.2 x 0.8 m table (top at 0.72-0.76 m, four legs) and of a chair whose seat begins ``gap``
+    from the table's edge along +x (the generated `indoor_room`'s layout), standing on z = 0."""
+
+    def _solid(boxes: list, n: int) -> np.ndarray:
+        vol = np.array([np.prod(np.subtract(hi, lo)) ** (2 / 3) for lo, hi in boxes])
+        counts = np.maximum((n * vol / vol.sum()).astype(int), 200)
+        return np.concatenate([_box_surface(rng, lo, hi, k) for (lo, hi), k in zip(boxes, counts)])
+
+    legs = [((x - 0.03, y - 0.03, 0.0), (x + 0.03, y + 0.03, 0.72)) for x in (-0.55, 0.55) for y in (-0.35, 0.35)]
+    table = _solid([((-0.6, -0.4, 0.72), (0.6, 0.4, 0.76)), *legs], 12000)
+    cx = 0.6 + gap + 0.2
+    chair_legs = [((x - 0.02, y - 0.02, 0.0), (x + 0.02, y + 0.02, 0.45)) for x in (cx - 0.18, cx + 0.18)
+                  for y in (-0.18, 0.18)]  # fmt: skip
+    chair = _solid([((cx - 0.2, -0.2, 0.45), (cx + 0.2, 0.2, 0.49)), ((cx + 0.17, -0.2, 0.49), (cx + 0.2, 0.2, 0.9)),
+                    *chair_legs], 6000)  # fmt: skip
+    return table, chair
+
+
 def test_object_standing_close_to_another_on_a_floor_is_split_from_it(monkeypatch) -> None:
     """A table and a chair 15 cm from its edge on a floor (the generated `indoor_room`'s layout): the clusters' cells
     are a share of the floor's size and join them; ``split_on_plane`` splits the chosen cluster again at the table's
@@ -276,19 +295,7 @@ def test_object_standing_close_to_another_on_a_floor_is_split_from_it(monkeypatc
     import physgs_nerfstudio.geometry.select as sel
 
     rng = np.random.default_rng(8)
-
-    def _solid(boxes: list, n: int) -> np.ndarray:
-        vol = np.array([np.prod(np.subtract(hi, lo)) ** (2 / 3) for lo, hi in boxes])
-        counts = np.maximum((n * vol / vol.sum()).astype(int), 200)
-        return np.concatenate([_box_surface(rng, lo, hi, k) for (lo, hi), k in zip(boxes, counts)])
-
-    legs = [((x - 0.03, y - 0.03, 0.0), (x + 0.03, y + 0.03, 0.72)) for x in (-0.55, 0.55) for y in (-0.35, 0.35)]
-    table = _solid([((-0.6, -0.4, 0.72), (0.6, 0.4, 0.76)), *legs], 12000)
-    cx = 0.6 + 0.15 + 0.2  # the chair's seat begins 15 cm from the table's edge
-    chair_legs = [((x - 0.02, y - 0.02, 0.0), (x + 0.02, y + 0.02, 0.45)) for x in (cx - 0.18, cx + 0.18)
-                  for y in (-0.18, 0.18)]  # fmt: skip
-    chair = _solid([((cx - 0.2, -0.2, 0.45), (cx + 0.2, 0.2, 0.49)), ((cx + 0.17, -0.2, 0.49), (cx + 0.2, 0.2, 0.9)),
-                    *chair_legs], 6000)  # fmt: skip
+    table, chair = _table_and_chair(rng, 0.15)  # the chair's seat begins 15 cm from the table's edge
     floor = _floor(rng, 2.5, 20000)
     pts = np.concatenate([floor, table, chair])
     g = types.SimpleNamespace(means=torch.from_numpy(pts).float(), opacities=torch.ones(len(pts)))
@@ -319,19 +326,8 @@ def test_floaters_near_the_floor_do_not_link_a_chair_to_the_table_in_the_split(m
     import physgs_nerfstudio.geometry.select as sel
 
     rng = np.random.default_rng(21)
-
-    def _solid(boxes: list, n: int) -> np.ndarray:
-        vol = np.array([np.prod(np.subtract(hi, lo)) ** (2 / 3) for lo, hi in boxes])
-        counts = np.maximum((n * vol / vol.sum()).astype(int), 200)
-        return np.concatenate([_box_surface(rng, lo, hi, k) for (lo, hi), k in zip(boxes, counts)])
-
-    legs = [((x - 0.03, y - 0.03, 0.0), (x + 0.03, y + 0.03, 0.72)) for x in (-0.55, 0.55) for y in (-0.35, 0.35)]
-    table = _solid([((-0.6, -0.4, 0.72), (0.6, 0.4, 0.76)), *legs], 12000)
-    cx = 0.6 + 0.19 + 0.2  # the chair's seat begins 19 cm from the table's edge
-    chair_legs = [((x - 0.02, y - 0.02, 0.0), (x + 0.02, y + 0.02, 0.45)) for x in (cx - 0.18, cx + 0.18)
-                  for y in (-0.18, 0.18)]  # fmt: skip
-    chair = _solid([((cx - 0.2, -0.2, 0.45), (cx + 0.2, 0.2, 0.49)), ((cx + 0.17, -0.2, 0.49), (cx + 0.2, 0.2, 0.9)),
-                    *chair_legs], 6000)  # fmt: skip
+    table, chair = _table_and_chair(rng, 0.19)  # the chair's seat begins 19 cm from the table's edge
+    cx = 0.6 + 0.19 + 0.2
     floaters = np.column_stack([rng.uniform(-0.9, cx + 0.4, 8000), rng.uniform(-0.6, 0.6, 8000),
                                 rng.uniform(0.02, 0.06, 8000)])  # fmt: skip
     floor = _floor(rng, 2.5, 20000)
