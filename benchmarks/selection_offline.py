@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from physgs_nerfstudio.geometry.capture import load_capture  # noqa: E402
 from physgs_nerfstudio.geometry.clusters import band_labels, split_close  # noqa: E402
-from physgs_nerfstudio.geometry.select import SelectConfig, capture_centre  # noqa: E402
+from physgs_nerfstudio.geometry.select import SelectConfig, capture_centre, nearest_cluster  # noqa: E402
 from physgs_nerfstudio.geometry.support import support_plane_or_reason  # noqa: E402
 from physgs_nerfstudio.synth.objects import build_layout  # noqa: E402
 
@@ -84,12 +84,7 @@ def main() -> None:
         keep = h > plane.tol
         m = torch.from_numpy(means[keep])
         lab, _ = band_labels(m, cfg, plane.size, h[keep], plane.tol)
-        valid = lab > 0
-        d = (m - torch.as_tensor(capture_centre(views))).norm(dim=1)
-        dmin = torch.full((int(lab.max()) + 1,), float("inf"), dtype=torch.float64)
-        dmin = dmin.scatter_reduce(0, lab[valid], d[valid], reduce="amin")
-        dmin[0] = float("inf")
-        chosen = lab == int(torch.argmin(dmin))
+        chosen = nearest_cluster(m, lab, capture_centre(views))
         if cfg.split_on_plane:
             chosen = split_close(m, chosen, capture_centre(views), cfg, height=None if cfg.split_in_band else h[keep],
                                  tol=plane.tol)  # fmt: skip

@@ -80,8 +80,10 @@ def far_depth_voxels(grid: VoxelGrid, views: Sequence[CaptureView]) -> float:
     view."""
     lo = torch.tensor(grid.origin, dtype=torch.float64)
     size = torch.tensor(grid.shape, dtype=torch.float64) * grid.voxel_size
-    corners = lo + torch.tensor([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=torch.float64) * size
-    centres = torch.stack([v.centre.double().cpu() for v in views]) if views else torch.zeros(1, 3, dtype=torch.float64)
+    unit = torch.tensor([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=torch.float64)
+    corners = lo + unit * size
+    centres = (torch.stack([v.centre.double().cpu() for v in views]) if views
+               else torch.zeros(1, 3, dtype=torch.float64))  # fmt: skip
     return float(torch.cdist(centres, corners).max()) / grid.voxel_size
 
 
@@ -160,25 +162,24 @@ def boundary_fill(
     points = (centres[:, None, :] + offsets * grid.voxel_size).reshape(-1, 3)
     surface = [surface_config(c) for c in cfgs]
 
-    key = vote_key
     by_key: dict[VoteKey, CarveConfig] = {}
     for c in surface:
-        by_key.setdefault(key(c), c)
+        by_key.setdefault(vote_key(c), c)
     votes = dict(zip(by_key, carve_votes_many(grid, views, renders, list(by_key.values()), sdf=sdf, device=device,
                                               points=points)))  # fmt: skip
     # the rim's centres under the variants' own votes where those differ from the surface's (a positive margin):
     # one point per voxel
     own: dict[VoteKey, CarveConfig] = {}
     for c in cfgs:
-        if key(c) not in by_key:
-            own.setdefault(key(c), c)
+        if vote_key(c) not in by_key:
+            own.setdefault(vote_key(c), c)
     if own:
         votes.update(zip(own, carve_votes_many(grid, views, renders, list(own.values()), sdf=sdf, device=device,
                                                points=centres)))  # fmt: skip
     for fill, edge, rim, c, sc in zip(fills, edges, rims, cfgs, surface):
-        kept = ~carved_by_votes(votes[key(sc)], sc).reshape(len(idx), -1)
+        kept = ~carved_by_votes(votes[vote_key(sc)], sc).reshape(len(idx), -1)
         share = kept[:, :-1].float().mean(1).cpu().numpy()
-        carved = (carved_by_votes(votes[key(c)], c) if key(c) in own else ~kept[:, -1]).cpu().numpy()
+        carved = (carved_by_votes(votes[vote_key(c)], c) if vote_key(c) in own else ~kept[:, -1]).cpu().numpy()
         rim = rim & carved[np.maximum(row, 0)]  # (row >= 0 on every rim voxel)
         fill[edge] = share[row[edge]]
         fill[rim] = share[row[rim]]

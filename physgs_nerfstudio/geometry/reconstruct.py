@@ -512,14 +512,13 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     variant's visual hull (:func:`.carve.hull_from_votes`); and the voxels that the views kept (in a solid or the
     hull) and the polytope cut (None without a cut); and the first variant's solid before the cut. ``scales``
     and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
-    key = vote_key
     by_key: dict[VoteKey, CarveConfig] = {}
     for _, cc in variants:
-        by_key.setdefault(key(cc), cc)
+        by_key.setdefault(vote_key(cc), cc)
     votes = carve_votes_many(grid, views, renders, list(by_key.values()), sdf=sdf, device=device)
     cache = dict(zip(by_key, votes))
-    hull = hull_from_votes(cache[key(variants[0][1])], grid, variants[0][1])
-    solids = [solid_from_votes(cache[key(cc)], grid, cc) for _, cc in variants]
+    hull = hull_from_votes(cache[vote_key(variants[0][1])], grid, variants[0][1])
+    solids = [solid_from_votes(cache[vote_key(cc)], grid, cc) for _, cc in variants]
     if means is None or extent_pad_voxels is None:
         return solids, hull, None, solids[0]
     candidates = np.logical_or.reduce(solids) | hull

@@ -59,7 +59,8 @@ from .support import SupportConfig, SupportPlane, support_plane_or_reason, views
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ObjectSelection", "SelectConfig", "capture_centre", "hull_view_weights", "select_object"]
+__all__ = ["ObjectSelection", "SelectConfig", "capture_centre", "hull_view_weights", "nearest_cluster",
+           "select_object"]
 
 
 @dataclass
@@ -217,6 +218,19 @@ def hull_view_weights(framed: Tensor, outside: Tensor, counts: tuple[Tensor, Ten
     return torch.where(held > 0, kept.double() / held.clamp_min(1).double(), torch.ones_like(kept, dtype=torch.float64))
 
 
+def nearest_cluster(m: Tensor, lab: Tensor, centre: np.ndarray) -> Tensor:
+    """bool [N]: the points of the cluster (``lab`` > 0) whose nearest point lies nearest ``centre``; every point
+    when no point has a cluster."""
+    valid = lab > 0
+    if not bool(valid.any()):
+        return torch.ones(len(lab), dtype=torch.bool, device=lab.device)
+    d = (m - torch.as_tensor(centre, dtype=torch.float64, device=m.device)).norm(dim=1)
+    dmin = torch.full((int(lab.max()) + 1,), float("inf"), dtype=torch.float64, device=d.device)
+    dmin = dmin.scatter_reduce(0, lab[valid], d[valid], reduce="amin")
+    dmin[0] = float("inf")
+    return lab == int(torch.argmin(dmin))
+
+
 @torch.no_grad()
 def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None = None, *,
                   backend: str = "auto") -> ObjectSelection:  # fmt: skip
@@ -258,16 +272,7 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
             idx, m_dev, height = idx[kept], m_dev[kept], h[keep]
             extent = plane.size  # the scene the plane holds, not the floaters and background around it
     lab, ids = band_labels(m_dev, cfg, extent, height, plane.tol if plane is not None else 0.0)
-    valid = lab > 0
-    if not bool(valid.any()):
-        chosen = torch.ones(len(lab), dtype=torch.bool, device=lab.device)
-    else:
-        # distance of each cluster to the centre: its nearest Gaussian
-        d = (m_dev - torch.as_tensor(centre, dtype=torch.float64, device=m_dev.device)).norm(dim=1)
-        dmin = torch.full((int(lab.max()) + 1,), float("inf"), dtype=torch.float64, device=d.device)
-        dmin = dmin.scatter_reduce(0, lab[valid], d[valid], reduce="amin")
-        dmin[0] = float("inf")
-        chosen = lab == int(torch.argmin(dmin))
+    chosen = nearest_cluster(m_dev, lab, centre)
     split_from = 0
     if height is not None and cfg.split_on_plane:
         before = int(chosen.sum())
