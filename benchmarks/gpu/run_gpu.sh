@@ -420,9 +420,9 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
       scenes)
         for o in $OBJECTS; do
           (d=/tmp/ms/${o}_s$GSEED; OMP_NUM_THREADS=1 python3 -m physgs_nerfstudio.cli synth --out $d/scene --object $o \
-             --seed $GSEED --views 60 --resolution 512 --overwrite > /tmp/ms_$o.log 2>&1 && OMP_NUM_THREADS=1 python3 -m \
+             --seed $GSEED --views 60 --resolution 512 --overwrite > /tmp/ms_${o}_s$GSEED.log 2>&1 && OMP_NUM_THREADS=1 python3 -m \
              physgs_nerfstudio.cli perceive --data $d/scene --vlm simulated --segmenter builtin --no-progress \
-             --max-concurrency 4 >> /tmp/ms_$o.log 2>&1; echo "[$(elapsed) s] scene $o: $(tail -c 200 /tmp/ms_$o.log | tail -1)") &
+             --max-concurrency 4 >> /tmp/ms_${o}_s$GSEED.log 2>&1; echo "[$(elapsed) s] scene $o: $(tail -c 200 /tmp/ms_${o}_s$GSEED.log | tail -1)") &
         done
         if [ -n "${CPU_SEEDS:-}" ]; then
           CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $CPU_SEEDS --jobs "${JOBS:-8}" --out /tmp/mass_suite \
@@ -446,7 +446,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
           [ -f $d/scene/materials.json ] || { echo "no scene for $o"; continue; }
           (CUDA_VISIBLE_DEVICES=$(((n + ${GPU0:-0}) % NGPU)) python3 -m nerfstudio.scripts.train physgs --data $d/scene --max-num-iterations "$STEPS" --vis tensorboard \
              --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
-             --output-dir $d/runs --timestamp gpu > /tmp/ms_train_$o.log 2>&1; echo "[$(elapsed) s] trained $o: rc $?") &
+             --output-dir $d/runs --timestamp gpu > /tmp/ms_train_${o}_s$GSEED.log 2>&1; echo "[$(elapsed) s] trained $o: rc $?") &
           n=$((n + 1)); [ $((n % (CONC * NGPU))) -eq 0 ] && wait
         done
         wait
