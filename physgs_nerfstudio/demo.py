@@ -5,7 +5,8 @@ Stages (each skipped when its output exists, so an interrupted demo resumes):
 1. ``scene/``: a generated object (`physgs synth`) with ground-truth materials and mass;
 2. perception with the built-in segmenter and the SIMULATED VLM (a noise and confusion model of a VLM, for
    generated scenes only: every printout says so) -> ``scene/materials.json`` and material maps;
-3. ``ns-train physgs-lite`` on the CPU (a subprocess running nerfstudio's trainer) -> ``runs/.../config.yml``;
+3. ``ns-train physgs-lite`` on the CPU, run in this process (:mod:`.nerfstudio.train`: nerfstudio's trainer, without
+   ``ns-train``'s start-up) -> ``runs/.../config.yml``;
 4. ``physgs export`` -> ``export/`` (PLY, voxel grid, maps, report.json) and the mass table;
 5. predicted vs ground-truth mass with ADE / ALDE / APE / MnRE and whether the interval covers the truth.
 """
@@ -13,9 +14,6 @@ Stages (each skipped when its output exists, so an interrupted demo resumes):
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -97,26 +95,30 @@ class DemoCommand:
         console.log(f"      {res.observations} observations on {res.masks} masks -> {', '.join(res.materials)} {SIM}")
 
     def stage_train(self, console: Any) -> Path:
+        from .nerfstudio.train import train_in_process
+
         config = self.run_dir / "config.yml"
         ckpt = _latest_checkpoint(self.run_dir)
         done = ckpt is not None and int(ckpt.stem.split("-")[1]) >= self.iterations - 1
         if config.exists() and done and "train" not in self.force:
             console.log(f"[3/4] training: {ckpt} exists, skipped")
             return config
-        cmd = [
-            sys.executable, "-m", "nerfstudio.scripts.train", METHOD, "--data", str(self.scene_dir),
-            "--output-dir", str(self.output_dir / "runs"), "--experiment-name", "demo", "--timestamp", "demo",
-            "--machine.device-type", self.device, "--max-num-iterations", str(self.iterations),
+        args = [
+            "--data", str(self.scene_dir), "--output-dir", str(self.output_dir / "runs"), "--experiment-name", "demo",
+            "--timestamp", "demo", "--machine.device-type", self.device, "--max-num-iterations", str(self.iterations),
             "--steps-per-save", str(max(50, self.iterations // 4)), "--save-only-latest-checkpoint", "True",
             "--vis", "tensorboard", "--machine.seed", str(self.seed), *self.train_args,
         ]  # fmt: skip
-        console.log(f"[3/4] training {METHOD} on {self.device} for {self.iterations} iterations:\n      " + " ".join(cmd))
-        env = dict(os.environ)
-        env.setdefault("PYTHONWARNINGS", "ignore")
+        console.log(f"[3/4] training {METHOD} on {self.device} for {self.iterations} iterations, in this process "
+                    f"(the same as `ns-train {METHOD} {' '.join(args)}`)")  # fmt: skip
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, env=env, check=False)
-        if proc.returncode != 0:
-            raise SystemExit(f"ns-train failed with exit code {proc.returncode}; rerun `physgs demo` to resume.")
+        try:
+            config = train_in_process(METHOD, args)
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except Exception as e:  # any failure of the training: say so, and how to resume
+            console.print_exception(max_frames=4)
+            raise SystemExit(f"training failed ({type(e).__name__}: {e}); rerun `physgs demo` to resume.") from e
         console.log(f"      trained in {time.perf_counter() - t0:.0f} s")
         if not config.exists():
             raise SystemExit(f"training finished but {config} is missing")

@@ -23,6 +23,7 @@ from physgs_nerfstudio.geometry.hidden import (
     skin_centred,
     skin_from_points,
     without_hidden_space,
+    without_hidden_space_many,
 )
 
 
@@ -75,6 +76,50 @@ def test_open_fraction_is_the_direct_ray_march(seed, fill, skin_share):
         rays = _march_rays(solid, skin, closed, v)
         assert f[v] == pytest.approx(sum(rays.values()) / len(LATTICE_DIRECTIONS), abs=1e-6)
         assert int(total[v]) == sum(rays.values()) and int(half[v]) == _open_half(rays)
+
+
+def _passes_by_march(solid: np.ndarray, skin: np.ndarray, closed: np.ndarray, frac: float, half: int, passes: int
+                     ) -> tuple[np.ndarray, dict[str, int]]:  # fmt: skip
+    """without_hidden_space as a loop over voxels and passes on the whole grid (the module doc's rules)."""
+    solid = solid.copy()
+    removed = {"majority": 0, "open_half": 0}
+    for _ in range(passes):
+        rule = np.zeros(solid.shape, np.uint8)
+        for v in map(tuple, np.argwhere(solid & ~skin)):
+            rays = _march_rays(solid, skin, closed, v)
+            if sum(rays.values()) / len(LATTICE_DIRECTIONS) > frac:
+                rule[v] = 1
+            elif _open_half(rays) >= half:
+                rule[v] = 2
+        removed["majority"] += int((rule == 1).sum())
+        removed["open_half"] += int((rule == 2).sum())
+        if not rule.any():
+            break
+        solid &= rule == 0
+    return solid, removed
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), chunk=st.sampled_from([1, 200, 2**25]))
+def test_many_solids_at_once_are_each_alone_by_the_direct_ray_march(seed, chunk):
+    # the carving's variants share the skin and run together on their common bounding box, in chunks: the same
+    # voxels and counts as each alone on the whole grid, pass after pass
+    rng = np.random.default_rng(seed)
+    shape = (9, 8, 7)
+    skin = rng.random(shape) < 0.15
+    closed = rng.random(shape) < 0.2
+    solids = []
+    for _ in range(3):  # each in its own sub-box, some reaching the grid's edge
+        lo = rng.integers(0, 3, 3)
+        hi = lo + rng.integers(3, 7, 3)
+        s = np.zeros(shape, bool)
+        s[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] = rng.random(tuple(np.minimum(hi, shape) - lo)) < 0.8
+        solids.append(s)
+    kept, removed = without_hidden_space_many(torch.from_numpy(np.stack(solids)), torch.from_numpy(skin),
+                                              torch.from_numpy(closed), 0.5, 9, 3, max_voxels=chunk)  # fmt: skip
+    for i, s in enumerate(solids):
+        want, counts = _passes_by_march(s, skin, closed, 0.5, 9, 3)
+        assert np.array_equal(kept[i].numpy(), want) and removed[i] == counts, i
 
 
 @settings(max_examples=25, deadline=None)

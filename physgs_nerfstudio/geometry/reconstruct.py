@@ -38,7 +38,13 @@ from .errors import GeometryError
 from .extent import polytope_layer, support_excess
 from .gaussians import ViewRender, render_depth, surface_views
 from .grid import VoxelGrid
-from .hidden import gaussian_samples, hidden_boundary, skin_centred, skin_from_points, without_hidden_space
+from .hidden import (
+    gaussian_samples,
+    hidden_boundary,
+    skin_centred,
+    skin_from_points,
+    without_hidden_space_many,
+)
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .partial import boundary_fill, part_volumes
 from .parts import (
@@ -625,13 +631,12 @@ def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, bey
     if plane is not None:
         closed |= ~plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
-    before = [torch.from_numpy(s).to(dev) for s in solids]
-    done = [without_hidden_space(s, skin, closed_t, cfg.hidden_min_open_fraction, cfg.hidden_min_open_half,
-                                 cfg.hidden_passes) for s in before]  # fmt: skip
-    out = [kept.cpu().numpy() for kept, _ in done]
-    edges = ([hidden_boundary(kept, s & ~kept).cpu().numpy() for (kept, _), s in zip(done, before)]
-             if cfg.hidden_boundary == "half" else None)
-    removed = done[0][1]  # the nominal solid's
+    before = torch.from_numpy(np.stack(solids)).to(dev)
+    kept, counts = without_hidden_space_many(before, skin, closed_t, cfg.hidden_min_open_fraction,
+                                             cfg.hidden_min_open_half, cfg.hidden_passes)  # fmt: skip
+    out = list(kept.cpu().numpy())
+    edges = list(hidden_boundary(kept, before & ~kept).cpu().numpy()) if cfg.hidden_boundary == "half" else None
+    removed = counts[0]  # the nominal solid's
     if removed["majority"] or removed["open_half"]:
         logger.info("hidden open space: %d of %d solid voxels that no seen surface encloses removed (%d by the open "
                     "half)", removed["majority"] + removed["open_half"], int(solids[0].sum()), removed["open_half"])
