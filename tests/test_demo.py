@@ -95,3 +95,19 @@ def _check_geometry_cache(cmd: DemoCommand, tmp_path, report: dict, monkeypatch)
         export_command.ExportCommand(load_config=run_cfg, output_dir=tmp_path / "cold", outputs=("mass",),
                                      device="cpu", geometry_cache=False).main()  # fmt: skip
 
+
+
+def test_training_in_process_takes_ns_train_arguments(tmp_path):
+    # the demo's training (physgs_nerfstudio/nerfstudio/train.py) parses ns-train's arguments for one method: a
+    # method this plugin does not register, a bad flag and more than one device stop before anything is written
+    from physgs_nerfstudio.nerfstudio.train import method_config, train_in_process
+
+    assert method_config("physgs-lite").method_name == "physgs-lite"
+    assert method_config("physgs").method_name == "physgs"
+    with pytest.raises(ValueError, match="unknown method 'splatfacto'"):
+        method_config("splatfacto")
+    with pytest.raises(SystemExit):
+        train_in_process("physgs-lite", ["--output-dir", str(tmp_path), "--no-such-flag", "1"])
+    with pytest.raises(SystemExit, match="one device"):
+        train_in_process("physgs-lite", ["--output-dir", str(tmp_path), "--machine.num-devices", "2"])
+    assert not any(tmp_path.iterdir())
