@@ -93,6 +93,9 @@ def main() -> None:
                          "session 39)")  # fmt: skip
     ap.add_argument("--no-split", action="store_true",
                     help="keep the coarse cluster over a support plane (SelectConfig.split_on_plane = False)")
+    ap.add_argument("--object-names", type=str, default=None,
+                    help="SelectConfig.object_names: the views' evidence (views) another object's name needs over the "
+                         "object's to drop a Gaussian; none = the names unused (before session 41)")  # fmt: skip
     ap.add_argument("--run", type=Path, default=None,
                     help="measure this finished training instead of running the demo (a folder whose runs/ holds "
                          "its config.yml); the demo flags are then ignored")  # fmt: skip
@@ -125,6 +128,8 @@ def main() -> None:
         geometry.select.contact_band = None if a.contact_band.lower() == "none" else float(a.contact_band)
     geometry.select.split_on_plane = not a.no_split
     geometry.select.split_in_band = a.split_in_band
+    if a.object_names is not None:
+        geometry.select.object_names = None if a.object_names.lower() == "none" else float(a.object_names)
     if a.open_half is not None:
         geometry.hidden_min_open_half = None if a.open_half.lower() == "none" else int(a.open_half)
     if a.passes is not None:
@@ -160,7 +165,8 @@ def main() -> None:
     res = {
         "seed": int(truth.get("seed", a.seed)), "demo_settings": given, "export_resolution": resolution,
         "contact_band": geometry.select.contact_band, "split_on_plane": geometry.select.split_on_plane,
-        "split_in_band": geometry.select.split_in_band,
+        "split_in_band": geometry.select.split_in_band, "object_names": geometry.select.object_names,
+        "object_name": geo.selection.object_name, "other_object_gaussians": geo.selection.other_object,
         "hidden_min_open_half": geometry.hidden_min_open_half, "hidden_passes": geometry.hidden_passes,
         "hidden_skin_seen": geometry.hidden_skin_seen, "hidden_boundary": geometry.hidden_boundary,
         "boundary_subsamples": geometry.boundary_subsamples,

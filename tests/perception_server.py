@@ -14,6 +14,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 ANSWER = {
     "caption": "a red ceramic body",
+    "object": "mug",
     "candidates": [
         {
             "material": "ceramic",

@@ -501,6 +501,7 @@ def test_12_structured_output_schema_and_fallbacks():
     from physgs_nerfstudio.perception.prompts import RESPONSE_SCHEMA
 
     assert set(item["properties"]) == set(RESPONSE_SCHEMA["properties"]["candidates"]["items"]["properties"])
+    assert set(schema["properties"]) == set(RESPONSE_SCHEMA["properties"]) == {"caption", "object", "candidates"}
     Answer.model_validate(ANSWER)  # the answer the prompt asks for fits the model
 
     with FakeServer() as srv:

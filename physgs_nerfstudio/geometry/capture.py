@@ -102,6 +102,8 @@ class MaskObservation:
     mask_id: int | None = None
     """the mask's index in its view (observations.jsonl ``mask_id``): the candidates of one answer share it (None:
     candidates share a mask when they share its array object)"""
+    object: str | None = None
+    """the whole object the answer says the part belongs to (observations.jsonl ``object``; None: not said)"""
 
 
 def _mask_file(data_dir: Path, view: str) -> Path:
@@ -253,7 +255,8 @@ def load_observations(data_dir: Path) -> list[MaskObservation]:
         out.append(MaskObservation(view, read[0][mid], str(rec.get("material")), float(rec.get("confidence", 0.0)),
                                    float(t) if isinstance(t, (int, float)) and t > 0 else None,
                                    str(rec.get("level", "part")),
-                                   level_w.get(str(rec.get("level", "part")), 1.0), mid))  # fmt: skip
+                                   level_w.get(str(rec.get("level", "part")), 1.0), mid,
+                                   rec["object"] if isinstance(rec.get("object"), str) else None))  # fmt: skip
     if missing:
         logger.info("%d observations without a readable mask were not used for the part structure", missing)
     return out

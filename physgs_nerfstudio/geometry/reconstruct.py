@@ -59,6 +59,7 @@ from .parts import (
     sum_rows,
     voxel_mixture,
 )
+from .names import object_labels
 from .select import ObjectSelection, outside_mask_hull, select_object
 from .structure import PartStructure, fuse_structure
 from .support import SupportPlane, find_resting_plane, views_up
@@ -155,6 +156,8 @@ class ObjectGeometry:
                 "support_plane_in_masks": self.selection.support is not None,
                 "on_support_gaussians": self.selection.on_support, "clusters": self.selection.num_clusters,
                 "split_from_gaussians": self.selection.split_from,
+                "object_name": self.selection.object_name,
+                "other_object_gaussians": self.selection.other_object,
                 "hidden_open_voxels": self.hidden_removed, "pixel_footprint_voxels": self.pixel_voxels,
                 "hidden_boundary_voxels": (int(self.hidden_edge.sum()) if self.hidden_edge is not None else None),
                 "unseen_surface_share": self.unseen_surface_share,
@@ -492,7 +495,7 @@ def reconstruct_object(
     if not views:
         raise GeometryError("no views to carve the object from: the run has no training cameras.")
     step("selecting the object")
-    selection = select_object(g, views, cfg.select, backend=cfg.backend)
+    selection = select_object(g, views, cfg.select, backend=cfg.backend, labels=object_labels(views, observations))
     _within_hull(g, selection, views, cfg)
     _resting_plane(g, selection, views, cfg)
     step("rendering depth")

@@ -20,6 +20,11 @@
    camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
    the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
    restricts the candidates first.
+   3b. **Another object's** (:mod:`.names`, ``object_names``, session 41). Perception's answers name the whole
+   object of each part; a chosen Gaussian that one other name claims, by more than ``object_names`` views'
+   evidence over the object's own name (the name with the most evidence over the cluster), is dropped: the mug and
+   the bottle standing on the `indoor_room` table share its cluster, and its masks at the ``whole`` level, but
+   their part masks name them.
 4. **Inside the masks' hull** (:func:`outside_mask_hull`, applied by :func:`.reconstruct.reconstruct_object`). A
    selected Gaussian is dropped when its centre projects outside the views' foreground masks (by more than
    ``hull_margin_px``) in at least ``hull_min_votes`` views and ``hull_vote_fraction`` (a majority) of the views
@@ -54,7 +59,8 @@ from .capture import CaptureView
 from .carve import mask_view_votes, signed_mask_distances
 from .clusters import band_labels, split_close
 from .errors import GeometryError
-from .gaussians import lift_masks
+from .gaussians import lift_masks, lift_masks_and_labels
+from .names import ObjectLabels, other_object
 from .support import SupportConfig, SupportPlane, support_plane_or_reason, views_up
 
 logger = logging.getLogger(__name__)
@@ -115,6 +121,9 @@ class SelectConfig:
     alone"""
     split_in_band: bool = False
     """True: ``split_on_plane`` links the chosen cluster's parts through the contact band too (before session 39)"""
+    object_names: float | None = 1.0
+    """the chosen cluster's Gaussians that one other object's name claims by more than this many views' evidence
+    are dropped (module doc, step 3b; :mod:`.names`: a mug standing on the table); None: the names are not used"""
     support: SupportConfig = field(default_factory=SupportConfig)
     """the floor or table the object stands on, dropped before the clusters (module doc, step 2;
     :mod:`.support`)"""
@@ -127,6 +136,8 @@ class SelectConfig:
         if self.contact_band is not None and not self.contact_band >= 0:
             raise ValueError(f"SelectConfig.contact_band must be >= 0 (the clusters' reach) or None, got "
                              f"{self.contact_band}.")
+        if self.object_names is not None and not self.object_names >= 0:
+            raise ValueError(f"SelectConfig.object_names must be >= 0 (views) or None, got {self.object_names}.")
         if self.cluster_cells < 4:
             raise ValueError(f"SelectConfig.cluster_cells must be >= 4, got {self.cluster_cells}.")
         if self.bbox is not None:
@@ -156,6 +167,10 @@ class ObjectSelection:
     found among all the Gaussians (:func:`.support.find_resting_plane`, set by the reconstruction); None: none"""
     split_from: int = 0
     """the chosen cluster's Gaussians before ``split_on_plane`` split it (0: not split; module doc, step 2)"""
+    object_name: str | None = None
+    """the object's name in perception's answers (module doc, step 3b); None: they name none"""
+    other_object: int = 0
+    """the chosen cluster's Gaussians dropped as another object's (step 3b)"""
 
     @property
     def num_selected(self) -> int:
@@ -233,10 +248,15 @@ def nearest_cluster(m: Tensor, lab: Tensor, centre: np.ndarray) -> Tensor:
 
 @torch.no_grad()
 def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None = None, *,
-                  backend: str = "auto") -> ObjectSelection:  # fmt: skip
-    """The object's Gaussians (module doc)."""
+                  backend: str = "auto", labels: ObjectLabels | None = None) -> ObjectSelection:  # fmt: skip
+    """The object's Gaussians (module doc). ``labels``: the object each view's pixels belong to, by perception's
+    answers (:func:`.names.object_labels`; step 3b)."""
     cfg = cfg or SelectConfig()
-    inside, outside = lift_masks(g, views, backend=backend)
+    named = labels is not None and cfg.object_names is not None and len(labels.names) > 1
+    if named:  # the names' channels in the foreground's rasterizer calls
+        inside, outside, counts = lift_masks_and_labels(g, views, labels.maps, len(labels.names), backend=backend)
+    else:
+        inside, outside = lift_masks(g, views, backend=backend)
     a0, b0 = cfg.prior
     prob = ((a0 + inside) / (a0 + b0 + inside + outside)).float()
     cand = (prob >= cfg.min_prob) & (g.opacities >= cfg.min_opacity)
@@ -283,7 +303,18 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
                     int(chosen.sum()), before)  # fmt: skip
     selected = torch.zeros_like(cand)
     selected[idx[chosen.to(idx.device)]] = True
+    name, other = None, 0
+    if named:
+        k, drop = other_object(counts, selected, cfg.object_names)
+        name = labels.names[k] if k is not None else None
+        if drop is not None and bool(drop.any()) and bool((selected & ~drop).any()):
+            other = int(drop.sum())
+            selected &= ~drop
+            logger.info("object: %d of its Gaussians named another object than %r by the views dropped", other, name)
+    elif labels is not None and len(labels.names) == 1:  # one name: nothing to tell apart
+        name = labels.names[0]
     logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
                 g.means.shape[0], len(ids))  # fmt: skip
     return ObjectSelection(prob, selected, centre, len(ids), on_support=on_support, support=support,
-                           plane=plane if support is not None else None, split_from=split_from)
+                           plane=plane if support is not None else None, split_from=split_from, object_name=name,
+                           other_object=other)  # fmt: skip

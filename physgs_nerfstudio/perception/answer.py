@@ -38,6 +38,8 @@ class Answer(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     caption: str = Field(description="short description of the highlighted part")
+    object: str | None = Field(description="the whole object the highlighted part belongs to, in one or two words; "
+                               "null for background")
     candidates: list[AnswerCandidate]
 
 

@@ -177,9 +177,11 @@ def run_fingerprint(
 
 
 def observation_records(
-    request: VLMRequest, candidates: Sequence[Candidate], backend: CachedBackend, response: VLMResponse
+    request: VLMRequest, candidates: Sequence[Candidate], backend: CachedBackend, response: VLMResponse,
+    object_name: str | None = None,
 ) -> list[dict]:
-    """observations.jsonl records (docs/architecture.md) of one answered mask."""
+    """observations.jsonl records (docs/architecture.md) of one answered mask; ``object_name``: the whole object
+    the answer says the part belongs to (the same in each of its candidates' records; None: not said)."""
     out = []
     for c in candidates:
         props = {
@@ -192,6 +194,7 @@ def observation_records(
                 "view": request.view,
                 "mask_id": int(request.mask_id),
                 "level": request.level,
+                "object": object_name,
                 "material": c.material,
                 "confidence": float(c.confidence),
                 "properties": props,
@@ -448,7 +451,7 @@ class PerceptionRun:
         checked = self.validator(response.text, context=q.request.describe())
         result.reasons += len(checked.reasons)
         result.dropped_candidates += sum("dropped" in r for r in checked.reasons)
-        records = observation_records(q.request, checked.candidates, self.backend, response)
+        records = observation_records(q.request, checked.candidates, self.backend, response, checked.object)
         done = MaskDone(q.view, q.mask_id, q.request.level, len(records), checked.reasons, response.cached,
                         response.usage.to_dict())  # fmt: skip
         self.store.commit(done, records)

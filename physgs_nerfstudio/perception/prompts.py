@@ -19,7 +19,7 @@ from typing import Literal
 
 import numpy as np
 
-SCHEMA_VERSION = "physgs-vlm-v1"
+SCHEMA_VERSION = "physgs-vlm-v2"  # v2: the answer names the whole object ("object")
 
 SYSTEM_PROMPT = (
     "You are an expert in materials science and physical properties of everyday objects and outdoor "
@@ -31,6 +31,11 @@ RESPONSE_SCHEMA: dict = {
     "type": "object",
     "properties": {
         "caption": {"type": "string", "description": "short description of the highlighted part"},
+        "object": {
+            "type": ["string", "null"],
+            "description": "the whole object the highlighted part belongs to, in one or two words (a table's leg: "
+            "'table'; a mug standing on the table: 'mug'); null for background",
+        },
         "candidates": {
             "type": "array",
             "minItems": 1,
@@ -202,7 +207,8 @@ def triplet_text(material_names: Sequence[str], env: str, max_candidates: int = 
         "physical properties: density in kg/m^3, kinetic friction coefficient (dimensionless), Shore "
         'hardness with its scale ("A", "D" or "00"), Young\'s modulus in Pa, and thickness_m: the '
         "wall thickness in metres if the part is a hollow shell (e.g. a bottle, a mug wall, a cardboard "
-        "box), else null.\n"
+        "box), else null; (4) name the whole object the part belongs to (object), in one or two words: "
+        "for a table's leg 'table', for a mug standing on the table 'mug'.\n"
         "If the highlighted region is background, sky or not a physical object, return an empty "
         "candidate list.\n"
         "Answer with one JSON object matching this schema, with numbers as plain JSON numbers (no units "

@@ -25,6 +25,11 @@ so the same request always gets the same answer:
    part is a shell, flipped with probability ``p_structure_error``. A hollow answer gives ``thickness_m`` =
    the part's true wall thickness (truth candidate) or the candidate material's library thickness
    (``default_thickness_m`` without one), times exp(``thickness_sigma`` * N(0, 1)); a solid answer gives null.
+6. object: the whole object of that ground-truth part (``object`` in ground_truth.json: "table" for its leg, "mug"
+   for the mug standing on it; null for the ground, a floor or a rug, as the prompt asks for background); with
+   probability ``p_object_error`` another object's name instead, one of the scene's other objects (uniform;
+   "unknown object" in a scene of one object). Drawn after everything above, so
+   the materials, values and structure are those an answer without the field had.
 """
 
 from __future__ import annotations
@@ -70,6 +75,8 @@ class SimulatedConfig:
     shared by its candidates)."""
     thickness_sigma: float = 0.25
     """Log-normal noise sigma of the answered wall thickness."""
+    p_object_error: float = 0.1
+    """Probability that the answer names another object than the one the part belongs to (module doc, 6)."""
     default_thickness_m: float = 0.003
     """Thickness answered for a part called hollow whose candidate material has none in the library."""
     seed: int = 0
@@ -90,8 +97,9 @@ class SimulatedConfig:
                 "p_structure_error": self.p_structure_error,
                 "thickness_sigma": self.thickness_sigma,
                 "default_thickness_m": self.default_thickness_m,
+                "p_object_error": self.p_object_error,
                 "seed": self.seed,
-                "model": 2,
+                "model": 3,
             },
             sort_keys=True,
         )
@@ -204,8 +212,8 @@ class SimulatedBackend:
 
     def __init__(self, root: Path, library: MaterialLibrary, config: SimulatedConfig | None = None):
         self.config = config or SimulatedConfig()
-        if not 0 <= self.config.p_correct <= 1 or not 0 <= self.config.p_random <= 1:
-            raise ValueError("p_correct and p_random must lie in [0, 1]")
+        if not all(0 <= q <= 1 for q in (self.config.p_correct, self.config.p_random, self.config.p_object_error)):
+            raise ValueError("p_correct, p_random and p_object_error must lie in [0, 1]")
         self.library = library
         self.truth = GroundTruth(root, library)
         self.model = SIMULATED_MODEL
@@ -306,9 +314,21 @@ class SimulatedBackend:
             )
         return {
             "caption": f"simulated answer for mask {request.mask_id} ({request.level})",
+            "object": self._object_of(part, rng),
             "candidates": candidates,
             "simulated": True,
         }
+
+    def _object_of(self, part: dict | None, rng: np.random.Generator) -> str | None:
+        """The answer's ``object`` (module doc, 6): the part's object, or another with ``p_object_error``."""
+        true = part.get("object") if part is not None else None
+        if not isinstance(true, str) or part.get("role") == "ground":  # the floor, a rug: background (null)
+            return None
+        if rng.random() >= self.config.p_object_error:
+            return true
+        others = sorted({str(p["object"]) for p in self.truth.parts if isinstance(p.get("object"), str)
+                         and p.get("object") != true and p.get("role") != "ground"})  # fmt: skip
+        return others[int(rng.integers(len(others)))] if others else "unknown object"
 
     def query(self, request: VLMRequest) -> VLMResponse:
         self.calls += 1

@@ -86,6 +86,8 @@ class ValidatedResponse:
     candidates: list[Candidate]
     reasons: list[str]
     caption: str = ""
+    object: str | None = None
+    """the whole object the answer says the part belongs to (:func:`object_name`); None: not said"""
 
     def __iter__(self) -> Iterator[Any]:  # ``candidates, reasons = validate_response(...)``
         return iter((self.candidates, self.reasons))
@@ -180,6 +182,7 @@ class _Envelope(BaseModel):
     model_config = ConfigDict(extra="ignore")
 
     caption: str = ""
+    object: str | None = None
     candidates: list[Any] = Field(
         default_factory=list, validation_alias=AliasChoices("candidates", "materials", "predictions")
     )
@@ -188,6 +191,27 @@ class _Envelope(BaseModel):
     @classmethod
     def _caption_text(cls, v: Any) -> str:
         return "" if v is None else str(v)[:500]
+
+    @field_validator("object", mode="before")
+    @classmethod
+    def _object_name(cls, v: Any) -> str | None:
+        return object_name(v)
+
+
+_ARTICLES = ("a ", "an ", "the ")
+
+
+def object_name(v: Any) -> str | None:
+    """The answer's ``object`` as a comparable name: lower case, words separated by one space, no punctuation
+    around them and no leading article ("The Table." -> "table"); None for anything else, an empty name or one
+    over 60 characters (an object's name, not a sentence)."""
+    if not isinstance(v, str):
+        return None
+    name = " ".join(re.sub(r"[^\w\s-]", " ", v.lower()).split())
+    for a in _ARTICLES:
+        if name.startswith(a):
+            name = name[len(a):]
+    return name if 0 < len(name) <= 60 else None
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -320,7 +344,7 @@ class Validator:
         raw_list = env.candidates
         if not raw_list:
             reasons.append("no candidates in the answer")
-            return ValidatedResponse([], reasons, env.caption)
+            return ValidatedResponse([], reasons, env.caption, env.object)
         limit = self.config.max_candidates
         if len(raw_list) > limit:
             reasons.append(f"{len(raw_list)} candidates; only the first {limit} are used")
@@ -329,8 +353,8 @@ class Validator:
         if not parsed:
             if not any("dropped" in r for r in reasons):
                 reasons.append("no usable candidate")
-            return ValidatedResponse([], reasons, env.caption)
-        return ValidatedResponse(self._normalise(parsed, reasons), reasons, env.caption)
+            return ValidatedResponse([], reasons, env.caption, env.object)
+        return ValidatedResponse(self._normalise(parsed, reasons), reasons, env.caption, env.object)
 
     def _envelope(self, text: Any, reasons: list[str]) -> _Envelope | None:
         """The answer's JSON as the schema's envelope (a bare list or a single candidate is wrapped); None,
@@ -352,7 +376,7 @@ class Validator:
             and "material" in obj
             and not any(k in obj for k in ("candidates", "materials", "predictions"))
         ):
-            obj = {"caption": obj.get("caption", ""), "candidates": [obj]}
+            obj = {"caption": obj.get("caption", ""), "object": obj.get("object"), "candidates": [obj]}
         try:
             return _Envelope.model_validate(obj)
         except ValidationError as err:
