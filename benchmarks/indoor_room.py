@@ -95,7 +95,7 @@ def main() -> None:
                     help="keep the coarse cluster over a support plane (SelectConfig.split_on_plane = False)")
     ap.add_argument("--object-names", type=str, default=None,
                     help="SelectConfig.object_names: the views' evidence (views) another object's name needs over the "
-                         "object's to drop a Gaussian; none = the names unused (before session 41)")  # fmt: skip
+                         "object's to drop a Gaussian (1: the tested value); none = the names unused (the default)")
     ap.add_argument("--run", type=Path, default=None,
                     help="measure this finished training instead of running the demo (a folder whose runs/ holds "
                          "its config.yml); the demo flags are then ignored")  # fmt: skip

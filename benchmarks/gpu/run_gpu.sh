@@ -409,8 +409,8 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     ROOM_VARIANTS, default "default": the export's selection; "noband", "nosplit", "coarse": without the contact
     #     band, without the split over the support plane, without both; "nohalf", "half8": the hidden space's open
     #     half off, or at 8; "passes8": its rules run up to 8 times; "whole": whole voxels, no partial volume;
-    #     "splitband": the split over the floor linked through its contact band, as before session 39; "nonames":
-    #     perception's object names unused, as before session 41), not the
+    #     "splitband": the split over the floor linked through its contact band, as before session 39; "names1":
+    #     perception's object names drop what another object's name claims, SelectConfig.object_names = 1), not the
     #     suite. GPU0=k: the first training goes to GPU k (several invocations side by side).
     #     STABILITY="chair table": then mass_stability.py on those runs (SJOBS = 8 at a time) ->
     #     stability_OBJECT_sGSEED.json; SEAMS="shoe ...": then seam_offset.py on those -> seam_offset_gpu_sGSEED.json
@@ -459,7 +459,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
                        coarse) args="--contact-band none --no-split" ;; nohalf) args="--open-half none" ;;
                        half8) args="--open-half 8" ;; passes8) args="--passes 8" ;;
                        whole) args="--subsamples 1" ;; splitband) args="--split-in-band" ;;
-                       nonames) args="--object-names none" ;; *) args="" ;; esac
+                       names1) args="--object-names 1" ;; *) args="" ;; esac
             (python3 benchmarks/indoor_room.py --run /tmp/ms/indoor_room_s$GSEED --out $r $args > $r.log 2>&1
              cp $r/indoor_room.json "$OUT/indoor_room_gpu_s${GSEED}_$v.json"
              echo "[$(elapsed) s] indoor_room s$GSEED $v: $(grep -E '"volume_ratio"|"selected_on_ground"' $r/indoor_room.json | tr -d '\n ')") &

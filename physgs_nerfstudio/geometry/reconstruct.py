@@ -495,7 +495,8 @@ def reconstruct_object(
     if not views:
         raise GeometryError("no views to carve the object from: the run has no training cameras.")
     step("selecting the object")
-    selection = select_object(g, views, cfg.select, backend=cfg.backend, labels=object_labels(views, observations))
+    labels = object_labels(views, observations) if cfg.select.object_names is not None else None
+    selection = select_object(g, views, cfg.select, backend=cfg.backend, labels=labels)
     _within_hull(g, selection, views, cfg)
     _resting_plane(g, selection, views, cfg)
     step("rendering depth")
