@@ -111,3 +111,13 @@ def test_training_in_process_takes_ns_train_arguments(tmp_path):
     with pytest.raises(SystemExit, match="one device"):
         train_in_process("physgs-lite", ["--output-dir", str(tmp_path), "--machine.num-devices", "2"])
     assert not any(tmp_path.iterdir())
+
+
+def test_the_one_method_entry_says_what_is_wrong():
+    # `python -m physgs_nerfstudio.nerfstudio.train METHOD ARGS` (physgs batch's training subprocess)
+    from physgs_nerfstudio.nerfstudio.train import main
+
+    with pytest.raises(SystemExit, match="usage"):
+        main([])
+    with pytest.raises(SystemExit, match="unknown method 'splatfacto'"):
+        main(["splatfacto", "--data", "x"])

@@ -1,5 +1,6 @@
 """The stage commands of a batch, in one place: perception (in-process, so a Ray task's OpenAI backend can
-use the cluster's rate limiter), ``ns-train`` (a subprocess), ``physgs export`` (in-process).
+use the cluster's rate limiter), ``ns-train``'s training (a subprocess of the plugin's one-method entry,
+:mod:`physgs_nerfstudio.nerfstudio.train`), ``physgs export`` (in-process).
 
 Each ``run_<stage>(scene, settings, out_dir)`` returns ``(outputs, metrics)`` (JSON-able dicts) or raises
 :class:`StageError` with a one-line reason. Nothing here touches the state files (runner.py does).
@@ -130,7 +131,9 @@ def run_perceive(scene: Scene, settings: StageSettings, out: Path, overwrite: bo
 
 # ----------------------------------------------------------------------------------------------- train
 def train_command(scene: Scene, settings: StageSettings, out: Path) -> list[str]:
-    cmd = [sys.executable, "-m", "nerfstudio.scripts.train", settings.method, "--data", str(scene.data),
+    # ns-train's arguments to the plugin's one-method entry: the same configuration and nerfstudio Trainer, without
+    # ns-train's start-up over every installed method (physgs_nerfstudio/nerfstudio/train.py)
+    cmd = [sys.executable, "-m", "physgs_nerfstudio.nerfstudio.train", settings.method, "--data", str(scene.data),
            "--output-dir", str(Path(out) / "runs"), "--experiment-name", scene.name, "--timestamp", RUN_TIMESTAMP,
            "--machine.device-type", settings.device, "--save-only-latest-checkpoint", "True",
            "--vis", "tensorboard", "--machine.seed", str(settings.seed)]  # fmt: skip
@@ -141,7 +144,7 @@ def train_command(scene: Scene, settings: StageSettings, out: Path) -> list[str]
 
 
 def run_train(scene: Scene, settings: StageSettings, out: Path, gpu: int | None = None) -> tuple[dict, dict]:
-    """`ns-train <method>` as a subprocess; its log goes to OUT/scenes/<scene>/train.log."""
+    """`ns-train <method>` as a subprocess (:func:`train_command`); its log goes to OUT/scenes/<scene>/train.log."""
     if not (scene.data / "materials.json").is_file():
         raise StageError(f"{scene.data}: no materials.json; run the perceive stage first", "missing input")
     env = dict(os.environ)

@@ -4,24 +4,28 @@ nerfstudio's own ``Trainer`` (what ``nerfstudio.scripts.train`` runs on one devi
 Why: ``ns-train`` builds a command line over every installed method, so a fresh process imports all of nerfstudio's
 models and parses their union before it starts: on the 2-core CPU machine that took 17 s of the default demo's
 run (benchmarks/README.md, session 41). ``physgs demo`` has most of those imports already, and parses one method.
+``physgs batch`` runs it as ``python -m physgs_nerfstudio.nerfstudio.train METHOD ARGS``, a process per scene (a
+kill or a crash leaves the batch's other scenes alone), without ``ns-train``'s start-up.
 Single device only (``--machine.num-devices 1``); use ``ns-train`` for more.
 """
 
 from __future__ import annotations
 
 import random
+import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["method_config", "train_in_process"]
+__all__ = ["main", "method_config", "train_in_process"]
 
 
 def method_config(method: str):
     """A fresh ``TrainerConfig`` of one of this plugin's methods (the entry points of pyproject.toml)."""
     from method_configs import physgs_config
 
-    factories = {"physgs": physgs_config.physgs_trainer_config, "physgs-lite": physgs_config.physgs_lite_trainer_config}
+    factories = {"physgs": physgs_config.physgs_trainer_config,
+                 "physgs-lite": physgs_config.physgs_lite_trainer_config}
     if method not in factories:
         raise ValueError(f"unknown method {method!r}: this plugin registers {', '.join(sorted(factories))}")
     return factories[method]()
@@ -64,3 +68,20 @@ def train_in_process(method: str, args: Sequence[str]) -> Path:
                 tb.close()
         del writer.EVENT_WRITERS[writers:]
     return config.get_base_dir() / "config.yml"
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """``python -m physgs_nerfstudio.nerfstudio.train METHOD ARGS``: ``ns-train METHOD ARGS`` on one device."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if not args or args[0].startswith("-"):
+        raise SystemExit("usage: python -m physgs_nerfstudio.nerfstudio.train physgs|physgs-lite "
+                         "[ns-train arguments]")
+    try:
+        method_config(args[0])
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
+    train_in_process(args[0], args[1:])
+
+
+if __name__ == "__main__":
+    main()
