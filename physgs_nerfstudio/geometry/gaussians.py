@@ -276,7 +276,8 @@ def lift_masks_and_labels(g: Any, views: Sequence[CaptureView], labels: Sequence
         for ev, vis in _grouped(lift, group):  # view by view, in order
             w = vis.double()
             seen = w > min_view_weight
-            share = torch.where(seen[:, None], ev.double() / w.clamp_min(1e-12)[:, None], torch.zeros_like(ev.double()))
+            evd = ev.double()
+            share = torch.where(seen[:, None], evd / w.clamp_min(1e-12)[:, None], torch.zeros_like(evd))
             frac = share[:, 0].clamp(0, 1)
             inside += torch.where(seen, frac, torch.zeros_like(frac))
             outside += torch.where(seen, 1 - frac, torch.zeros_like(frac))
