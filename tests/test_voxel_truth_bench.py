@@ -56,3 +56,46 @@ def test_exact_solid_is_kept_whole_and_an_eroded_face_shows_in_the_profile(vt):
     assert row["kept_share_along_local_axes"][2][-1] == 0.0
     assert row["kept_share_along_local_axes"][2][0] == pytest.approx(1.0)
     assert row["kept_share_along_local_axes"][0] == pytest.approx([row["kept_share"]] * 10, abs=0.05)
+
+
+def test_volume_account_counts_shares_not_centres(vt):
+    """A box whose faces lie on voxel boundaries, filled exactly: its fill is its volume and nothing is false. A layer
+    counted at half over it (a voxel thick) and a column beside it are false fill, found above and beside it; a
+    boundary voxel half inside the box and counted at half is no error."""
+    from physgs_nerfstudio.synth.geometry import Box
+    from physgs_nerfstudio.synth.objects import Part
+
+    h = 0.01
+    box = Part("top", Box((0.2, 0.1, 0.02)), "oak", translation=np.array([0.0, 0.0, 0.05]), object="table")
+    lo = np.array([-0.15, -0.1, 0.0])
+    shape = (30, 20, 10)
+    idx = np.indices(shape).reshape(3, -1).T
+    world = lo + (idx + 0.5) * h
+    inside = box.primitive.contains(box.to_local(world)).reshape(shape)
+    assert inside.sum() == 20 * 10 * 2
+    vx = {"origin_scene": lo, "voxel_size_scene": np.float64(h), "metres_per_unit": np.float64(1.0)}
+    T = np.hstack([np.eye(3), np.zeros((3, 1))])
+    fill = inside.astype(np.float32)
+    exact = vt.volume_account(vx, fill, T, 1.0, [box], relative_to="top", subsamples=4)
+    assert exact["parts"][0]["true_on_grid_m3"] == pytest.approx(box.enclosed_volume(), rel=1e-9)
+    assert exact["parts"][0]["fill_in_part_m3"] == pytest.approx(box.enclosed_volume(), rel=1e-9)
+    assert exact["false_fill_m3"] == pytest.approx(0.0, abs=1e-12)
+    over = fill.copy()
+    k = np.nonzero(inside.any((0, 1)))[0].max() + 1  # the layer just over the box
+    over[:, :, k] = np.where(inside[:, :, k - 1], 0.5, 0.0)
+    over[0, 0, :] = 1.0  # a column beside it
+    acc = vt.volume_account(vx, over, T, 1.0, [box], relative_to="top", subsamples=4)
+    rel = acc["false_fill_relative_to"]
+    assert rel["above_m3"] == pytest.approx(0.5 * 200 * h**3, rel=1e-9)
+    assert rel["beside_m3"] == pytest.approx(10 * h**3, rel=1e-9)
+    assert rel["under_m3"] == pytest.approx(0.0, abs=1e-12)
+    assert acc["false_fill_m3"] == pytest.approx(rel["above_m3"] + rel["beside_m3"], rel=1e-9)
+    # a grid shifted by half a voxel: the box's faces cut voxels in half; filled with the true shares, no false fill
+    shifted = {**vx, "origin_scene": lo + h / 2}
+    w2 = lo + h / 2 + (idx[:, None, :] + 0.5 + (np.stack(np.meshgrid(*[(np.arange(8) + 0.5) / 8 - 0.5] * 3,
+                                                                    indexing="ij"), -1).reshape(-1, 3))[None]) * h
+    share = box.primitive.contains(box.to_local(w2.reshape(-1, 3))).reshape(len(idx), -1).mean(1).reshape(shape)
+    acc2 = vt.volume_account(shifted, share.astype(np.float32), T, 1.0, [box], relative_to="top", subsamples=8)
+    assert acc2["false_fill_m3"] == pytest.approx(0.0, abs=1e-12)
+    assert acc2["parts"][0]["fill_in_part_m3"] == pytest.approx(acc2["parts"][0]["true_on_grid_m3"], rel=1e-9)
+    assert acc2["parts"][0]["true_on_grid_m3"] == pytest.approx(box.enclosed_volume(), rel=1e-6)

@@ -411,7 +411,8 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     half off, or at 8; "passes8": its rules run up to 8 times; "whole": whole voxels, no partial volume;
     #     "splitband": the split over the floor linked through its contact band, as before session 39; "names1":
     #     perception's object names drop what another object's name claims, SelectConfig.object_names = 1), not the
-    #     suite. GPU0=k: the first training goes to GPU k (several invocations side by side).
+    #     suite; ROOM_TRUTH=1: its export's counted volume against the truth too (voxel_truth.py --volume
+    #     --relative-to top -> voxel_truth_room_gpu_sGSEED.json). GPU0=k: the first training goes to GPU k (several invocations side by side).
     #     STABILITY="chair table": then mass_stability.py on those runs (SJOBS = 8 at a time) ->
     #     stability_OBJECT_sGSEED.json; SEAMS="shoe ...": then seam_offset.py on those -> seam_offset_gpu_sGSEED.json
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
@@ -464,6 +465,15 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
              cp $r/indoor_room.json "$OUT/indoor_room_gpu_s${GSEED}_$v.json"
              echo "[$(elapsed) s] indoor_room s$GSEED $v: $(grep -E '"volume_ratio"|"selected_on_ground"' $r/indoor_room.json | tr -d '\n ')") &
           done
+          if [ -n "${ROOM_TRUTH:-}" ]; then  # the export's counted volume against the truth, voxel by voxel, about the top
+            (d=/tmp/ms/indoor_room_s$GSEED; cfg=$(ls $d/runs/*/*/*/config.yml | head -1)
+             python3 -m physgs_nerfstudio.cli export --load-config $cfg --outputs mass voxels --output-dir $d/export_truth \
+               > $d/export_truth.log 2>&1
+             python3 benchmarks/voxel_truth.py $d/export_truth --object indoor_room --seed $GSEED --volume --relative-to top \
+               --transforms $(dirname $cfg)/dataparser_transforms.json --out "$OUT/voxel_truth_room_gpu_s$GSEED.json" \
+               > $d/voxel_truth.txt 2>&1
+             echo "[$(elapsed) s] voxel_truth s$GSEED:"; grep -A14 "counted volume" $d/voxel_truth.txt | grep -v "true  *0.0\| chair\| crate\| lamp") &
+          fi
         fi
         if [ -n "$SUITE" ]; then
           python3 benchmarks/mass_suite.py --trained --objects $SUITE --seeds $GSEED --jobs "${EJOBS:-4}" --out /tmp/ms \
