@@ -81,6 +81,9 @@ def main() -> None:
                          "default: the export's)")  # fmt: skip
     ap.add_argument("--passes", type=int, default=None,
                     help="GeometryConfig.hidden_passes (default: the export's)")
+    ap.add_argument("--skin-band", type=str, default=None,
+                    help="GeometryConfig.hidden_skin_band in voxels: how far behind a view's rendered depth a "
+                         "Gaussian's centre may lie and sample the skin ('none': the evidence's band)")
     ap.add_argument("--skin-seen", type=str, default=None,
                     help="GeometryConfig.hidden_skin_seen in voxels ('none': every axis end samples the "
                          "skin; default: the export's)")  # fmt: skip
@@ -138,6 +141,8 @@ def main() -> None:
         geometry.hidden_boundary = a.boundary
     if a.subsamples is not None:
         geometry.boundary_subsamples = a.subsamples
+    if a.skin_band is not None:
+        geometry.hidden_skin_band = None if a.skin_band.lower() == "none" else float(a.skin_band)
     if a.skin_seen is not None:
         geometry.hidden_skin_seen = None if a.skin_seen.lower() == "none" else float(a.skin_seen)
     geo = object_geometry(run, geometry)
@@ -168,7 +173,7 @@ def main() -> None:
         "split_in_band": geometry.select.split_in_band, "object_names": geometry.select.object_names,
         "object_name": geo.selection.object_name, "other_object_gaussians": geo.selection.other_object,
         "hidden_min_open_half": geometry.hidden_min_open_half, "hidden_passes": geometry.hidden_passes,
-        "hidden_skin_seen": geometry.hidden_skin_seen, "hidden_boundary": geometry.hidden_boundary,
+        "hidden_skin_seen": geometry.hidden_skin_seen, "hidden_skin_band": geometry.hidden_skin_band, "hidden_boundary": geometry.hidden_boundary,
         "boundary_subsamples": geometry.boundary_subsamples,
         "hidden_boundary_voxels": geo.summary()["hidden_boundary_voxels"],
         "selected_gaussians": int(sel.sum()), "selected_on": counts,

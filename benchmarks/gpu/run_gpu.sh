@@ -412,7 +412,8 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     "splitband": the split over the floor linked through its contact band, as before session 39; "names1":
     #     perception's object names drop what another object's name claims, SelectConfig.object_names = 1), not the
     #     suite; ROOM_TRUTH=1: its export's counted volume against the truth too (voxel_truth.py --volume
-    #     --relative-to top -> voxel_truth_room_gpu_sGSEED.json). GPU0=k: the first training goes to GPU k (several invocations side by side).
+    #     --relative-to top -> voxel_truth_room_gpu_sGSEED.json) and its hidden-space stage (hidden_stage.py, left in
+    #     /tmp/ms/indoor_room_sGSEED/hidden_stage.npz). GPU0=k: the first training goes to GPU k (several invocations side by side).
     #     STABILITY="chair table": then mass_stability.py on those runs (SJOBS = 8 at a time) ->
     #     stability_OBJECT_sGSEED.json; SEAMS="shoe ...": then seam_offset.py on those -> seam_offset_gpu_sGSEED.json
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
@@ -460,7 +461,8 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
                        coarse) args="--contact-band none --no-split" ;; nohalf) args="--open-half none" ;;
                        half8) args="--open-half 8" ;; passes8) args="--passes 8" ;;
                        whole) args="--subsamples 1" ;; splitband) args="--split-in-band" ;;
-                       names1) args="--object-names 1" ;; *) args="" ;; esac
+                       names1) args="--object-names 1" ;; band0) args="--skin-band 0" ;;
+                       band05) args="--skin-band 0.5" ;; *) args="" ;; esac
             (python3 benchmarks/indoor_room.py --run /tmp/ms/indoor_room_s$GSEED --out $r $args > $r.log 2>&1
              cp $r/indoor_room.json "$OUT/indoor_room_gpu_s${GSEED}_$v.json"
              echo "[$(elapsed) s] indoor_room s$GSEED $v: $(grep -E '"volume_ratio"|"selected_on_ground"' $r/indoor_room.json | tr -d '\n ')") &
@@ -472,7 +474,9 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
              python3 benchmarks/voxel_truth.py $d/export_truth --object indoor_room --seed $GSEED --volume --relative-to top \
                --transforms $(dirname $cfg)/dataparser_transforms.json --out "$OUT/voxel_truth_room_gpu_s$GSEED.json" \
                > $d/voxel_truth.txt 2>&1
-             echo "[$(elapsed) s] voxel_truth s$GSEED:"; grep -A14 "counted volume" $d/voxel_truth.txt | grep -v "true  *0.0\| chair\| crate\| lamp") &
+             echo "[$(elapsed) s] voxel_truth s$GSEED:"; grep -A14 "counted volume" $d/voxel_truth.txt | grep -v "true  *0.0\| chair\| crate\| lamp"
+             python3 benchmarks/hidden_stage.py --run $d --out $d/hidden_stage.npz > $d/hidden_stage.log 2>&1
+             echo "[$(elapsed) s] hidden stage s$GSEED: $(tail -1 $d/hidden_stage.log)") &
           fi
         fi
         if [ -n "$SUITE" ]; then

@@ -100,6 +100,10 @@ class GeometryConfig:
     means are seen: an axis end that pokes through the seen surface into space no view sees (a long thin
     Gaussian tilted across a table top, under its unseen underside) is no sample of that surface
     (:mod:`.hidden`, "Seen samples"). None = every axis end counts (session 32); documented range 0.5-2"""
+    hidden_skin_band: float | None = None
+    """the skin's Gaussians are those whose centre some view sees at most this many voxels behind its rendered depth
+    (:func:`.gaussians.surface_views`); None: ``evidence_surface_voxels``'s band (1 voxel), the set whose labels
+    count as material evidence"""
     hidden_min_open_fraction: float = 0.5
     """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
     than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""
@@ -205,6 +209,8 @@ class GeometryConfig:
         if not 0.0 <= self.extent_outlier_fraction < 0.5:
             raise ValueError("GeometryConfig.extent_outlier_fraction must be in [0, 0.5), got "
                              f"{self.extent_outlier_fraction}.")
+        if self.hidden_skin_band is not None and not self.hidden_skin_band >= 0:
+            raise ValueError(f"GeometryConfig.hidden_skin_band must be >= 0 voxels (or None), got {self.hidden_skin_band}.")
         if self.hidden_skin_voxels is not None and self.hidden_skin_voxels < 0:
             raise ValueError("GeometryConfig.hidden_skin_voxels must be >= 0 (or None: keep the hidden space), got "
                              f"{self.hidden_skin_voxels}.")

@@ -549,7 +549,10 @@ def reconstruct_object(
     hidden_removed = None
     edges: list[np.ndarray] | None = None
     if cfg.hidden_skin_voxels is not None:
-        surf = _Subset(g, torch.nonzero(sel).squeeze(1)[on_surface])
+        skin_of = on_surface
+        if cfg.hidden_skin_band is not None and cfg.hidden_skin_band * grid.voxel_size != band:
+            skin_of = surface_views(g.means[sel], obj_views, renders, cfg.hidden_skin_band * grid.voxel_size) > 0
+        surf = _Subset(g, torch.nonzero(sel).squeeze(1)[skin_of])
         skin_band = (cfg.hidden_skin_seen or 0.0) * grid.voxel_size
 
         def seen_by(points: torch.Tensor, thick: torch.Tensor) -> torch.Tensor:
