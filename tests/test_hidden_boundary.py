@@ -138,3 +138,38 @@ def test_the_setting_is_checked():
 
     with pytest.raises(ValueError, match="hidden_boundary"):
         GeometryConfig(hidden_boundary="quarter")  # type: ignore[arg-type]
+
+
+def test_the_skin_band_is_checked():
+    from physgs_nerfstudio.geometry import GeometryConfig
+
+    with pytest.raises(ValueError, match="hidden_skin_band"):
+        GeometryConfig(hidden_skin_band=-0.5)
+    assert GeometryConfig().hidden_skin_band == 0.5
+
+
+def test_a_plate_filled_through_its_thickness_keeps_less_under_it_with_the_narrow_skin_band():
+    """A 2.5 cm top filled with layers of Gaussians through its thickness (as a GPU splat fills a thin plate), shot
+    from above: with a whole voxel's band the inner layers' centres, within a voxel behind the rendered upper face,
+    sample the skin and it reaches under the top; with half a voxel (the default) less hidden space stays under it.
+    Both keep the top."""
+    from test_geometry import _flat, _geo, box_surface, on_tile_floor, ring_views
+
+    t = 0.025
+    parts = [box_surface((0.8, 0.5, t), 0.02, centre=(0.0, 0.0, 0.5 + t / 2))]
+    X, Y = torch.meshgrid(torch.arange(-0.39, 0.4, 0.02, dtype=torch.float64),
+                          torch.arange(-0.24, 0.25, 0.02, dtype=torch.float64), indexing="ij")  # fmt: skip
+    for k in range(3):
+        p = torch.stack([X, Y, torch.full_like(X, 0.5 + t * (k + 1) / 4)], -1).reshape(-1, 3)
+        parts.append(_flat(p, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(p), 0.01))
+    parts += [box_surface((0.04, 0.04, 0.5), 0.02, centre=(x, y, 0.25)) for x in (-0.37, 0.37) for y in (-0.22, 0.22)]
+    pf, only = on_tile_floor([torch.cat(c) for c in zip(*parts)], 1.2)
+    views = ring_views(pf, (0, 0, 0.3), 2.2, n=18, elevations=(35.0, 55.0, 75.0), mask_pf=only)
+    truth = 0.8 * 0.5 * t + 4 * 0.04 * 0.04 * 0.5
+    wide = _geo(pf, views, resolution=64, hidden_skin_band=1.0)
+    narrow = _geo(pf, views, resolution=64)
+    v_wide, v_narrow = float(wide.volumes[0].sum()), float(narrow.volumes[0].sum())
+    print("truth", truth, "band 1", v_wide, "band 0.5", v_narrow)
+    assert truth < v_narrow < v_wide
+    top = narrow.grid.centres(torch.from_numpy(np.argwhere(narrow.occupancy > 0.5)))[:, 2]
+    assert float((top > 0.5).float().mean()) > 0.3  # the top is still there

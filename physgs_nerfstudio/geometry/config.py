@@ -100,10 +100,10 @@ class GeometryConfig:
     means are seen: an axis end that pokes through the seen surface into space no view sees (a long thin
     Gaussian tilted across a table top, under its unseen underside) is no sample of that surface
     (:mod:`.hidden`, "Seen samples"). None = every axis end counts (session 32); documented range 0.5-2"""
-    hidden_skin_band: float | None = None
+    hidden_skin_band: float | None = 0.5
     """the skin's Gaussians are those whose centre some view sees at most this many voxels behind its rendered depth
-    (:func:`.gaussians.surface_views`); None: ``evidence_surface_voxels``'s band (1 voxel), the set whose labels
-    count as material evidence"""
+    (:func:`.gaussians.surface_views`; :mod:`.hidden`, "The skin's band"); None: ``evidence_surface_voxels``'s band
+    (1 voxel, before session 42), the set whose labels count as material evidence. Documented range 0.5-1"""
     hidden_min_open_fraction: float = 0.5
     """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
     than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""

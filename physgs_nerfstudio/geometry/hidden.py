@@ -37,6 +37,19 @@ thin plate it is the sample that holds the plate's lower part (the CPU demo's Ga
 each way; with the plain 1-voxel band the CPU rooms' tables lost up to a tenth of their own volume). None = every
 end counts.
 
+The skin's band (``GeometryConfig.hidden_skin_band``, default 0.5 voxel, session 42). Which Gaussians sample the skin:
+those whose centre some view sees no more than the band behind its rendered depth. Before session 42 this was the
+material evidence's band, a whole voxel. A GPU splat fills a thin plate through its thickness with semi-transparent
+Gaussians (the `indoor_room` table's 25 mm top at 512 px: the surface Gaussians' centres spread from 15 mm under the
+top's upper face to its lower face and a few beyond), and the rendered depth lies inside that layer, so a voxel's band
+takes in centres down to the plate's unseen lower face. Their skin reaches past that face and encloses space under
+it (on the GPU rooms, 0.5-1.2 L of kept blobs under the top, each around a few such Gaussians, besides the layer
+just under it). With half a voxel, on three fresh GPU rooms (24034, 24135, 24236) the table came out 0.94x, 0.92x and
+0.96x its volume against 1.02x, 1.09x and 1.13x; on three CPU demo rooms 1.00x, 1.10x and 1.14x against 1.06x, 1.13x
+and 1.16x. On the CPU suite at fresh seed 23630 the median APE went from 0.074 to 0.058, coverage 10 of 12 both ways;
+the GPU chair at 24034 went from 1.09x to 1.14x its mass. 0 (only centres in front of the rendered depth) took the
+GPU rooms to 0.85-0.90x (benchmarks/README.md, session 42).
+
 Session 23 grew the samples' voxels by ``window`` 6-connected steps instead (:func:`skin_from_points`,
 ``hidden_skin="grown"``). That closes every gap but also grows each face by 2 voxels off itself and past its edges,
 so that the skin of a table top's side faces enclosed two layers of hidden space under the top. The centred skin
