@@ -410,7 +410,8 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     band, without the split over the support plane, without both; "nohalf", "half8": the hidden space's open
     #     half off, or at 8; "passes8": its rules run up to 8 times; "whole": whole voxels, no partial volume;
     #     "splitband": the split over the floor linked through its contact band, as before session 39; "names1":
-    #     perception's object names drop what another object's name claims, SelectConfig.object_names = 1), not the
+    #     perception's object names drop what another object's name claims, SelectConfig.object_names = 1; "band0",
+    #     "band05": GeometryConfig.hidden_skin_band 0 or 0.5 voxel), not the
     #     suite; ROOM_TRUTH=1: its export's counted volume against the truth too (voxel_truth.py --volume
     #     --relative-to top -> voxel_truth_room_gpu_sGSEED.json) and its hidden-space stage (hidden_stage.py, left in
     #     /tmp/ms/indoor_room_sGSEED/hidden_stage.npz). GPU0=k: the first training goes to GPU k (several invocations side by side).
