@@ -210,7 +210,8 @@ class GeometryConfig:
             raise ValueError("GeometryConfig.extent_outlier_fraction must be in [0, 0.5), got "
                              f"{self.extent_outlier_fraction}.")
         if self.hidden_skin_band is not None and not self.hidden_skin_band >= 0:
-            raise ValueError(f"GeometryConfig.hidden_skin_band must be >= 0 voxels (or None), got {self.hidden_skin_band}.")
+            raise ValueError("GeometryConfig.hidden_skin_band must be >= 0 voxels (or None), got "
+                             f"{self.hidden_skin_band}.")
         if self.hidden_skin_voxels is not None and self.hidden_skin_voxels < 0:
             raise ValueError("GeometryConfig.hidden_skin_voxels must be >= 0 (or None: keep the hidden space), got "
                              f"{self.hidden_skin_voxels}.")
