@@ -38,6 +38,7 @@ SETTINGS: dict[str, list[str]] = {
     "hidden_passes=1": ["--mass.geometry.hidden-passes", "1"],
     "hidden_skin_seen=0.5": ["--mass.geometry.hidden-skin-seen", "0.5"],
     "hidden_skin_seen=2": ["--mass.geometry.hidden-skin-seen", "2"],
+    "hidden_skin_band=1": ["--mass.geometry.hidden-skin-band", "1"],
     "min_voxel_evidence=0.25": ["--mass.geometry.min-voxel-evidence", "0.25"],
     "min_voxel_evidence=1": ["--mass.geometry.min-voxel-evidence", "1"],
     "hull_vote_fraction=0.35": ["--mass.geometry.select.hull-vote-fraction", "0.35"],
