@@ -23,7 +23,7 @@ from ..render.projection import quat_to_rotmat
 from .capture import CaptureView
 
 __all__ = ["ViewRender", "depth_spread", "lift_masks", "lift_masks_and_labels", "ray_extent", "render_depth",
-           "surface_views"]
+           "surface_excess", "surface_views"]
 
 logger = logging.getLogger(__name__)
 _T = TypeVar("_T")
@@ -158,6 +158,25 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
 
 
 @torch.no_grad()
+def _view_depth_excess(x: Tensor, v: CaptureView, r: ViewRender, min_alpha: float) -> Tensor:
+    """float [N]: each point's camera depth behind ``r``'s rendered depth at its nearest pixel, +inf where it projects
+    outside the image, behind the camera or on a pixel less than ``min_alpha`` opaque."""
+    vm = v.viewmat.to(x)
+    K = v.K.to(x)
+    c = x @ vm[:3, :3].T + vm[:3, 3]
+    z = c[:, 2]
+    zs = z.clamp_min(1e-9)
+    u = K[0, 0] * c[:, 0] / zs + K[0, 2]
+    w = K[1, 1] * c[:, 1] / zs + K[1, 2]
+    H, W = r.alpha.shape
+    ok = (z > 0) & (u >= 0) & (u < W) & (w >= 0) & (w < H)
+    ui = u.floor().long().clamp(0, W - 1)
+    vi = w.floor().long().clamp(0, H - 1)
+    ok &= r.alpha.to(x.device)[vi, ui] >= min_alpha
+    excess = z - r.depth.to(x.device)[vi, ui].float()
+    return torch.where(ok, excess, torch.full_like(excess, float("inf")))
+
+
 def surface_views(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], renders: Sequence[ViewRender],
                   band: float | Float[Tensor, " N"], min_alpha: float = 0.5
                   ) -> Float[Tensor, " N"]:  # fmt: skip
@@ -166,7 +185,7 @@ def surface_views(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], ren
     ``band`` (scene units; one for all or one per point) behind that pixel's rendered depth. A Gaussian
     under the surface that every view sees (inside a solid, under a shell) scores 0, however its lifted labels
     came to it (a sliver of blending weight through the surface in front of it counts a view in the lifting,
-    :mod:`physgs_nerfstudio.nerfstudio.pipeline`)."""
+    :mod:`physgs_nerfstudio.nerfstudio.pipeline`). Whether any view sees it, at several bands: :func:`surface_excess`."""
     out = torch.zeros(len(means), dtype=torch.float32, device=means.device)
     if not len(means):
         return out
@@ -174,20 +193,19 @@ def surface_views(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], ren
     if isinstance(band, Tensor):
         band = band.to(x)
     for v, r in zip(views, renders):
-        vm = v.viewmat.to(x)
-        K = v.K.to(x)
-        c = x @ vm[:3, :3].T + vm[:3, 3]
-        z = c[:, 2]
-        zs = z.clamp_min(1e-9)
-        u = K[0, 0] * c[:, 0] / zs + K[0, 2]
-        w = K[1, 1] * c[:, 1] / zs + K[1, 2]
-        H, W = r.alpha.shape
-        ok = (z > 0) & (u >= 0) & (u < W) & (w >= 0) & (w < H)
-        ui = u.floor().long().clamp(0, W - 1)
-        vi = w.floor().long().clamp(0, H - 1)
-        a = r.alpha.to(x.device)[vi, ui]
-        d = r.depth.to(x.device)[vi, ui].float()
-        out += (ok & (a >= min_alpha) & (z <= d + band)).float()
+        out += (_view_depth_excess(x, v, r, min_alpha) <= band).float()
+    return out
+
+
+def surface_excess(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], renders: Sequence[ViewRender],
+                   min_alpha: float = 0.5) -> Float[Tensor, " N"]:  # fmt: skip
+    """For each Gaussian, the smallest depth (scene units) by which its centre lies behind a view's rendered surface,
+    over the views that see it on a pixel at least ``min_alpha`` opaque (negative: in front of it; +inf: no such
+    view). ``surface_excess(...) <= band`` is ``surface_views(..., band) > 0``, for every band from one pass."""
+    out = torch.full((len(means),), float("inf"), dtype=torch.float32, device=means.device)
+    x = means.float()
+    for v, r in zip(views, renders):
+        out = torch.minimum(out, _view_depth_excess(x, v, r, min_alpha))
     return out
 
 

@@ -37,7 +37,7 @@ from .carve import (
 from .config import GeometryConfig
 from .errors import GeometryError
 from .extent import polytope_layer, support_excess
-from .gaussians import ViewRender, render_depth, surface_views
+from .gaussians import ViewRender, render_depth, surface_excess, surface_views
 from .grid import VoxelGrid
 from .hidden import (
     gaussian_samples,
@@ -512,10 +512,11 @@ def reconstruct_object(
     wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
     shrink = cfg.extent_shrink_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
     ext_idx = torch.nonzero(selection.selected).squeeze(1)
-    seen_band, seen_views = grid.voxel_size, None  # each selected Gaussian's views that see it within a voxel
+    # each selected Gaussian's smallest depth behind a view's rendered surface: the extent's, the material evidence's
+    # and the skin's sets are those within their bands of it (one pass over the views)
+    excess = surface_excess(g.means[ext_idx], obj_views, renders)
     if cfg.extent_seen:
-        seen_views = surface_views(g.means[ext_idx], obj_views, renders, seen_band)
-        seen = seen_views > 0
+        seen = excess <= grid.voxel_size
         if int(seen.sum()) >= 50:
             logger.info("object extent: %d of %d selected Gaussians are seen by a view; the unseen ones "
                         "do not set where the solid ends", int(seen.sum()), len(ext_idx))  # fmt: skip
@@ -543,15 +544,11 @@ def reconstruct_object(
     solids, hull = _cut_below(grid, solids, hull, selection.plane)
     sel = selection.selected
     band = (cfg.evidence_surface_voxels if cfg.evidence_surface_voxels is not None else 1.0) * grid.voxel_size
-    if seen_views is None or band != seen_band:  # (the same band on the same grid: the extent's counts)
-        seen_views = surface_views(g.means[sel], obj_views, renders, band)
-    on_surface = seen_views > 0
+    on_surface = excess <= band
     hidden_removed = None
     edges: list[np.ndarray] | None = None
     if cfg.hidden_skin_voxels is not None:
-        skin_of = on_surface
-        if cfg.hidden_skin_band is not None and cfg.hidden_skin_band * grid.voxel_size != band:
-            skin_of = surface_views(g.means[sel], obj_views, renders, cfg.hidden_skin_band * grid.voxel_size) > 0
+        skin_of = on_surface if cfg.hidden_skin_band is None else excess <= cfg.hidden_skin_band * grid.voxel_size
         surf = _Subset(g, torch.nonzero(sel).squeeze(1)[skin_of])
         skin_band = (cfg.hidden_skin_seen or 0.0) * grid.voxel_size
 
