@@ -52,7 +52,7 @@ class GeometryConfig:
     between the means: a 4 cm rod at 8 mm voxels kept 0.81 of its volume)"""
     extent_seen: bool = True
     """the polytope supports only the object's Gaussians that some view sees on its rendered surface
-    (:func:`.gaussians.surface_views`, within a voxel behind it; all of them where fewer than 50 are):
+    (:func:`.gaussians.surface_excess`, within a voxel behind it; all of them where fewer than 50 are):
     Gaussians under an unseen underside, which no view sees, do not place where the solid ends there; the seen
     faces around it do. False: every selected Gaussian (the GPU lamp's steel base kept a layer of false solid
     under its bottom, and the lamp came out 1.14-1.17x at 3 of 5 seeds; benchmarks/README.md, session 32)"""
@@ -102,8 +102,8 @@ class GeometryConfig:
     (:mod:`.hidden`, "Seen samples"). None = every axis end counts (session 32); documented range 0.5-2"""
     hidden_skin_band: float | None = 0.5
     """the skin's Gaussians are those whose centre some view sees at most this many voxels behind its rendered depth
-    (:func:`.gaussians.surface_views`; :mod:`.hidden`, "The skin's band"); None: ``evidence_surface_voxels``'s band
-    (1 voxel, before session 42), the set whose labels count as material evidence. Documented range 0.5-1"""
+    (:func:`.gaussians.surface_excess`; :mod:`.hidden`, "The skin's band"); None: ``evidence_surface_voxels``'s
+    band (1 voxel, before session 42), the set whose labels count as material evidence. Documented range 0.5-1"""
     hidden_min_open_fraction: float = 0.5
     """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
     than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""
@@ -161,11 +161,11 @@ class GeometryConfig:
     evidence_surface_voxels: float | None = 1.0
     """a Gaussian gives its voxel material evidence (``min_voxel_evidence``) only where at least one view sees its
     centre on the rendered surface, at most this many voxels behind the object's rendered depth
-    (:func:`.gaussians.surface_views`). Gaussians under the surface carry the labels that a sliver of blending weight
-    through the surface in front of them gave them in the lifting (each view that sees a Gaussian at all counts as one
-    observation, :mod:`physgs_nerfstudio.nerfstudio.pipeline`): the GPU shoe's rubber sole, under its leather upper,
-    held leather evidence 5-8 mm below the seam, and 22% of its voxels were weighed as the upper's hollow inside. None =
-    every labelled Gaussian counts; documented range 0.5-2"""
+    (:func:`.gaussians.surface_excess`). Gaussians under the surface carry the labels that a sliver of blending
+    weight through the surface in front of them gave them in the lifting (each view that sees a Gaussian at all
+    counts as one observation, :mod:`physgs_nerfstudio.nerfstudio.pipeline`): the GPU shoe's rubber sole, under
+    its leather upper, held leather evidence 5-8 mm below the seam, and 22% of its voxels were weighed as the
+    upper's hollow inside. None = every labelled Gaussian counts; documented range 0.5-2"""
     interior_up_weight: float = 10.0
     """in the nearest-evidence rule of the solid's inside (:func:`.parts.voxel_mixture`), a vertical distance counts
     this many times a horizontal one, so that an inside voxel takes the material of the observed surface nearest at

@@ -11,9 +11,9 @@ Gaussians sample. Hidden space under a top is enclosed by the top on one side on
 where the lowest views' rays grazed the top's edges, a boundary that no Gaussian lies on. So a voxel is *hidden open
 space* when, for most of the 26 lattice directions, a ray from it leaves the solid into carved space without
 touching the *skin*, the seen surface: the Gaussians that some view sees on its rendered surface
-(:func:`.gaussians.surface_views`) sample it. A ray that leaves the solid below the support plane or beyond the
-Gaussians' support polytope (the cuts of :mod:`.extent` and :func:`.reconstruct._cut_below`: the object's unseen
-underside) counts as enclosed, as one that reaches the skin. Skin voxels are never removed.
+(:func:`.gaussians.surface_excess`) sample it. A ray that leaves the solid below the support plane or beyond
+the Gaussians' support polytope (the cuts of :mod:`.extent` and :func:`.reconstruct._cut_below`: the object's
+unseen underside) counts as enclosed, as one that reaches the skin. Skin voxels are never removed.
 
 The skin (:func:`skin_centred`, the default since session 24). The samples are the surface Gaussians' means and the
 ends of their axes at one standard deviation (:func:`gaussian_samples`): a few large Gaussians cover a surface
