@@ -157,7 +157,6 @@ def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
     return out
 
 
-@torch.no_grad()
 def _view_depth_excess(x: Tensor, v: CaptureView, r: ViewRender, min_alpha: float) -> Tensor:
     """float [N]: each point's camera depth behind ``r``'s rendered depth at its nearest pixel, +inf where it projects
     outside the image, behind the camera or on a pixel less than ``min_alpha`` opaque."""
@@ -177,6 +176,7 @@ def _view_depth_excess(x: Tensor, v: CaptureView, r: ViewRender, min_alpha: floa
     return torch.where(ok, excess, torch.full_like(excess, float("inf")))
 
 
+@torch.no_grad()
 def surface_views(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], renders: Sequence[ViewRender],
                   band: float | Float[Tensor, " N"], min_alpha: float = 0.5
                   ) -> Float[Tensor, " N"]:  # fmt: skip
@@ -185,7 +185,8 @@ def surface_views(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], ren
     ``band`` (scene units; one for all or one per point) behind that pixel's rendered depth. A Gaussian
     under the surface that every view sees (inside a solid, under a shell) scores 0, however its lifted labels
     came to it (a sliver of blending weight through the surface in front of it counts a view in the lifting,
-    :mod:`physgs_nerfstudio.nerfstudio.pipeline`). Whether any view sees it, at several bands: :func:`surface_excess`."""
+    :mod:`physgs_nerfstudio.nerfstudio.pipeline`). Whether any view sees it, at several bands:
+    :func:`surface_excess`."""
     out = torch.zeros(len(means), dtype=torch.float32, device=means.device)
     if not len(means):
         return out
@@ -197,6 +198,7 @@ def surface_views(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], ren
     return out
 
 
+@torch.no_grad()
 def surface_excess(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], renders: Sequence[ViewRender],
                    min_alpha: float = 0.5) -> Float[Tensor, " N"]:  # fmt: skip
     """For each Gaussian, the smallest depth (scene units) by which its centre lies behind a view's rendered surface,
