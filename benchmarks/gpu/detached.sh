@@ -17,6 +17,10 @@ case "${1:?start|wait}" in
     echo "started: $(wc -l < $D/jobs) jobs, log $D/log"
     ;;
   wait)
+    if [ ! -f $D/log ]; then  # a fresh machine: the one that ran `start` went back, and its jobs ended with it
+      echo "no $D/log: this machine never ran \`start\` (the machine that did was given back); start again" >&2
+      exit 3
+    fi
     T0=$(date +%s) seen=0
     while :; do
       n=$(wc -l < $D/log); [ "$n" -gt "$seen" ] && { sed -n "$((seen + 1)),${n}p" $D/log | cut -c1-300; seen=$n; }
