@@ -69,7 +69,7 @@ def _opaque_bilinear(r, u: float, v: float) -> float:
 
 
 def _slack(r, i: int, j: int, lookup: str) -> float:
-    """The lookup's error bound at pixel (i, j), one pixel at a time (carve.depth_slack's definition)."""
+    """The lookup's error bound at pixel (i, j), one pixel at a time (as in carve_views.depth_slack)."""
     H, W = r.depth.shape
     op = lambda a, b: 0 <= a < H and 0 <= b < W and float(r.alpha[a, b]) >= 0.5
     if not op(i, j):

@@ -114,7 +114,7 @@ def test_box_volume_from_carving(box):
     pf, views = box
     geo = _geo(pf, views)
     v = geo.volumes[0].sum()
-    # the centre test is unbiased to first order and the depth margin is 0 on a plane (carve.depth_slack)
+    # the centre test is unbiased to first order; the depth margin is 0 on a plane (carve_views.depth_slack)
     assert 0.95 * 0.024 <= v <= 1.1 * 0.024
     # every variant stays close: the geometric uncertainty is honest, not wide
     assert np.all(np.abs(geo.volumes.sum(1) / v - 1) < 0.25)

@@ -487,7 +487,7 @@ def test_dominance_of_repeated_rows_unchanged(monkeypatch):
 def test_outside_mask_hull_equals_one_view_at_a_time(monkeypatch):
     """The hull test with the carving's batched lookup equals the per-view loop it replaces (select.py at 95953ad,
     the oracle), for points framed by some views and not others, on a GPU's batch size and one view at a time."""
-    from physgs_nerfstudio.geometry import carve
+    from physgs_nerfstudio.geometry import carve_views
     from physgs_nerfstudio.geometry.carve import _sample, signed_mask_distances
     from physgs_nerfstudio.geometry.select import SelectConfig, outside_mask_hull
 
@@ -511,7 +511,7 @@ def test_outside_mask_hull_equals_one_view_at_a_time(monkeypatch):
         framed < cfg.hull_min_framed_fraction * len(views))
     assert 0 < int(want.sum()) < len(means) and 0 < int((framed < len(views)).sum())
     for points in (1, 3 * len(means), 1 << 23):
-        monkeypatch.setattr(carve, "default_batch_points", lambda _dev, p=points: p)
+        monkeypatch.setattr(carve_views, "default_batch_points", lambda _dev, p=points: p)
         assert torch.equal(outside_mask_hull(means, views, cfg, chunk=3000), want)
 
 

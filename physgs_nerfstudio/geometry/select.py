@@ -226,12 +226,13 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
 
 def hull_view_weights(framed: Tensor, outside: Tensor, counts: tuple[Tensor, Tensor] | None = None) -> Tensor:
     """float64 [V]: each view's weight in the hull vote, from the views' votes on the selected centres (bool [V, n]
-    each, :func:`.carve.mask_view_votes`): the *recall* of its mask, the share of the centres that the views'
-    majority holds inside the masks (inside in more than half of the views that frame them) which this view, where
-    it frames them, holds inside too. A view whose segmentation lost a part of the object (the built-in segmenter at
-    512 px dropped the table's top in a third of the views) keeps few of them, and its "outside" says little: it
-    votes with that little weight, so that the views which did see the part decide. A view that frames none of them
-    weighs 1. ``counts``: ``(framed.sum(0), outside.sum(0))`` when the caller has them."""
+    each, :func:`.carve_views.mask_view_votes`): the *recall* of its mask, the share of the centres that the
+    views' majority holds inside the masks (inside in more than half of the views that frame them) which this
+    view, where it frames them, holds inside too. A view whose segmentation lost a part of the object (the
+    built-in segmenter at 512 px dropped the table's top in a third of the views) keeps few of them, and its
+    "outside" says little: it votes with that little weight, so that the views which did see the part decide.
+    A view that frames none of them weighs 1. ``counts``: ``(framed.sum(0), outside.sum(0))`` when the caller
+    has them."""
     n_framed, n_outside = counts if counts is not None else (framed.sum(0), outside.sum(0))
     member = (n_framed > 0) & (2 * n_outside < n_framed)
     held = (framed & member).sum(1)

@@ -283,7 +283,8 @@ def seen_under_plane(points: np.ndarray, inliers_uv: np.ndarray, n: np.ndarray, 
     """bool [P]: which ``points`` [P, 3] under the plane ``x . n = d`` the views see *past* the plane on their
     foreground masks: of the views that see a point past the plane (the view's camera lies under the plane, or its
     segment to the point crosses the plane outside the plane's footprint, and the point is in its frame), at least
-    two and at least half have it on their mask (the carving's lookup, :func:`.carve.mask_view_votes`). The footprint is the cells of a
+    two and at least half have it on their mask (the carving's lookup, :func:`.carve_views.mask_view_votes`).
+    The footprint is the cells of a
     ``cells``-wide grid over the in-plane coordinates that hold an inlier (``inliers_uv`` [M, 2], :func:`_in_plane`
     coordinates), grown by a cell and with its holes filled (the floor under an object standing on it holds no inlier,
     but it is there). A table's legs are seen so from the low views; what lies under a floor is seen only through it,
