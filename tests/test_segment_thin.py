@@ -15,15 +15,19 @@ import pytest
 from physgs_nerfstudio.perception.segment_builtin import BuiltinSegmenter, BuiltinSegmenterConfig
 
 
-def _scene(width: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """A shaded wall over a floor, a striped wooden top (label 1), two metal legs ``width`` px wide with a highlight
-    along them (label 2), and pixel noise."""
-    rng = np.random.default_rng(seed)
+def _canvas(seed: int, wall: tuple[int, int, int], shade: float):
+    """A 512 px wall of colour ``wall`` darkening downwards by ``shade`` per row: (rng, yy, xx, image, labels 0)."""
     h = 512
     yy, xx = np.mgrid[0:h, 0:h].astype(np.float64)
     img = np.empty((h, h, 3))
-    lab = np.zeros((h, h), np.int32)
-    img[:] = np.array([205, 195, 175]) - 0.05 * yy[..., None]
+    img[:] = np.array(wall) - shade * yy[..., None]
+    return np.random.default_rng(seed), yy, xx, img, np.zeros((h, h), np.int32)
+
+
+def _scene(width: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A shaded wall over a floor, a striped wooden top (label 1), two metal legs ``width`` px wide with a highlight
+    along them (label 2), and pixel noise."""
+    rng, yy, xx, img, lab = _canvas(seed, (205, 195, 175), 0.05)
     img[yy > 330] = np.array([115, 100, 90])
     top = (np.abs(xx - 256) < 120) & (yy > 120) & (yy < 170)
     img[top] = np.array([150, 110, 60]) + 15 * np.sin(xx[top] / 6.0)[:, None]
@@ -66,12 +70,7 @@ def test_oversegment_is_checked_and_in_the_fingerprint():
 def _ring_scene(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """A steel ring seen at an angle (label 2: an ellipse 5-17 px wide, its shading changing around it and a
     highlight along it, as a stool's footrest) behind three wooden legs 16 px wide (label 1), on a shaded wall."""
-    rng = np.random.default_rng(seed)
-    h = 512
-    yy, xx = np.mgrid[0:h, 0:h].astype(np.float64)
-    img = np.empty((h, h, 3))
-    lab = np.zeros((h, h), np.int32)
-    img[:] = np.array([200, 195, 185]) - 0.04 * yy[..., None]
+    rng, yy, xx, img, lab = _canvas(seed, (200, 195, 185), 0.04)
     dx, dy = (xx - 256) / 170.0, (yy - 330) / 50.0
     across = (np.sqrt(dx**2 + dy**2) - 1.0) * 60.0
     ring = np.abs(across) < 3.0
