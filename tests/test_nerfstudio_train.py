@@ -35,7 +35,13 @@ def _ns_train() -> list[str]:
     return [exe] if exe else [sys.executable, "-m", "nerfstudio.scripts.train"]
 
 
-@pytest.mark.parametrize("head", ["logits", pytest.param("latent", marks=pytest.mark.slow),
+# the latent head's CLI run only with PHYSGS_ALL_HEADS=1 (the suite's 15 minutes): the CLI path is the same for every
+# head (a config value), and test_material_head covers that head's training, outputs, checkpoints and densification
+_LATENT = pytest.mark.skipif(not os.environ.get("PHYSGS_ALL_HEADS"), reason="the latent head's CLI run: set "
+                             "PHYSGS_ALL_HEADS=1 (covered in-process by test_material_head)")
+
+
+@pytest.mark.parametrize("head", ["logits", pytest.param("latent", marks=[pytest.mark.slow, _LATENT]),
                                   pytest.param("lifted", marks=pytest.mark.slow)])  # fmt: skip
 def test_ns_train_physgs_lite_end_to_end(tmp_path: Path, head: str) -> None:
     data = tmp_path / "mug"

@@ -22,7 +22,7 @@ from .capture import CaptureView
 from .gaussians import ViewRender
 
 if TYPE_CHECKING:
-    from .carve import CarveConfig
+    from .carve_config import CarveConfig
 
 __all__ = [
     "carve_depth",
