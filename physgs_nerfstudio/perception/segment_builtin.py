@@ -30,6 +30,7 @@ Built by ``BuiltinSegmenterConfig.setup()``; the protocol, the mask type and the
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
@@ -327,11 +328,11 @@ def _region_solidity(lbl: np.ndarray) -> np.ndarray:
 
 def _thin_groups(
     lbl: np.ndarray, lab: np.ndarray, background: np.ndarray, min_area: int, min_solidity: float,
-    max_background_frac: float, thresh: float,
-) -> np.ndarray:
-    """[H, W] group ids (0: no group) of the regions of ``lbl`` that are mostly foreground but fail the area or the
-    sliver test, joined where two of them touch (4-connected) and their mean chromaticities (a*, b*) differ by less
-    than ``thresh`` (single linkage). Lightness is left out: along a thin curved part it changes with the shading
+    max_background_frac: float, thresholds: Sequence[float],
+) -> list[np.ndarray]:
+    """Per threshold, [H, W] group ids (0: no group) of the regions of ``lbl`` that are mostly foreground but fail
+    the area or the sliver test, joined where two of them touch (4-connected) and their mean chromaticities (a*, b*)
+    differ by less than that threshold (single linkage; the fragments and their distances are found once). Lightness is left out: along a thin curved part it changes with the shading
     and the highlight, which split the part into fragments in the first place; chromaticity changes with the
     material."""
     n = int(lbl.max()) + 1
@@ -346,24 +347,25 @@ def _thin_groups(
     b = np.concatenate([lbl[:, 1:].reshape(-1), lbl[1:, :].reshape(-1)])
     sel = (a != b) & cand[a] & cand[b]
     pairs = np.unique(np.stack([np.minimum(a[sel], b[sel]), np.maximum(a[sel], b[sel])], 1), axis=0)
-    if len(pairs):
-        pairs = pairs[np.linalg.norm(chroma[pairs[:, 0]] - chroma[pairs[:, 1]], axis=1) < thresh]
-    parent = np.arange(n)
-
-    def find(x: int) -> int:
+    dist = np.linalg.norm(chroma[pairs[:, 0]] - chroma[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0)
+    def find(parent: np.ndarray, x: int) -> int:
         while parent[x] != x:
             parent[x] = parent[parent[x]]
             x = parent[x]
         return x
 
-    for u, v in pairs.tolist():  # over adjacent fragment pairs (hundreds), not pixels
-        ru, rv = find(u), find(v)
-        if ru != rv:
-            parent[max(ru, rv)] = min(ru, rv)
-    root = np.array([find(i) for i in range(n)])
-    groups = np.where(cand, root + 1, 0)[lbl]
-    uniq, inv = np.unique(groups, return_inverse=True)
-    return inv.reshape(lbl.shape) + (0 if uniq[0] == 0 else 1)  # 1..k, 0 where no group
+    out = []
+    for thresh in thresholds:
+        parent = np.arange(n)
+        for u, v in pairs[dist < thresh].tolist():  # over adjacent fragment pairs (hundreds), not pixels
+            ru, rv = find(parent, u), find(parent, v)
+            if ru != rv:
+                parent[max(ru, rv)] = min(ru, rv)
+        root = np.array([find(parent, i) for i in range(n)])
+        groups = np.where(cand, root + 1, 0)[lbl]
+        uniq, inv = np.unique(groups, return_inverse=True)
+        out.append(inv.reshape(lbl.shape) + (0 if uniq[0] == 0 else 1))  # 1..k, 0 where no group
+    return out
 
 
 def _downscale(image: np.ndarray, work_size: int) -> np.ndarray:
@@ -488,10 +490,8 @@ class BuiltinSegmenter:
         """Part masks made of the level's dropped fragments (``thin_chroma``, module doc "Thin fragments"); their
         stability is the best IoU with the groups made at ``perturb`` times the chroma threshold."""
         cfg = self.config
-        groups = _thin_groups(lbl, lab, background, min_area, cfg.min_solidity, cfg.max_background_frac,
-                              cfg.thin_chroma)
-        perturbed = _thin_groups(lbl, lab, background, min_area, cfg.min_solidity, cfg.max_background_frac,
-                                 cfg.thin_chroma * cfg.perturb)
+        groups, perturbed = _thin_groups(lbl, lab, background, min_area, cfg.min_solidity, cfg.max_background_frac,
+                                         (cfg.thin_chroma, cfg.thin_chroma * cfg.perturb))
         sizes = np.bincount(groups.reshape(-1))
         out = []
         for g in np.flatnonzero(sizes[1:] >= min_area) + 1:
