@@ -32,7 +32,7 @@ case "${1:?start|wait}" in
 import json, sys
 from pathlib import Path
 out = Path(sys.argv[1])
-for st in Path("/tmp/ms").glob("*/stability"):
+for st in Path("/tmp").glob("ms*/*/stability"):
     rows = []
     for rep in sorted(st.glob("*/report.json")):
         try:
@@ -40,9 +40,9 @@ for st in Path("/tmp/ms").glob("*/stability"):
             rows.append({"setting": rep.parent.name, "mean_kg": m["mean_kg"], "volume_m3": m["volume_m3"]})
         except Exception as e:  # an export still writing
             rows.append({"setting": rep.parent.name, "error": str(e)})
-    (out / f"stability_partial_{st.parent.name}.json").write_text(json.dumps(rows, indent=1))
+    (out / f"stability_partial_{st.parent.parent.name}_{st.parent.name}.json").write_text(json.dumps(rows, indent=1))
 PY
-    cp $D/out/*.json $D/out/*.log "${OUT:-.}/" 2>/dev/null; cp $D/log "${OUT:-.}/detached.log"
+    cp -r $D/out/. "${OUT:-.}/" 2>/dev/null; cp $D/log "${OUT:-.}/detached.log"
     rm -f "${OUT:-.}/gpu.txt"; ls "${OUT:-.}"
     ;;
 esac

@@ -414,19 +414,22 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     "band05": GeometryConfig.hidden_skin_band 0 or 0.5 voxel), not the
     #     suite; ROOM_TRUTH=1: its export's counted volume against the truth too (voxel_truth.py --volume
     #     --relative-to top -> voxel_truth_room_gpu_sGSEED.json) and its hidden-space stage (hidden_stage.py, left in
-    #     /tmp/ms/indoor_room_sGSEED/hidden_stage.npz). GPU0=k: the first training goes to GPU k (several invocations side by side).
+    #     $MS/indoor_room_sGSEED/hidden_stage.npz). GPU0=k: the first training goes to GPU k (several invocations side by side).
     #     STABILITY="chair table": then mass_stability.py on those runs (SJOBS = 8 at a time) ->
     #     stability_OBJECT_sGSEED.json; SEAMS="shoe ...": then seam_offset.py on those -> seam_offset_gpu_sGSEED.json
-    GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6}
+    #   MS=DIR (default /tmp/ms): the folder of the scenes and runs (two variants side by side); SEG_ARGS: perception's
+    #     segmenter flags in PHASE=scenes (default "segmenter:builtin", e.g. "segmenter:builtin --segmenter.thin-chroma 4")
+    GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6} MS=${MS:-/tmp/ms}
+    SEG_ARGS=${SEG_ARGS:-segmenter:builtin}
     OBJECTS=${OBJECTS:-"mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase"}
-    RUNS=$(for o in $OBJECTS; do [ -d /tmp/ms/${o}_s$GSEED/runs ] && echo /tmp/ms/${o}_s$GSEED; done)  # diag, seams
+    RUNS=$(for o in $OBJECTS; do [ -d $MS/${o}_s$GSEED/runs ] && echo $MS/${o}_s$GSEED; done)  # diag, seams
     case "${PHASE:?PHASE=scenes|train|diag|seams}" in
       scenes)
         for o in $OBJECTS; do
-          (d=/tmp/ms/${o}_s$GSEED; OMP_NUM_THREADS=1 python3 -m physgs_nerfstudio.cli synth --out $d/scene --object $o \
-             --seed $GSEED --views 60 --resolution 512 --overwrite > /tmp/ms_${o}_s$GSEED.log 2>&1 && OMP_NUM_THREADS=1 python3 -m \
-             physgs_nerfstudio.cli perceive --data $d/scene --vlm simulated --segmenter builtin --no-progress \
-             --max-concurrency 4 >> /tmp/ms_${o}_s$GSEED.log 2>&1; echo "[$(elapsed) s] scene $o: $(tail -c 200 /tmp/ms_${o}_s$GSEED.log | tail -1)") &
+          (d=$MS/${o}_s$GSEED; OMP_NUM_THREADS=1 python3 -m physgs_nerfstudio.cli synth --out $d/scene --object $o \
+             --seed $GSEED --views 60 --resolution 512 --overwrite > ${MS}_${o}_s$GSEED.log 2>&1 && OMP_NUM_THREADS=1 python3 -m \
+             physgs_nerfstudio.cli perceive --data $d/scene --no-progress \
+             --max-concurrency 4 vlm:simulated $SEG_ARGS >> ${MS}_${o}_s$GSEED.log 2>&1; echo "[$(elapsed) s] scene $o: $(tail -c 200 ${MS}_${o}_s$GSEED.log | tail -1)") &
         done
         if [ -n "${CPU_SEEDS:-}" ]; then
           CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $CPU_SEEDS --jobs "${JOBS:-8}" --out /tmp/mass_suite \
@@ -446,30 +449,30 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         echo "[$(elapsed) s] gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
         n=0 NGPU=$(nvidia-smi -L | wc -l)
         for o in $OBJECTS; do
-          d=/tmp/ms/${o}_s$GSEED
+          d=$MS/${o}_s$GSEED
           [ -f $d/scene/materials.json ] || { echo "no scene for $o"; continue; }
           (CUDA_VISIBLE_DEVICES=$(((n + ${GPU0:-0}) % NGPU)) python3 -m nerfstudio.scripts.train physgs --data $d/scene --max-num-iterations "$STEPS" --vis tensorboard \
              --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
-             --output-dir $d/runs --timestamp gpu > /tmp/ms_train_${o}_s$GSEED.log 2>&1; echo "[$(elapsed) s] trained $o: rc $?") &
+             --output-dir $d/runs --timestamp gpu > ${MS}_train_${o}_s$GSEED.log 2>&1; echo "[$(elapsed) s] trained $o: rc $?") &
           n=$((n + 1)); [ $((n % (CONC * NGPU))) -eq 0 ] && wait
         done
         wait
         SUITE=$(for o in $OBJECTS; do [ "$o" = indoor_room ] || echo $o; done)
         if [[ " $OBJECTS " == *" indoor_room "* ]]; then  # beside the suite's exports
           for v in ${ROOM_VARIANTS:-default}; do  # ROOM_VARIANTS="default noband nosplit coarse": the selection's options
-            r=/tmp/ms/room_s${GSEED}_$v
+            r=$MS/room_s${GSEED}_$v
             case $v in noband) args="--contact-band none" ;; nosplit) args="--no-split" ;;
                        coarse) args="--contact-band none --no-split" ;; nohalf) args="--open-half none" ;;
                        half8) args="--open-half 8" ;; passes8) args="--passes 8" ;;
                        whole) args="--subsamples 1" ;; splitband) args="--split-in-band" ;;
                        names1) args="--object-names 1" ;; band0) args="--skin-band 0" ;;
                        band05) args="--skin-band 0.5" ;; *) args="" ;; esac
-            (python3 benchmarks/indoor_room.py --run /tmp/ms/indoor_room_s$GSEED --out $r $args > $r.log 2>&1
+            (python3 benchmarks/indoor_room.py --run $MS/indoor_room_s$GSEED --out $r $args > $r.log 2>&1
              cp $r/indoor_room.json "$OUT/indoor_room_gpu_s${GSEED}_$v.json"
              echo "[$(elapsed) s] indoor_room s$GSEED $v: $(grep -E '"volume_ratio"|"selected_on_ground"' $r/indoor_room.json | tr -d '\n ')") &
           done
           if [ -n "${ROOM_TRUTH:-}" ]; then  # the export's counted volume against the truth, voxel by voxel, about the top
-            (d=/tmp/ms/indoor_room_s$GSEED; cfg=$(ls $d/runs/*/*/*/config.yml | head -1)
+            (d=$MS/indoor_room_s$GSEED; cfg=$(ls $d/runs/*/*/*/config.yml | head -1)
              python3 -m physgs_nerfstudio.cli export --load-config $cfg --outputs mass voxels --output-dir $d/export_truth \
                > $d/export_truth.log 2>&1
              python3 benchmarks/voxel_truth.py $d/export_truth --object indoor_room --seed $GSEED --volume --relative-to top \
@@ -481,25 +484,25 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
           fi
         fi
         if [ -n "$SUITE" ]; then
-          python3 benchmarks/mass_suite.py --trained --objects $SUITE --seeds $GSEED --jobs "${EJOBS:-4}" --out /tmp/ms \
+          python3 benchmarks/mass_suite.py --trained --objects $SUITE --seeds $GSEED --jobs "${EJOBS:-4}" --out $MS \
             --alt-name gpu > "$OUT/gpu_mass_suite.log" 2>&1
-          cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
+          cut -c1-240 "$OUT/gpu_mass_suite.log" | tail -14; cp $MS/mass_suite_gpu*.json "$OUT/" 2>/dev/null
         fi
         # the same runs exported with ALT_ARGS, ALT2_ARGS and ALT3_ARGS as well (each where set)
         for alt in "${ALT_NAME:-alt}=${ALT_ARGS:-}" "${ALT2_NAME:-alt2}=${ALT2_ARGS:-}" "${ALT3_NAME:-alt3}=${ALT3_ARGS:-}"; do
           name=${alt%%=*} args=${alt#*=}
           [ -n "$args" ] || continue
-          python3 benchmarks/mass_suite.py --trained --objects $SUITE --seeds $GSEED --jobs "${EJOBS:-4}" --out /tmp/ms \
+          python3 benchmarks/mass_suite.py --trained --objects $SUITE --seeds $GSEED --jobs "${EJOBS:-4}" --out $MS \
             --alt-name "gpu_$name" --export-args="$args" > "$OUT/gpu_mass_suite_$name.log" 2>&1
-          tail -1 "$OUT/gpu_mass_suite_$name.log"; cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null  # each as it ends
+          tail -1 "$OUT/gpu_mass_suite_$name.log"; cp $MS/mass_suite_gpu*.json "$OUT/" 2>/dev/null  # each as it ends
         done
-        cp /tmp/ms/mass_suite_gpu*.json "$OUT/" 2>/dev/null
+        cp $MS/mass_suite_gpu*.json "$OUT/" 2>/dev/null
         for o in ${STABILITY:-}; do
-          python3 benchmarks/mass_stability.py /tmp/ms/${o}_s$GSEED --jobs "${SJOBS:-8}" 2>&1 | grep "largest change"
-          cp /tmp/ms/${o}_s$GSEED/mass_stability.json "$OUT/stability_${o}_s$GSEED.json" 2>/dev/null
+          python3 benchmarks/mass_stability.py $MS/${o}_s$GSEED --jobs "${SJOBS:-8}" 2>&1 | grep "largest change"
+          cp $MS/${o}_s$GSEED/mass_stability.json "$OUT/stability_${o}_s$GSEED.json" 2>/dev/null
         done
         if [ -n "${SEAMS:-}" ]; then
-          python3 benchmarks/seam_offset.py $(for o in $SEAMS; do echo /tmp/ms/${o}_s$GSEED; done) --trained \
+          python3 benchmarks/seam_offset.py $(for o in $SEAMS; do echo $MS/${o}_s$GSEED; done) --trained \
             --out "$OUT/seam_offset_gpu_s$GSEED.json" 2>&1 | grep -v -i warn | tail -3
         fi
         wait  # indoor_room
