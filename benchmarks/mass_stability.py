@@ -65,8 +65,12 @@ def export(run: Path, name: str, flags: list[str], extra: Sequence[str] = (), ta
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "export", "--load-config", str(cfg), "--output-dir",
            str(out), "--outputs", "mass", "--overwrite", *extra, *flags]  # fmt: skip
     proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
-    if proc.returncode != 0:
-        return {"setting": name, "error": (proc.stderr.strip().splitlines() or ["failed"])[-1]}
+    if proc.returncode != 0:  # the error's own line (a CUDA error's last line is only advice), the rest on disk
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "stderr.log").write_text(proc.stderr[-20000:])
+        lines = proc.stderr.strip().splitlines() or ["failed"]
+        said = [ln for ln in lines if "Error" in ln or "error:" in ln]
+        return {"setting": name, "error": (said or lines)[-1], "rc": proc.returncode}
     rep = json.loads((out / "report.json").read_text())["mass"]
     return {"setting": name, "mean_kg": rep["mean_kg"], "interval_kg": rep["interval_kg"],
             "volume_m3": rep["volume_m3"]}  # fmt: skip
@@ -96,7 +100,9 @@ def main() -> None:
             print(run.name, json.dumps(r), flush=True)
         ok = [abs(r["relative_to_default"] - 1) for r in rows if "relative_to_default" in r]
         worst = max(ok) if ok else float("nan")
-        print(f"{run.name}: largest change {worst:.1%} over {len(ok) - 1} settings (target <= 20%)")
+        failed = [r["setting"] for r in rows if "error" in r]
+        print(f"{run.name}: largest change {worst:.1%} over {len(ok) - 1} settings (target <= 20%)"
+              + (f"; {len(failed)} failed: {' '.join(failed)}" if failed else ""))
         (run / f"mass_stability{tag}.json").write_text(json.dumps({"rows": rows, "largest_change": worst}, indent=2))
 
 
