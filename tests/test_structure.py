@@ -1,6 +1,7 @@
 """The package's structure rules (docs/architecture.md, "Structure rules"), read from the source with `ast`:
-no function over 80 lines in perception/, export/ and nerfstudio/model.py; no import circle between the
-package's modules (imports inside functions count: they close a circle at run time just the same)."""
+no function over 80 lines in perception/, export/, nerfstudio/model.py and nerfstudio/model_outputs.py; no
+import circle between the package's modules (imports inside functions count: they close a circle at run time
+just the same)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "physgs_nerfstudio"
 MAX_FUNCTION_LINES = 80
-LENGTH_LIMITED = ("perception", "export", "nerfstudio/model.py")
+LENGTH_LIMITED = ("perception", "export", "nerfstudio/model.py", "nerfstudio/model_outputs.py")
 
 
 def _modules() -> dict[str, Path]:
