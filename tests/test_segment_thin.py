@@ -91,8 +91,8 @@ def test_thin_fragments_of_one_chromaticity_become_a_part_mask():
     and sliver tests drop; grouped by chromaticity (``thin_chroma``) they make part masks, and the legs' wood does
     not go into them."""
     img, lab = _ring_scene()
-    off = BuiltinSegmenterConfig().setup().segment(img)
-    on = BuiltinSegmenterConfig(thin_chroma=4.0).setup().segment(img)
+    off = BuiltinSegmenterConfig(thin_chroma=None).setup().segment(img)
+    on = BuiltinSegmenterConfig().setup().segment(img)  # the default: 4
     assert _majority_coverage(off, lab, 2) < 0.4  # the case the option is for (measured 0.29)
     assert _majority_coverage(on, lab, 2) > 0.55  # measured 0.63
     assert _majority_coverage(on, lab, 1) > 0.9
@@ -120,5 +120,6 @@ def test_region_solidity_is_the_per_mask_sliver_test():
 def test_thin_chroma_is_checked_and_in_the_fingerprint():
     with pytest.raises(ValueError, match="thin_chroma"):
         BuiltinSegmenter(BuiltinSegmenterConfig(thin_chroma=0.0))
-    on, off = BuiltinSegmenterConfig(thin_chroma=4.0).setup(), BuiltinSegmenterConfig().setup()
+    on, off = BuiltinSegmenterConfig().setup(), BuiltinSegmenterConfig(thin_chroma=None).setup()
+    assert on.config.thin_chroma == 4.0
     assert on.fingerprint() != off.fingerprint()  # cached masks of the other setting are not reused

@@ -10,7 +10,7 @@ share of each material that a mask of that majority material covers from 0.78 to
 0.656, for about 0.9 s more per 512 px image on one core (benchmarks/README.md, "Thin parts in the built-in
 segmenter"; ``benchmarks/segment_coverage.py``).
 
-Thin fragments (``thin_chroma``, off by default). A thin curved part (a stool's 14 mm footrest at 512 px, 5-8 px
+Thin fragments (``thin_chroma``, 4 by default; None turns it off). A thin curved part (a stool's 14 mm footrest at 512 px, 5-8 px
 wide) still falls apart at the part level: the legs in front cut it, and its shading around the curve and the
 highlight along it split it lengthwise, so its fragments are smaller than ``min_area_frac`` or fail the sliver test
 and are dropped. With ``thin_chroma`` set, the dropped fragments that are mostly foreground are joined where two touch
@@ -21,7 +21,10 @@ the threshold) is a part mask. At 512 px on the twelve generated objects (seed 2
 share of each material that a mask of that majority covers went 0.895 -> 0.921 (lowest 0.33 -> 0.57: the stool's
 steel 0.33 -> 0.73, the chair's aluminium 0.75 -> 0.86, the dumbbell's steel 0.67 -> 0.78), the share painted by a
 mask of another majority stayed 0.024 -> 0.025, and the masks per view (the VLM's calls) rose 6.6 -> 7.0
-(benchmarks/README.md, session 44). Off by default until its effect on the GPU suite's masses is measured.
+(benchmarks/README.md, session 44). On by default since session 45: the GPU suite perceived both ways at fresh
+seed 25450 covered 11 of 12 objects with it and 10 without (the stool 1.05x of its mass against 0.75x; the other
+objects within 1.1%), the CPU suite at 25146 had median APE 0.039 with it and 0.050 without, and the demo's time did
+not change (benchmarks/README.md, session 45).
 
 Built by ``BuiltinSegmenterConfig.setup()``; the protocol, the mask type and the shared mask operations are in
 :mod:`.segment`.
@@ -91,10 +94,10 @@ class BuiltinSegmenterConfig:
     """Drop masks whose perturbed-threshold IoU is below this."""
     dedup_iou: float = 0.85
     """Masks overlapping a better mask by more than this IoU are dropped."""
-    thin_chroma: float | None = None
+    thin_chroma: float | None = 4.0
     """Thin parts (module doc, "Thin fragments"): part-level regions that the area or sliver test drops are grouped
     with adjacent such regions whose mean chromaticity (CIE a*, b*) differs by less than this (Delta E), and a
-    group that passes the tests is a part mask. None (default) = off."""
+    group that passes the tests is a part mask. None = off (the masks before session 45)."""
     max_masks_per_level: tuple[int, int, int] = (4, 16, 24)
     """Cap per level (best score x area first); bounds the VLM calls per view."""
     levels: tuple[str, ...] = LEVELS
