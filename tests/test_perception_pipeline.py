@@ -192,3 +192,22 @@ def _check_transforms(before, after, root: Path):
         conf = np.asarray(Image.open(root / a["material_confidence_path"]))
         assert lab.dtype == np.uint8 and conf.dtype == np.uint8 and lab.shape == conf.shape
         assert ((lab > 0) == (conf > 0)).mean() > 0.99
+
+
+def test_cli_resume_with_another_segmenter_says_one_line(tmp_path, capsys):
+    """A scene perceived with other segmenter settings (e.g. before ``thin_chroma`` became the default) is not
+    resumed: `physgs perceive` ends with one line naming what differs and the fix, no traceback, files kept."""
+    synth = pytest.importorskip("physgs_nerfstudio.synth")
+    from physgs_nerfstudio.cli import entrypoint
+
+    root = synth.generate_scene(synth.SynthConfig(out=tmp_path / "mug", object="mug", views=2, resolution=32, seed=0))
+    base = ["perceive", "--data", str(root), "--no-progress", "vlm:simulated"]
+    entrypoint([*base, "segmenter:builtin", "--segmenter.thin-chroma", "None"])
+    before = (root / "observations.jsonl").read_text()
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        entrypoint(base)
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert e.value.code == 1 and len(err) == 1 and "Traceback" not in err[0], err
+    assert err[0].startswith("physgs perceive: error: ") and "segmenter" in err[0] and "--overwrite" in err[0]
+    assert (root / "observations.jsonl").read_text() == before

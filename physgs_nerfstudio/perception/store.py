@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..errors import PhysGSError
+
 logger = logging.getLogger(__name__)
 
 STORE_VERSION = 1
@@ -33,8 +35,9 @@ OBSERVATIONS_FILE = "observations.jsonl"
 PROGRESS_FILE = "perception/progress.jsonl"
 
 
-class StoreMismatch(RuntimeError):
-    """The existing observations were made with another configuration."""
+class StoreMismatch(PhysGSError, RuntimeError):
+    """The existing observations were made with another configuration (a user error: `physgs perceive` says it in
+    one line, with the fix)."""
 
 
 @dataclass
