@@ -351,20 +351,17 @@ def _thin_groups(
     sel = (a != b) & cand[a] & cand[b]
     pairs = np.unique(np.stack([np.minimum(a[sel], b[sel]), np.maximum(a[sel], b[sel])], 1), axis=0)
     dist = np.linalg.norm(chroma[pairs[:, 0]] - chroma[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0)
-    def find(parent: np.ndarray, x: int) -> int:
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
 
     out = []
     for thresh in thresholds:
-        parent = np.arange(n)
-        for u, v in pairs[dist < thresh].tolist():  # over adjacent fragment pairs (hundreds), not pixels
-            ru, rv = find(parent, u), find(parent, v)
-            if ru != rv:
-                parent[max(ru, rv)] = min(ru, rv)
-        root = np.array([find(parent, i) for i in range(n)])
+        near = pairs[dist < thresh]
+        graph = coo_matrix((np.ones(len(near)), (near[:, 0], near[:, 1])), shape=(n, n))
+        _, comp = connected_components(graph, directed=False)  # single linkage over the adjacent pairs
+        root = np.full(int(comp.max()) + 1, n)
+        np.minimum.at(root, comp, np.arange(n))  # each fragment's group named by its smallest member
+        root = root[comp]
         groups = np.where(cand, root + 1, 0)[lbl]
         uniq, inv = np.unique(groups, return_inverse=True)
         out.append(inv.reshape(lbl.shape) + (0 if uniq[0] == 0 else 1))  # 1..k, 0 where no group
