@@ -11,7 +11,9 @@ with the bounding box of the ellipse where alpha >= 1/255 (exact, with a one-pix
 is applied per pair). Pairs are sorted by pixel (stable, Gaussians already depth-sorted) and the
 transmittance is an exclusive segmented cumulative sum of log(1 - alpha) in float64. Gaussians are split
 into depth-ordered chunks of bounded pair count; the transmittance is carried between chunks, and chunks
-can be gradient-checkpointed so memory stays bounded for large scenes.
+can be gradient-checkpointed so memory stays bounded for large scenes. A chunk's backward is analytic
+(:class:`_CompositePairs`: gsplat's back-to-front sweep, vectorised with one cumulative sum per chunk),
+so autograd keeps no per-pair graph.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable
+from typing import NamedTuple
 
 import torch
 from jaxtyping import Bool, Float, Int
@@ -96,7 +99,6 @@ def _composite_chunk(
 
     `done_in` marks pixels already terminated by an earlier chunk (a Gaussian would have pushed the
     transmittance to <= 1e-4). Returns (colour sum, log transmittance after, done after)."""
-    n_pix = log_t_in.shape[0]
     with torch.no_grad():
         gid, pix = _enumerate_pairs(boxes, width)
         pxy = _pixel_centres(pix, width, params.dtype)
@@ -104,30 +106,10 @@ def _composite_chunk(
         ok = (sig >= 0) & (alpha >= ALPHA_MIN) & ~done_in.index_select(0, pix)  # finished pixels are out
         sel = ok.nonzero().squeeze(-1)
         pix, order = torch.sort(pix.index_select(0, sel), stable=True)  # per pixel, depth order is kept
-        gid = gid.index_select(0, sel.index_select(0, order)).long()  # int64: index_add is much faster
-        pix = pix.long()
-        pxy = _pixel_centres(pix, width, params.dtype)
-        counts = torch.bincount(pix, minlength=n_pix)
-        seg_start = (torch.cumsum(counts, 0) - counts).index_select(0, pix)
-
-    alpha = _PairAlpha.apply(params, gid, pxy, absgrad_hook)
-
-    log_1m = torch.log1p(-alpha.double())
-    csum = torch.cumsum(log_1m, 0) - log_1m  # exclusive, global
-    log_t_excl = csum - csum.index_select(0, seg_start) + log_t_in.index_select(0, pix)
-    with torch.no_grad():
-        included = (log_t_excl + log_1m) > LOG_T_MIN
-        done_out = done_in.clone()
-        done_out[pix[~included]] = True
-    idx = included.nonzero().squeeze(-1)
-    pix_in = pix.index_select(0, idx)
-    weights = alpha.index_select(0, idx) * torch.exp(log_t_excl.index_select(0, idx)).to(alpha.dtype)
-    out_colors = torch.zeros(n_pix, colors.shape[-1], dtype=colors.dtype, device=colors.device)
-    out_colors = out_colors.index_add(
-        0, pix_in, weights[:, None] * colors.index_select(0, gid.index_select(0, idx))
-    )
-    out_log_t = log_t_in.index_add(0, pix_in, log_1m.index_select(0, idx))
-    return out_colors, out_log_t, done_out
+        sel = sel.index_select(0, order)
+        pairs = _Pairs(gid.index_select(0, sel).long(), pix.long(), pxy.index_select(0, sel),
+                       alpha.index_select(0, sel), sig.index_select(0, sel))  # fmt: skip
+    return _CompositePairs.apply(params, colors, log_t_in, done_in, pairs, absgrad_hook)
 
 
 def _pixel_centres(pix: Int[Tensor, " P"], width: int, dtype: torch.dtype) -> Float[Tensor, "P 2"]:
@@ -135,34 +117,93 @@ def _pixel_centres(pix: Int[Tensor, " P"], width: int, dtype: torch.dtype) -> Fl
     return torch.stack([pix - py * width, py], -1).to(dtype) + 0.5
 
 
-class _PairAlpha(torch.autograd.Function):
-    """alpha of (Gaussian, pixel) pairs from per-Gaussian params [G, 6], gathered by `gid`, with an
-    analytic backward that scatters straight into [G, 6] (and reports per-pair |d/d means2d| for absgrad)."""
+class _Pairs(NamedTuple):
+    """Candidate (Gaussian, pixel) pairs of one chunk that pass the alpha test, sorted by pixel (stable, so in
+    depth order within a pixel): Gaussian (int64), pixel id (int64), pixel centre, alpha and sigma."""
+
+    gid: Tensor
+    pix: Tensor
+    pxy: Tensor
+    alpha: Tensor
+    sig: Tensor
+
+
+class _CompositePairs(torch.autograd.Function):
+    """Front-to-back compositing of sorted pairs behind a per-pixel log transmittance; analytic backward.
+
+    Per pixel, with the pairs in depth order, l_j = log(1 - alpha_j), the transmittance before pair i is
+    T_i = exp(log_t_in + sum_{j<i} l_j), its weight w_i = alpha_i T_i, the colour sum C = sum_i w_i c_i
+    and the log transmittance after all of them log_t_in + sum_i l_i. Pairs after the one that would push
+    the transmittance to <= 1e-4 are left out (a prefix is kept per pixel). The backward is the reverse
+    sweep of gsplat's kernel, vectorised: dL/dl_j = sum_{i>j} s_i w_i + dL/dlog_t_out, with
+    s_i = dL/dC . c_i, a suffix sum per pixel taken from one cumulative sum."""
 
     @staticmethod
-    def forward(ctx, params: Tensor, gid: Tensor, pxy: Tensor, absgrad_hook) -> Tensor:  # type: ignore[override]
-        pair_params = params.index_select(0, gid)
-        alpha, sig = _pair_alpha(pair_params, pxy)
-        ctx.save_for_backward(pair_params, gid, pxy, sig)
-        ctx.n, ctx.absgrad_hook = params.shape[0], absgrad_hook
-        return alpha
+    def forward(ctx, params, colors, log_t_in, done_in, pairs: _Pairs, absgrad_hook):  # type: ignore
+        n_pix = log_t_in.shape[0]
+        log_1m = torch.log1p(-pairs.alpha.double())
+        counts = torch.bincount(pairs.pix, minlength=n_pix)
+        csum = torch.cumsum(log_1m, 0) - log_1m  # exclusive, global
+        seg_base = (torch.cumsum(counts, 0) - counts).clamp_max(max(len(csum) - 1, 0))
+        base = csum.index_select(0, seg_base) if len(csum) else torch.zeros_like(log_t_in)
+        log_t_excl = csum - base.index_select(0, pairs.pix) + log_t_in.index_select(0, pairs.pix)
+        included = (log_t_excl + log_1m) > LOG_T_MIN
+        done_out = done_in.clone()
+        done_out[pairs.pix[~included]] = True
+        idx = included.nonzero().squeeze(-1)
+        gid, pix = pairs.gid.index_select(0, idx), pairs.pix.index_select(0, idx)
+        alpha = pairs.alpha.index_select(0, idx)
+        trans = torch.exp(log_t_excl.index_select(0, idx)).to(alpha.dtype)
+        weights = alpha * trans
+        pair_colors = colors.index_select(0, gid)
+        out_colors = torch.zeros(n_pix, colors.shape[-1], dtype=colors.dtype, device=colors.device)
+        out_colors.index_add_(0, pix, weights[:, None] * pair_colors)
+        out_log_t = log_t_in.index_add(0, pix, log_1m.index_select(0, idx))
+        ctx.mark_non_differentiable(done_out)
+        ctx.save_for_backward(params, colors, gid, pix, pairs.pxy.index_select(0, idx), alpha, trans,
+                              pairs.sig.index_select(0, idx))  # fmt: skip
+        ctx.absgrad_hook = absgrad_hook
+        return out_colors, out_log_t, done_out
 
     @staticmethod
-    def backward(ctx, grad_alpha: Tensor):  # type: ignore[override]
-        pair_params, gid, pxy, sig = ctx.saved_tensors
-        _mx, _my, a, b, c, o = pair_params.unbind(-1)
-        dx, dy = (pair_params[:, :2] - pxy).unbind(-1)
-        vis = torch.exp(-sig)
-        g = torch.where(o * vis <= ALPHA_MAX, grad_alpha, torch.zeros_like(grad_alpha))  # clamp: no gradient
-        g_sig = -g * o * vis
-        grads = torch.stack(
-            [g_sig * (a * dx + b * dy), g_sig * (b * dx + c * dy), 0.5 * g_sig * dx * dx, g_sig * dx * dy,
-             0.5 * g_sig * dy * dy, g * vis], dim=-1,
-        )  # fmt: skip
-        if ctx.absgrad_hook is not None:
-            ctx.absgrad_hook(grads[:, :2].abs(), gid)
-        out = torch.zeros(ctx.n, 6, dtype=grads.dtype, device=grads.device).index_add_(0, gid, grads)
-        return out, None, None, None
+    def backward(ctx, g_colors, g_log_t, _g_done):  # type: ignore[override]
+        params, colors, gid, pix, pxy, alpha, trans, sig = ctx.saved_tensors
+        n_pix = g_colors.shape[0]
+        pair_colors = colors.index_select(0, gid)
+        g_pair = g_colors.index_select(0, pix)  # dL/dC at each pair's pixel
+        weights = alpha * trans
+        s_pair = (g_pair * pair_colors).sum(-1)  # s_i = dL/dC . c_i
+        sw = (s_pair * weights).double()
+        total = torch.zeros(n_pix, dtype=torch.float64, device=pix.device).index_add_(0, pix, sw)
+        before = torch.cumsum(total, 0) - total  # sum of s w over the pixels before each pixel
+        upto = torch.cumsum(sw, 0) - before.index_select(0, pix)  # inclusive prefix within the pixel
+        g_l = total.index_select(0, pix) - upto + g_log_t.index_select(0, pix)  # dL/dl_i
+        g_alpha = (s_pair * trans).double() - g_l / (1.0 - alpha.double())
+        pair_grads = _alpha_backward(params, gid, pxy, sig, g_alpha.to(params.dtype), ctx.absgrad_hook)
+        # one scatter for both inputs: [P, 6 + D] into [G, 6 + D]
+        both = torch.cat([pair_grads, (weights[:, None] * g_pair).to(pair_grads.dtype)], -1)
+        out = torch.zeros(params.shape[0], both.shape[1], dtype=both.dtype, device=both.device)
+        out.index_add_(0, gid, both)
+        grad_params, grad_colors = out[:, :6], out[:, 6:].to(colors.dtype)
+        return grad_params, grad_colors, total + g_log_t, None, None, None
+
+
+def _alpha_backward(params: Tensor, gid: Tensor, pxy: Tensor, sig: Tensor, g: Tensor, absgrad_hook) -> Tensor:
+    """Per-pair d loss / d params [P, 6] from d loss / d alpha of (Gaussian, pixel) pairs (alpha =
+    min(0.999, o exp(-sigma))); reports per-pair |d loss / d means2d| to `absgrad_hook` when given."""
+    pair_params = params.index_select(0, gid)
+    _mx, _my, a, b, c, o = pair_params.unbind(-1)
+    dx, dy = (pair_params[:, :2] - pxy).unbind(-1)
+    vis = torch.exp(-sig)
+    g = torch.where(o * vis <= ALPHA_MAX, g, torch.zeros_like(g))  # clamp: no gradient
+    g_sig = -g * o * vis
+    grads = torch.stack(
+        [g_sig * (a * dx + b * dy), g_sig * (b * dx + c * dy), 0.5 * g_sig * dx * dx, g_sig * dx * dy,
+         0.5 * g_sig * dy * dy, g * vis], dim=-1,
+    )  # fmt: skip
+    if absgrad_hook is not None:
+        absgrad_hook(grads[:, :2].abs(), gid)
+    return grads
 
 
 def _pair_alpha(pair_params: Float[Tensor, "P 6"], pxy: Float[Tensor, "P 2"]) -> tuple[Tensor, Tensor]:
@@ -203,14 +244,14 @@ def composite_image(
     """Render one image from the Gaussians with radii > 0. Returns (colors without background, alphas).
 
     Gaussians are processed front to back in chunks of about `chunk_pairs` candidate pairs (default
-    16 per pixel); Gaussians whose box holds no unfinished pixel are skipped. When the image has more than
+    32 per pixel); Gaussians whose box holds no unfinished pixel are skipped. When the image has more than
     `max_pairs` candidate pairs in all, chunks are gradient-checkpointed (or per `force_checkpoint`).
     `absgrad_hook(abs_grad_pairs [P, 2], ids)` is called in the backward pass with each chunk's per-pair
     |d loss / d means2d| (`ids` index the M inputs), to accumulate absolute 2D gradients per Gaussian.
     """
     n_pix = width * height
     if chunk_pairs is None:
-        chunk_pairs = min(max(16 * n_pix, 1 << 14), max_pairs)
+        chunk_pairs = min(max(32 * n_pix, 1 << 14), max_pairs)
     with torch.no_grad():
         vis = torch.nonzero(radii > 0).squeeze(-1)
         # depth order, ties broken by index (stable sort of index-ordered input), like gsplat's radix sort
