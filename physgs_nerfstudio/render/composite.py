@@ -99,16 +99,7 @@ def _composite_chunk(
 
     `done_in` marks pixels already terminated by an earlier chunk (a Gaussian would have pushed the
     transmittance to <= 1e-4). Returns (colour sum, log transmittance after, done after)."""
-    with torch.no_grad():
-        gid, pix = _enumerate_pairs(boxes, width)
-        pxy = _pixel_centres(pix, width, params.dtype)
-        alpha, sig = _pair_alpha(params.detach().index_select(0, gid), pxy)
-        ok = (sig >= 0) & (alpha >= ALPHA_MIN) & ~done_in.index_select(0, pix)  # finished pixels are out
-        sel = ok.nonzero().squeeze(-1)
-        pix, order = torch.sort(pix.index_select(0, sel), stable=True)  # per pixel, depth order is kept
-        sel = sel.index_select(0, order)
-        pairs = _Pairs(gid.index_select(0, sel).long(), pix.long(), pxy.index_select(0, sel),
-                       alpha.index_select(0, sel), sig.index_select(0, sel))  # fmt: skip
+    pairs = _sorted_pairs(params, done_in, boxes, width)
     return _CompositePairs.apply(params, colors, log_t_in, done_in, pairs, absgrad_hook)
 
 
@@ -128,6 +119,32 @@ class _Pairs(NamedTuple):
     sig: Tensor
 
 
+@torch.no_grad()
+def _sorted_pairs(params: Float[Tensor, "G 6"], done: Bool[Tensor, " HW"], boxes, width: int) -> _Pairs:
+    """The (Gaussian, pixel) pairs in the boxes of depth-sorted Gaussians that pass the alpha test, on pixels
+    not yet `done`, sorted by pixel (stable: depth order within a pixel)."""
+    gid, pix = _enumerate_pairs(boxes, width)
+    pxy = _pixel_centres(pix, width, params.dtype)
+    alpha, sig = _pair_alpha(params.detach().index_select(0, gid), pxy)
+    ok = (sig >= 0) & (alpha >= ALPHA_MIN) & ~done.index_select(0, pix)  # finished pixels are out
+    sel = ok.nonzero().squeeze(-1)
+    pix, order = torch.sort(pix.index_select(0, sel), stable=True)  # per pixel, depth order is kept
+    sel = sel.index_select(0, order)
+    return _Pairs(gid.index_select(0, sel).long(), pix.long(), pxy.index_select(0, sel),
+                  alpha.index_select(0, sel), sig.index_select(0, sel))  # fmt: skip
+
+
+def _transmittance_before(pairs: _Pairs, log_t_in: Float[Tensor, " HW"]) -> tuple[Tensor, Tensor, Tensor]:
+    """Per pair, log(1 - alpha) and the log transmittance in front of it (float64), and whether it is
+    composited (the transmittance after it stays above 1e-4: a prefix of each pixel's pairs)."""
+    log_1m = torch.log1p(-pairs.alpha.double())
+    counts = torch.bincount(pairs.pix, minlength=log_t_in.shape[0])
+    seg_start = (torch.cumsum(counts, 0) - counts).index_select(0, pairs.pix)
+    csum = torch.cumsum(log_1m, 0) - log_1m  # exclusive, global
+    log_t_excl = csum - csum.index_select(0, seg_start) + log_t_in.index_select(0, pairs.pix)
+    return log_1m, log_t_excl, (log_t_excl + log_1m) > LOG_T_MIN
+
+
 class _CompositePairs(torch.autograd.Function):
     """Front-to-back compositing of sorted pairs behind a per-pixel log transmittance; analytic backward.
 
@@ -141,13 +158,7 @@ class _CompositePairs(torch.autograd.Function):
     @staticmethod
     def forward(ctx, params, colors, log_t_in, done_in, pairs: _Pairs, absgrad_hook):  # type: ignore
         n_pix = log_t_in.shape[0]
-        log_1m = torch.log1p(-pairs.alpha.double())
-        counts = torch.bincount(pairs.pix, minlength=n_pix)
-        csum = torch.cumsum(log_1m, 0) - log_1m  # exclusive, global
-        seg_base = (torch.cumsum(counts, 0) - counts).clamp_max(max(len(csum) - 1, 0))
-        base = csum.index_select(0, seg_base) if len(csum) else torch.zeros_like(log_t_in)
-        log_t_excl = csum - base.index_select(0, pairs.pix) + log_t_in.index_select(0, pairs.pix)
-        included = (log_t_excl + log_1m) > LOG_T_MIN
+        log_1m, log_t_excl, included = _transmittance_before(pairs, log_t_in)
         done_out = done_in.clone()
         done_out[pairs.pix[~included]] = True
         idx = included.nonzero().squeeze(-1)
@@ -341,21 +352,9 @@ def crossing_depth_image(
         if hi <= lo:
             continue
         ids = vis[lo:hi]
-        gid, pix = _enumerate_pairs(tuple(b[lo:hi] for b in boxes), width)
-        pxy = _pixel_centres(pix, width, params.dtype)
-        alpha, sig = _pair_alpha(params[ids].index_select(0, gid), pxy)
-        ok = (sig >= 0) & (alpha >= ALPHA_MIN) & ~done.index_select(0, pix)
-        sel = ok.nonzero().squeeze(-1)
-        pix, order = torch.sort(pix.index_select(0, sel), stable=True)
-        gid = gid.index_select(0, sel.index_select(0, order)).long()
-        alpha = alpha.index_select(0, sel.index_select(0, order))
-        pix = pix.long()
-        counts = torch.bincount(pix, minlength=n_pix)
-        seg_start = (torch.cumsum(counts, 0) - counts).index_select(0, pix)
-        log_1m = torch.log1p(-alpha.double())
-        cs = torch.cumsum(log_1m, 0) - log_1m
-        log_t_excl = cs - cs.index_select(0, seg_start) + log_t.index_select(0, pix)
-        included = (log_t_excl + log_1m) > LOG_T_MIN
+        pairs = _sorted_pairs(params[ids], done, tuple(b[lo:hi] for b in boxes), width)
+        gid, pix = pairs.gid, pairs.pix
+        log_1m, log_t_excl, included = _transmittance_before(pairs, log_t)
         # the included pairs are a prefix of each pixel's (the transmittance only falls): at most one crosses
         cross = included & (log_t_excl > log_level) & (log_t_excl + log_1m <= log_level)
         out[pix[cross]] = depths[ids][gid[cross]]
