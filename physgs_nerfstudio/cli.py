@@ -78,7 +78,7 @@ def main() -> None:
     interpreter: unloading torch and its CUDA context took 0.3-0.4 s of a 6 s export on this project's machines,
     with nothing left to do. Such a command also runs without the cyclic garbage collector: it allocates few
     reference cycles (its arrays and tensors are freed by reference counting), and the collector's passes over
-    the objects of torch's import took 0.1-0.2 s of the export (benchmarks/README.md, session 18).
+    the objects of torch's import took 0.1-0.2 s of the export.
     ``PHYSGS_NO_FAST_EXIT=1`` keeps the normal exit and the collector."""
     import gc
     import os

@@ -50,28 +50,23 @@ contributing Gaussians' depths (:func:`.gaussians.depth_spread`, the spread abou
 is large) are kept as options: the variance is dominated by a few per cent of weight on the far surface (the
 spread of an opaque box's faces was 2-9 cm on a 40 cm box), so they withhold carving that was right. The default,
 "auto", carves with the median where the reference rasterizer renders the depth (the CPU's short, low-resolution
-trainings, where it raised the compact solids' volume: hammer 0.62x -> 0.74x, dumbbell 0.80x -> 0.96x at seed 101,
-and lowered the held-out suite's median APE) and with the expected depth on gsplat, where the 512 px trainings'
-surfaces are sharp and the median gained nothing (:func:`resolve_depth_render`; docs/architecture.md, "Mass
-geometry"; benchmarks/README.md, rounds 5 and 7).
+trainings, whose soft surfaces let the expected depth carve compact solids thin) and with the expected depth on
+gsplat, where the 512 px trainings' surfaces are sharp, so the expected depth is the first surface and the
+median would only cost time (:func:`resolve_depth_render`; docs/architecture.md, "Mass geometry").
 
 The Gaussians' depth. A rasterizer gives every pixel that a Gaussian covers the depth of the Gaussian's *centre*,
 and a trained splat's surface Gaussians have their centres behind the surface they draw: their footprints, not
 their centres, reach the object's outline in the views that see a face edge-on. So the expected depth lies about one
 Gaussian thickness behind each face, and the depth votes carved that layer off both faces of every plate (on the
-GPU the table's oak top kept 0.53 of its volume and the dumbbell's plates 0.71-0.75, both faces losing 4-5 mm
-whatever the voxel: benchmarks/README.md, session 16). ``front_extent`` moves the depth that carves towards the
+GPU a 25 mm oak top can keep half of its volume, both faces losing 4-5 mm whatever the voxel). ``front_extent`` moves the depth that carves towards the
 camera by k times the pixel's blended *along-ray extent* (:func:`.gaussians.ray_extent`: each Gaussian's standard
 deviation along the ray through it, ``1 / sqrt(d^T Sigma^-1 d)``, rendered as a colour channel): a flat Gaussian
 lying in a face adds its thickness across the face, not its in-plane size, and a face of thin Gaussians is not moved.
 k = 2 with the expected depth (the default, gsplat's depth), 0 with the median depth (the CPU's reference
 rasterizer), which already lies in front of a layer's centres; the mass interval samples k - 1 and k + 1 as
 geometry variants, since where the surface lies within a Gaussian's extent is known only to about one extent.
-Session 17 set k = 1 (GPU seed 5252: median APE 0.146 -> 0.099, median volume error 0.148 -> 0.074). With k =
-1 the GPU suite's solids still came out a median 5-17% under their enclosed volumes at five later seeds (the
-metal plates' faces rendered 0.3-0.7 voxel behind them, session 22), and k = 2 came closer at four of them; at
-the two fresh seeds exported both ways the median APE went 0.070 -> 0.047 and 0.059 -> 0.045
-(benchmarks/README.md, session 31).
+Why two: at one extent a GPU training's solids still come out a median 5-17% under their enclosed volumes (metal
+plates' faces render 0.3-0.7 voxel behind them).
 
 Depth consensus. The vote's fraction is low (15% of the views that frame a voxel) because most views cannot see
 a given empty voxel at all: it is hidden behind the object in them. But then a surface voxel is carved as soon as
@@ -81,14 +76,10 @@ compact solids came out 0.72-0.9x of their volume). So a voxel that the silhouet
 carved only when its depth votes are also at least ``depth_consensus`` (0.5: a majority) of the views that see it
 near their rendered surface (no more than ``near_band_voxels`` behind it) or in front of it: the views that have
 evidence about it. A cup's inside passes (the views that look into it see past it; the views that have it hidden
-behind the wall have no say); a face that most views render where it is keeps its layer. Measured at fresh
-seeds on the same trained runs (benchmarks/README.md, round 9) with 0.5: GPU median volume error 0.139 -> 0.096
-and median APE 0.158 -> 0.118; CPU demo settings 0.151 -> 0.134 and 0.106 -> 0.098. A view has a say ("near") only
+behind the wall have no say); a face that most views render where it is keeps its layer. A view has a say ("near") only
 where it could have voted: the voxel projects at least ``near_inset_px`` inside its mask (not onto the silhouette's
 edge pixels, whose depth is the edge's) and the lookup's slack there is within the band. Without that, an exact
-box (tests/test_geometry.py) kept a rim of voxels along its edges (1.104x; with it 1.099x, as the vote alone). The
-default since round 10 (benchmarks/README.md): GPU seed 2727 median APE 0.119 against 0.118 without, volume 0.129
-against 0.136; CPU seed 2828 0.125 and 10 of 12 covered against 0.147 and 9 of 12.
+box (tests/test_geometry.py) keeps a rim of voxels along its edges (1.104x; with it 1.099x, as the vote alone).
 
 The centre test makes the recovered volume unbiased to first order in the voxel size (a boundary voxel is
 counted when its centre is inside). The solid's small disconnected specks (below ``min_component`` of the

@@ -116,11 +116,10 @@ def _sample(img: Tensor, u: Tensor, v: Tensor) -> Tensor:
 
 def resolve_depth_render(kind: str, backend: str) -> str:
     """``depth_render`` with "auto" resolved for the rasterizer ``backend`` ("gsplat" or "reference") that renders
-    the depth. Why it depends on it (benchmarks/README.md, round 7): the demo's and CI's short CPU trainings
-    (16 views at 96 px, reference rasterizer) leave semi-transparent surface layers whose expected depth lies
-    behind the first surface, so carving by it erodes compact solids, and the median fixed that at every CPU seed
-    measured (suite median APE 0.297 -> 0.254 at seeds 1111/1212, 0.250 -> 0.236 at 1717/1818); the GPU runs (60
-    views at 512 px, 7,000 steps) have sharp surfaces, gained nothing from it (4 objects at seed 1919), and the median
+    the depth. Why it depends on it: the demo's and CI's short CPU trainings (16 views at 96 px, reference
+    rasterizer) leave semi-transparent surface layers whose expected depth lies behind the first surface, so
+    carving by it erodes compact solids, and the median depth is the first surface's; the GPU runs (60 views at
+    512 px, 7,000 steps) have sharp surfaces, whose expected depth already is the first surface, and the median
     depth has no gsplat kernel (the reference compositor on CUDA costs about 2.6 s more per export at 1M
     Gaussians)."""
     if kind != "auto":

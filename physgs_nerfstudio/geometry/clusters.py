@@ -2,7 +2,7 @@
 
 * :func:`cluster_labels`: 26-connected occupied cells of a coarse grid, dilated by ``bridge_cells`` (parts of one
   object a few millimetres apart stay one cluster); the grid is coarsened, with a warning, where it would exceed
-  :data:`MAX_CELLS` cells (a small plane's cell over strays metres apart asked for 38 GB at CPU seed 9696).
+  :data:`MAX_CELLS` cells (a small plane's cell over strays metres apart can ask for tens of GB of labels).
 * :func:`band_labels`: over a support plane, the clusters cut above a contact band and grown back into it
   (:func:`grow_into_band`).
 * :func:`split_close`: a chosen cluster split again at its own resolution, by exact distances.
@@ -52,7 +52,7 @@ def cluster_labels(means: Tensor | np.ndarray, cfg: ClusterSettings, extent: flo
     spread = lo_hi[1].cpu().numpy() - lo
     if float(np.prod(spread / cell + 5)) > MAX_CELLS:
         # a cell far finer than the points' spread (a support plane's size divided, under far strays): coarsened
-        # until the grid fits (the CPU lamp at seed 9696 asked for 38 GB of labels)
+        # until the grid fits (uncoarsened, such a grid can take tens of GB of labels)
         fine = cell
         while float(np.prod(spread / cell + 5)) > MAX_CELLS:
             cell *= 1.25
@@ -166,8 +166,8 @@ def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSetti
     the contact band of :func:`band_labels` at the split's own reach. The parts are linked only through the points
     higher than ``tol`` + ``contact_band`` reaches above the plane, and each point in the band joins the part of the
     linked point nearest it. Near a floor, what lies within a reach of it touches it, so it is no evidence that two
-    objects touch: on the GPU's `indoor_room` at seed 21414, faint Gaussians 3-17 cm above the floor linked the table
-    to a chair 19 cm away and to a lamp 35 cm away (2.71x the table's volume), at the split's reach of 10 cm."""
+    objects touch: faint Gaussians a few centimetres above a floor, on no object, can link a table to a chair or a
+    lamp tens of centimetres away at a split's reach of 10 cm."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree

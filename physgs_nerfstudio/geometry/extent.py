@@ -2,8 +2,8 @@
 
 Carving keeps the space that no view sees past (the inside of a closed object, module doc of :mod:`.carve`). Under
 an object shot from above, that also keeps a slab of the domain's padding: every view but the few lowest has that
-space hidden behind the object, so no vote carves it, and it was counted as solid (the generated lamp's 2 cm steel
-base came out 1.75x its volume on the GPU at seed 1919, a slab of the padding under it). The Gaussians are the
+space hidden behind the object, so no vote carves it, and it would count as solid (a 2 cm steel lamp base can come
+out 1.75x its volume with a slab of the padding under it). The Gaussians are the
 splat's only evidence of surface: the object ends at its outermost Gaussians. So the solid is cut to the Gaussians'
 *support polytope*: for a fixed set of directions ``u`` (the 26 lattice directions and a Fibonacci set), a voxel centre
 ``x`` is kept when ``u . x <= max_i u . mu_i + pad`` for every ``u``. It contains the convex hull of the means
@@ -12,11 +12,11 @@ splat's only evidence of surface: the object ends at its outermost Gaussians. So
 capture is cut exactly. It does not cut concavities (the space under a table top between its legs): those are
 left to the views, which see them.
 
-Which Gaussians (``GeometryConfig.extent_seen``, the default since session 32): those that some view sees on
+Which Gaussians (``GeometryConfig.extent_seen``, on by default): those that some view sees on
 its rendered surface (:func:`.gaussians.surface_views`). A Gaussian is evidence of surface only where a view
 sees it; under an unseen underside the splat keeps Gaussians that no view sees, and the outermost of them set
-where the solid ended: the GPU lamp's steel base kept a layer of false solid under its bottom (1.16x its
-volume at seed 13535). With the seen Gaussians the seen faces around the underside end it there (0.99x). The
+where the solid would end, leaving a layer of false solid under a lamp base's bottom. With the seen Gaussians the
+seen faces around the underside end it there. The
 outlier count stays that of the whole selection, so the seen Gaussians' polytope is never wider than all of
 theirs.
 """

@@ -2,9 +2,9 @@
 
 Carving keeps every voxel that no view sees past (module doc of :mod:`.carve`): the inside of a closed object, but
 also the space *under* a part that every view looks down on. Under a table top shot only from above (the
-`indoor_room` layout: 15 cameras 1.75-4.27 m high, the top at 0.75 m) that space was kept as solid, 3.6x the
-table's volume; under a chair's seat it is carved only by the few low views, so the chair's volume swings with the
-carving's vote (benchmarks/README.md, sessions 12, 16, 20, 23).
+`indoor_room` layout: 15 cameras 1.75-4.27 m high, the top at 0.75 m) that space would be kept as solid, several
+times the table's volume; under a chair's seat it is carved only by the few low views, so the chair's volume would
+swing with the carving's vote.
 
 The two differ in what surrounds them. An object's inside is enclosed by its surface, which the views saw and the
 Gaussians sample. Hidden space under a top is enclosed by the top on one side only: below and to the sides it ends
@@ -15,48 +15,37 @@ touching the *skin*, the seen surface: the Gaussians that some view sees on its 
 the Gaussians' support polytope (the cuts of :mod:`.extent` and :func:`.reconstruct._cut_below`: the object's
 unseen underside) counts as enclosed, as one that reaches the skin. Skin voxels are never removed.
 
-The skin (:func:`skin_centred`, the default since session 24). The samples are the surface Gaussians' means and the
-ends of their axes at one standard deviation (:func:`gaussian_samples`): a few large Gaussians cover a surface
-their means alone leave gappy. They are a scattered sample, not a closed digital surface: left as they are, the rays
-left the CPU demo shoe's solid through the gaps from a quarter of its inside (its voxels in its parts: 23,795 of
-31,033 kept). A voxel is skin when it holds a sample, or when the samples within ``window`` voxels of it each way
-(a cube of 5 at the default 2) have their centroid within ``tolerance`` (1.5) voxels of its centre. Around a gap in
-a surface the samples surround the voxel, so the gap closes; off a face, or past a surface's edge, they all lie on
-one side and their centroid is far. So the skin is about 1 + 2 x 1.5 voxels thick across a face and ends within a
-voxel of an edge.
+The skin (:func:`skin_centred`, the default). The samples are the surface Gaussians' means and the ends of their
+axes at one standard deviation (:func:`gaussian_samples`): a few large Gaussians cover a surface their means alone
+leave gappy. They are a scattered sample, not a closed digital surface: left as they are, rays leave a solid through
+the gaps (a shoe at demo settings would lose a quarter of its inside). A voxel is skin when it holds a sample, or
+when the samples within ``window`` voxels of it each way (a cube of 5 at the default 2) have their centroid within
+``tolerance`` (1.5) voxels of its centre. Around a gap in a surface the samples surround the voxel, so the gap
+closes; off a face, or past a surface's edge, they all lie on one side and their centroid is far. So the skin is
+about 1 + 2 x 1.5 voxels thick across a face and ends within a voxel of an edge. ``hidden_skin="grown"``
+(:func:`skin_from_points`) grows the samples' voxels by ``window`` 6-connected steps instead: that closes every gap
+but also grows each face by 2 voxels off itself and past its edges, so that the skin of a table top's side faces
+encloses two layers of hidden space under the top. The centred skin's gaps are not all closed: at a third of a
+plane's voxels sampled, 2-3% of its columns keep a hole, which single rays pass but a majority of directions does
+not.
 
-Seen samples (``GeometryConfig.hidden_skin_seen``, default 1 voxel, session 33). The ends of the axes sample the
-surface only where the surface is. The GPU splats of `indoor_room` (60 views at 512 px) render its table's top with
-needles: the surface Gaussians' axes are 1.8, 0.05 and 0.01 voxel (medians, 12 mm voxels), and a needle tilted
-across the 25 mm top puts one end of its long axis under the top's underside, where no view sees. With those ends
-the skin reached a voxel or more under the top and enclosed the layer there (at seed 15252, 5.5 L of the table's
-6.9 L of false solid lay under its top). So an axis end counts only where some view sees it on its rendered
-surface, as the means are seen (:func:`.gaussians.surface_views`), within the band plus its Gaussian's smallest
-standard deviation: the end of a thick Gaussian's shortest axis lies that far behind the face it renders, and on a
-thin plate it is the sample that holds the plate's lower part (the CPU demo's Gaussians are about a voxel thick
-each way; with the plain 1-voxel band the CPU rooms' tables lost up to a tenth of their own volume). None = every
-end counts.
+Seen samples (``GeometryConfig.hidden_skin_seen``, default 1 voxel). The ends of the axes sample the surface only
+where the surface is. GPU splats (60 views at 512 px) render a table top with needles: the surface Gaussians' axes
+are about 1.8, 0.05 and 0.01 voxel (12 mm voxels), and a needle tilted across a 25 mm top puts one end of its long
+axis under the top's underside, where no view sees; with those ends the skin reaches a voxel or more under the top
+and encloses the layer there. So an axis end counts only where some view sees it on its rendered surface, as the
+means are seen (:func:`.gaussians.surface_views`), within the band plus its Gaussian's smallest standard deviation:
+the end of a thick Gaussian's shortest axis lies that far behind the face it renders, and on a thin plate it is the
+sample that holds the plate's lower part (a CPU demo's Gaussians are about a voxel thick each way; with a plain
+1-voxel band a table top loses up to a tenth of its own volume). None = every end counts.
 
-The skin's band (``GeometryConfig.hidden_skin_band``, default 0.5 voxel, session 42). Which Gaussians sample the skin:
-those whose centre some view sees no more than the band behind its rendered depth. Before session 42 this was the
-material evidence's band, a whole voxel. A GPU splat fills a thin plate through its thickness with semi-transparent
-Gaussians (the `indoor_room` table's 25 mm top at 512 px: the surface Gaussians' centres spread from 15 mm under the
-top's upper face to its lower face and a few beyond), and the rendered depth lies inside that layer, so a voxel's band
-takes in centres down to the plate's unseen lower face. Their skin reaches past that face and encloses space under
-it (on the GPU rooms, 0.5-1.2 L of kept blobs under the top, each around a few such Gaussians, besides the layer
-just under it). With half a voxel, on three fresh GPU rooms (24034, 24135, 24236) the table came out 0.94x, 0.92x and
-0.96x its volume against 1.02x, 1.09x and 1.13x; on three CPU demo rooms 1.00x, 1.10x and 1.14x against 1.06x, 1.13x
-and 1.16x, and on a fresh one (24337) 1.05x against 1.07x. On the CPU suite at fresh seed 23630 the median APE went
-from 0.074 to 0.058, coverage 10 of 12 both ways; the GPU chair at 24034 went from 1.09x to 1.14x its mass. 0 (only
-centres in front of the rendered depth) took the GPU rooms to 0.85-0.90x (benchmarks/README.md, session 42).
-
-Session 23 grew the samples' voxels by ``window`` 6-connected steps instead (:func:`skin_from_points`,
-``hidden_skin="grown"``). That closes every gap but also grows each face by 2 voxels off itself and past its edges,
-so that the skin of a table top's side faces enclosed two layers of hidden space under the top. The centred skin
-keeps one: on CPU runs at five development seeds the chair came out 0.04-0.12 of its mass lighter (nearer the
-truth at every seed), and an oblong table shot from above through the whole reconstruction went from 2.2x to 1.9x
-its volume (tests/test_hidden_space.py). Its gaps are not all closed: at a third of a plane's voxels sampled, 2-3%
-of its columns keep a hole, which single rays pass but a majority of directions does not.
+The skin's band (``GeometryConfig.hidden_skin_band``, default 0.5 voxel). Which Gaussians sample the skin: those
+whose centre some view sees no more than the band behind its rendered depth. A GPU splat fills a thin plate through
+its thickness with semi-transparent Gaussians (a 25 mm top at 512 px: the surface Gaussians' centres spread from
+15 mm under the top's upper face to its lower face and a few beyond), and the rendered depth lies inside that layer,
+so a whole voxel's band takes in centres down to the plate's unseen lower face, whose skin reaches past it and
+encloses space under it. Half a voxel keeps the samples on the seen face; 0 (only centres in front of the rendered
+depth) loses part of the face itself.
 
 Why these choices:
 
@@ -66,50 +55,40 @@ Why these choices:
   the sides (most directions open); a voxel inside the top itself, between its seen upper face and its unseen
   lower face, has the top's skin above and around it (most directions enclosed).
 
-The open half (``min_open_half``, default 9 since session 29). The skin is not only the top's: the lowest views see
-a little under a top near its edges, and the Gaussians that render that underside lie a voxel or two *below* it
-(at grazing angles depth is loose). On the CPU demo room's table (seed 3131, 11 mm voxels) the voxels 1.5 and 2.5
-cm under the 25 mm top were skin at 19% and 9% of its footprint. Those stray skin voxels block the rays that run
-sideways under the top, the top blocks the upward ones, and only the 9 downward rays stay open: 9-12 of 26, no
-majority, so a layer 2-3 cm thick stayed under the top (13 L, most of the table's excess). So a voxel is also hidden
-open space when all the directions of one *half* (the 9 with a step along one of the grid's axes, one way) are open
-and at least one of the 8 directions *across* that half (no step along its axis) is open too. The second condition
-keeps a thick top whose upper face's skin does not reach its lower part: its sides, seen whole, close every ray
-across, as they close the majority's (tests/test_hidden_space.py). At seed 3131 the room's table went from 1.61x to
-1.36x its volume, at 3232 from 1.46x to 1.24x (benchmarks/README.md, session 29). None = the majority alone.
+The open half (``min_open_half``, default 9). The skin is not only the top's: the lowest views see a little under a
+top near its edges, and the Gaussians that render that underside lie a voxel or two *below* it (at grazing angles
+depth is loose); at 11 mm voxels the voxels 1.5 and 2.5 cm under a 25 mm top can be skin on a fifth and a tenth of
+its footprint. Those stray skin voxels block the rays that run sideways under the top, the top blocks the upward
+ones, and only the 9 downward rays stay open: 9-12 of 26, no majority, so a layer 2-3 cm thick would stay under the
+top. So a voxel is also hidden open space when all the directions of one *half* (the 9 with a step along one of the
+grid's axes, one way) are open and at least one of the 8 directions *across* that half (no step along its axis) is
+open too. The second condition keeps a thick top whose upper face's skin does not reach its lower part: its sides,
+seen whole, close every ray across, as they close the majority's (tests/test_hidden_space.py). None = the majority
+alone.
 
 Passes (``passes``, :func:`without_hidden_space`; ``GeometryConfig.hidden_passes``, default 8). What one pass
 removes is not the object, so it is open space to the rays of the next: from the voxels between the stray skin and
 the top, the rays that ran down through the removed layer now leave the solid there. Run until a pass removes
 nothing (at most ``passes``), the rules reach a fixed point: a closed object whose first pass removes nothing is
-unchanged. On the GPU rooms at fresh seeds 10808 and 10909 (60 views, 512 px) the table went from 1.57x to 1.28x and
-from 1.38x to 1.26x its volume; the GPU suite at 10707 moved by at most 0.001 of the truth (benchmarks/README.md,
-session 30). On the CPU demo rooms the table went from 1.36x to 1.20x at seed 3131, from 1.24x to 1.09x at 3232 and
-from 1.27x to 1.17x at 3333. Over the CPU suite at three seeds every object moved by at most 0.011 of the truth
-except the mug (0.85x -> 0.80x and 0.995x -> 0.923x of its mass at two of them): the passes carve more of its cup's
-unseen inside, its hollow body's carved volume comes down to about its wall's (area x thickness), and the mass takes
-the smaller of the two in each sample, so the variants that carve a little more pull it down. 1 = one pass.
+unchanged. The cost falls on a cup's unseen inside, which later passes carve more of: its hollow body's carved
+volume comes down to about its wall's (area x thickness), and the mass takes the smaller of the two in each sample.
+1 = one pass.
 
 Limits: the space within the skin's reach under a seen edge stays (the skin of a top's side faces encloses the
-layer under the top sideways), so a thin top shot only from above keeps about a voxel of hidden space under it. The
-`indoor_room` table (demo settings, 15 mm voxels, a 25 mm top sampled by Gaussians about a voxel wide) keeps 1.75x
-its volume: the top's own Gaussians, and its legs', put skin a voxel or two under it. The 26 lattice directions are
-coarse: from the middle of a square table aligned with the grid, the horizontal diagonals run into its legs, which
-enclose.
+layer under the top sideways), so a thin top shot only from above keeps about a voxel of hidden space under it.
+Where a top is sampled by Gaussians about a voxel wide (demo settings), its own Gaussians, and its legs', put skin a
+voxel or two under it. The 26 lattice directions are coarse: from the middle of a square table aligned with the
+grid, the horizontal diagonals run into its legs, which enclose.
 
-The boundary with hidden open space (:func:`hidden_boundary`; ``GeometryConfig.hidden_boundary``, default "half",
-session 35). The rules keep a voxel that the skin reaches or encloses, and the skin reaches a voxel or more past the
-samples; so at the boundary with the space they removed (a top's unseen underside) the last kept voxel holds the
-object's surface somewhere inside it, or just outside it, and where is not observed. Its expected occupancy is
-about 1/2, so the volume counts it as half a voxel, and the mass's Monte Carlo draws its occupancy uniformly in
-[0, 1], one draw per sample shared by every such voxel (:mod:`physgs_nerfstudio.mass.integrate`, "Unseen
-boundary"). A seen face needs no such count: the carving keeps a voxel there when its centre lies behind the
-rendered surface, which is unbiased. On the three GPU `indoor_room` stages of session 34 (fresh seeds 17171, 17272,
-17373, 12-13 mm voxels, a 25 mm top), the kept voxels on that boundary whose centres lay inside the table and those
-whose centres lay under it were 2,605 and 1,267, 2,521 and 1,526, 1,696 and 1,665, and their mean true occupancy was
-0.56, 0.63 and 0.53: counted at half, the table's recorded solids went from 1.33x, 1.21x and 1.42x its volume to
-1.13x, 1.02x and 1.22x, against 1.16x, 1.07x and 1.23x with every boundary voxel at its true occupancy
-(benchmarks/README.md, session 35). "whole" = every kept voxel counts whole (session 34).
+The boundary with hidden open space (:func:`hidden_boundary`; ``GeometryConfig.hidden_boundary``, default "half").
+The rules keep a voxel that the skin reaches or encloses, and the skin reaches a voxel or more past the samples; so
+at the boundary with the space they removed (a top's unseen underside) the last kept voxel holds the object's
+surface somewhere inside it, or just outside it, and where is not observed. Its expected occupancy is about 1/2 (on
+recorded GPU rooms, 0.53-0.63 against the truth), so the volume counts it as half a voxel, and the mass's Monte
+Carlo draws its occupancy uniformly in [0, 1], one draw per sample shared by every such voxel
+(:mod:`physgs_nerfstudio.mass.integrate`, "Unseen boundary"). A seen face needs no such count: the carving keeps a
+voxel there when its centre lies behind the rendered surface, which is unbiased. "whole" = every kept voxel counts
+whole.
 
 Cost: for each direction a pointer-doubling scan (each voxel looks 1, 2, 4, ... steps ahead), about
 ``26 x (log2 n + 4)`` tensor operations on the solid's bounding box per pass; a round reads and writes only the

@@ -3,7 +3,7 @@ nerfstudio's own ``Trainer`` (what ``nerfstudio.scripts.train`` runs on one devi
 
 Why: ``ns-train`` builds a command line over every installed method, so a fresh process imports all of nerfstudio's
 models and parses their union before it starts: on the 2-core CPU machine that took 17 s of the default demo's
-run (benchmarks/README.md, session 41). ``physgs demo`` has most of those imports already, and parses one method.
+run. ``physgs demo`` has most of those imports already, and parses one method.
 ``physgs batch`` runs it as ``python -m physgs_nerfstudio.nerfstudio.train METHOD ARGS``, a process per scene (a
 kill or a crash leaves the batch's other scenes alone), without ``ns-train``'s start-up.
 Single device only (``--machine.num-devices 1``); use ``ns-train`` for more.
