@@ -23,26 +23,27 @@ ROOT = Path(__file__).resolve().parents[1]
 CODE_DIRS = ("physgs_nerfstudio", "method_configs")
 
 HISTORY = [
-    ("session", re.compile(r"\bsessions? \d+|\(session\b|\bsession's\b", re.I)),
-    ("round", re.compile(r"\brounds? \d+", re.I)),
+    ("session", re.compile(r"\bsessions? \d+|\(session\b|\bsession's\b", re.IGNORECASE)),
+    ("round", re.compile(r"\brounds? \d+", re.IGNORECASE)),
     ("run date", re.compile(r"\b20\d\d-\d\d-\d\d\b")),
 ]
 SEEDS = [
-    ("seed as a reason", re.compile(r"\bat (?:(?:fresh|held-out|development|GPU|CPU|the|its) )*seeds? \d+", re.I)),
-    ("a generated object at a seed", re.compile(r"\bthe \w+ at (?:\w+ )?seed\b", re.I)),
-    ("a particular seed", re.compile(r"(?<![-\w.=])seeds? \d{3,}", re.I)),
+    ("seed as a reason",
+     re.compile(r"\bat (?:(?:fresh|held-out|development|GPU|CPU|the|its) )*seeds? \d+", re.IGNORECASE)),
+    ("a generated object at a seed", re.compile(r"\bthe \w+ at (?:\w+ )?seed\b", re.IGNORECASE)),
+    ("a particular seed", re.compile(r"(?<![-\w.=])seeds? \d{3,}", re.IGNORECASE)),
 ]
 SEEDS_ALLOWED = {"docs/results.md"}
 
 
 def _text_lines(path: Path) -> list[tuple[int, str]]:
-    """(line, text) of what a reader sees: a Markdown file whole; a Python file's comments and string literals."""
+    """(line, text) a reader sees: a Markdown file whole, a Python file's comments and string literals."""
     source = path.read_text(encoding="utf-8")
     if path.suffix != ".py":
         return list(enumerate(source.splitlines(), start=1))
     out: list[tuple[int, str]] = []
     kinds = {tokenize.COMMENT, tokenize.STRING}
-    kinds |= {getattr(tokenize, "FSTRING_MIDDLE")} if hasattr(tokenize, "FSTRING_MIDDLE") else set()
+    kinds |= {tokenize.FSTRING_MIDDLE} if hasattr(tokenize, "FSTRING_MIDDLE") else set()
     for tok in tokenize.generate_tokens(io.StringIO(source).readline):
         if tok.type in kinds:
             for k, line in enumerate(tok.string.splitlines()):
@@ -99,6 +100,7 @@ def test_scanner_finds_planted_history(tmp_path: Path):
     lines = sorted({int(h.split(":")[1]) for h in hits})
     assert lines == [1, 4, 6, 7, 9], hits
     md = tmp_path / "r.md"
-    md.write_text("fresh seed 26248: 10 of 12\n`physgs synth --seed 0`\nRound 5 measured it\n", encoding="utf-8")
+    md.write_text("fresh seed 26248: 10 of 12\n`physgs synth --seed 0`\nRound 5 measured it\n",
+                  encoding="utf-8")
     assert sorted({int(h.split(":")[1]) for h in surface_hits(md, "docs/x.md")}) == [1, 3]
     assert sorted({int(h.split(":")[1]) for h in surface_hits(md, "docs/results.md")}) == [3]

@@ -1,7 +1,7 @@
 """Drive nerfstudio's web viewer (`ns-viewer`) with headless Chromium as a user would: show the density output,
 click a point it colours, copy its JSON, enable the crop box and press Mass.
 
-Used by test_viewer_browser.py; as a script it takes the README's screenshots of a trained run:
+Used by test_viewer_browser.py; as a script it takes docs/viewer.md's screenshots of a trained run:
 
     python tests/viewer_browser.py --load-config outputs/.../config.yml --out docs/
 

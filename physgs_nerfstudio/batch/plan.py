@@ -4,7 +4,7 @@ Per scene: the stages to run (state on disk decides: done ones are skipped), the
 per view, minus the scene's cached answers when it was perceived before), tokens (calls x tokens per call)
 and the training device time (iterations x seconds per iteration of the method, plus the training process's
 time outside the steps, per view, plus export). The rates
-are settings with measured defaults (README, "Many scenes"); the estimate is only as good as they are.
+are settings with measured defaults (docs/batch.md); the estimate is only as good as they are.
 """
 
 from __future__ import annotations

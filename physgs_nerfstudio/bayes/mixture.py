@@ -50,7 +50,7 @@ __all__ = [
 
 def broadcast_shapes(*shapes: Sequence[int]) -> torch.Size:
     """``torch.broadcast_shapes`` without its import of torch's symbolic-shape machinery (and sympy: 3.8 s of an
-    export's start on a machine that compiles bytecode; issue 13). RuntimeError, as torch's, when they do not
+    export's start on a machine that compiles bytecode). RuntimeError, as torch's, when they do not
     broadcast."""
     nd = max((len(s) for s in shapes), default=0)
     out = []

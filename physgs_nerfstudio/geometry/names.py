@@ -17,8 +17,8 @@ do isolate it, and the answers about them name it.
    never removes a Gaussian; a mug that most of the views which see it name "mug" goes.
 
 Off by default (``SelectConfig.object_names`` = None): with the built-in segmenter's masks, on three GPU
-`indoor_room` captures (60 views, 512 px), the names dropped the table's own Gaussians, not the mug's
-(benchmarks/README.md, session 41; :mod:`.select`, step 3b).
+`indoor_room` captures (60 views, 512 px), the names drop the table's own Gaussians, not the mug's
+(:mod:`.select`, step 3b).
 
 A real VLM may name one object two ways ("table", "desk"); both then hold the table's evidence, and its parts that
 most views call "desk" would go. The prompt asks for the whole object's name in one or two words, and the answers

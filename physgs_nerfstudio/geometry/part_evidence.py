@@ -26,14 +26,13 @@ a piece of the carved solid that the material split cut off: the filled inside o
 labelled surface named another material, a seam between two labelled regions, a sliver that only a looser
 carving keeps. :func:`absorb_unobserved` gives its voxels to the observed part nearest each of them (the nearest
 observed surface decides, as it does for a voxel's material), within the same connected piece of the solid.
-Before, such a part fused its Gaussians' weak evidence and the structure prior (hollow with probability about
-0.6): on the generated crate, a closed 4 mm cardboard box, the filled inside split into fragments that the
-prior made solid 40% of the time, and the box came out 1.6-1.9x its mass (GPU suite at seed 1515, CPU seed
-1414) while its observed walls alone were within 7%. A part with no observed part in its piece of the solid
+Fused on their own, such parts would take their Gaussians' weak evidence and the structure prior (hollow with
+probability about 0.6): a closed 4 mm cardboard box's filled inside splits into fragments that the prior makes
+solid 40% of the time, and the box comes out 1.6-1.9x its mass while its observed walls alone are within 7%. A part with no observed part in its piece of the solid
 (a separate fragment) is kept, with the pooled posterior of its Gaussians. Afterwards, touching parts whose
 views name the same material (:func:`merge_same_material`) are one part: the voxels that separated them were
-absorbed (on the crate at CPU seed 1717 a second cardboard part of 3.3 L, seen by about one view, kept a 21%
-chance of being solid cardboard and the box 1.66x its mass).
+absorbed (a second cardboard part of a box, seen by about one view, would keep its own chance of being solid
+cardboard).
 """
 
 from __future__ import annotations

@@ -6,8 +6,8 @@ just inside as just outside), but the depth vote's surface is not the rendered s
 it lies in front of that surface by more than ``depth_margin_voxels``. The margin is a tolerance (a noisy depth must
 not carve the object), yet counted by centres it becomes volume: a layer ``margin`` deep on every face that only the
 depth places. On the demo's 96 px renders a pixel covers 1.5-2 voxels, the masks place few of a chair's faces and
-the depth places most, and the depth margin's +1 voxel (the mass interval's own geometry variant) added 2.49 L
-outside every true part to a 9.75 L chair (benchmarks/README.md, session 37).
+the depth places most, and the depth margin's +1 voxel (the mass interval's own geometry variant) would add
+about 2.5 L outside every true part to a 9.75 L chair.
 
 So the volume near the solid's surface is measured, not read off voxel centres. Every voxel that the surface may
 cut counts the share of its ``n x n x n`` sub-points (a regular lattice: the centre rule at a finer step) that the
@@ -27,7 +27,7 @@ So the margin still decides which voxels the carving keeps (its robustness), and
 much of the space around that surface is solid. The silhouettes' faces get the same finer sampling (no bias, less
 aliasing). Faces that other rules end (the support plane, the Gaussians' polytope, hidden open space, which
 :mod:`.hidden` counts half) are unchanged: the vote keeps every sub-point of their voxels, which count whole, and
-the space those rules removed outside them counts 0, as before.
+the space those rules removed outside them counts 0.
 """
 
 from __future__ import annotations

@@ -11,11 +11,10 @@
   distance ``up_weight`` times (10 by default, ``GeometryConfig.interior_up_weight``): an object at rest is
   built in layers, and the seam between two parts inside it continues the one seen on its sides. A shoe's rubber
   sole, 25 mm thick under a leather upper as wide as it, is seen only along its edge; by plain Euclidean distance
-  half of its inside was nearer to the upper, went to the hollow upper and weighed nothing (the shoe came out
-  0.62-0.66x of its mass at demo settings, seeds 3535 and 3737; with 3, 0.77-0.84x). At 3 the sole's top third
-  still went to the upper: the short CPU trainings leave Gaussians on the sole's top face inside the upper, seen
-  through its semi-transparent leather and labelled leather, and at 3 they reached 3 times as deep as the sole's
-  edge reaches in. With 10 the shoe came out 0.94x and 1.00x (benchmarks/README.md, session 14).
+  half of its inside is nearer to the upper, goes to the hollow upper and weighs nothing. A weight of 3 is not
+  enough: the short CPU trainings leave Gaussians on the sole's top face inside the upper, seen through its
+  semi-transparent leather and labelled leather, and at 3 they reach 3 times as deep as the sole's edge reaches
+  in; at 10 the sole's edge reaches across its whole thickness.
 * **Parts.** Connected components (26-connectivity) of solid voxels sharing a dominant (argmax) material;
   parts below ``min_part_fraction`` of the object's volume are pooled into one residual part.
 * **A part's material** (:func:`pooled_part_alpha`, the default ``part_materials="pooled"``). A part is one
@@ -220,7 +219,7 @@ def concavities(hull: np.ndarray, solid: np.ndarray, depth_voxels: float = 2.0) 
     # the hull eroded by a ball of radius ``depth_voxels`` (outside the grid counts as outside the hull): the voxels
     # whose nearest voxel outside the hull lies farther than that, by the exact Euclidean distance transform. A ball
     # structuring element needs (2 r + 1)^3 of memory and time per voxel: a few pixels of a fine grid on a small
-    # object are tens of voxels, and its erosion ran out of memory (session 28)
+    # object are tens of voxels, and such an erosion runs out of memory
     padded = np.pad(np.asarray(hull, dtype=bool), 1, constant_values=False)
     deep = (ndimage.distance_transform_edt(padded)[1:-1, 1:-1, 1:-1] > depth_voxels) & ~solid
     if not deep.any():

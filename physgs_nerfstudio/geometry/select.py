@@ -9,25 +9,24 @@
    foreground Gaussians (probability >= ``min_prob``, opacity >= ``min_opacity``) are grouped into 3-D clusters
    (26-connected occupied cells of a coarse grid, ``cluster_cells`` along the longest side but no finer than
    1.5 x the Gaussians' median nearest-neighbour spacing, cells dilated by ``bridge_cells`` so that an
-   object's parts a few millimetres apart stay one cluster). Over a support plane, two more rules (session 28): the
+   object's parts a few millimetres apart stay one cluster). Over a support plane, two more rules: the
    clusters are cut above a *contact band* one reach above the plane and grown back into it (``contact_band``: near
    a floor, its clutter, contact shadows and reflections bridge the objects standing on it), and the chosen cluster
    is split again at its own resolution (``split_on_plane``, :func:`.clusters.split_close`: the cells are a share of the floor,
-   and a chair 15 cm from a table shared its cluster), linked above the contact band only (session 39). On the
-   GPU's `indoor_room` at two fresh seeds the selected volume fell from 5.14x the table's to 1.73x and 1.69x, the
-   chair, the crate and the lamp left out.
+   and a chair 15 cm from a table would share its cluster), linked above the contact band only (faint Gaussians
+   just over a floor, on no object, would link neighbours). In `indoor_room` they keep the chair, the crate and the
+   lamp out of the table's selection.
 3. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
    camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
    the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
    restricts the candidates first.
-   3b. **Another object's** (:mod:`.names`, ``object_names``, session 41; off by default). Perception's answers
+   3b. **Another object's** (:mod:`.names`, ``object_names``; off by default). Perception's answers
    name the whole object of each part; a chosen Gaussian that one other name claims, by more than ``object_names``
    views' evidence over the object's own name (the name with the most evidence over the cluster), is dropped. Meant
    for the mug and the bottle standing on the `indoor_room` table, which share its cluster and its ``whole``
-   masks. Measured on three GPU rooms it missed them: the built-in segmenter's part masks isolate the mug in few
-   views (8-20 answer records name it, 141-172 the table), while the chair's, the crate's and the lamp's masks
-   bleed onto the table, so it dropped the table's own Gaussians (its top kept 0.953 -> 0.916 of its volume at
-   seed 23023) and kept the mug (0.873 -> 0.849). Tested on synthetic masks that isolate each object
+   masks. With the built-in segmenter it misses them: its part masks isolate the mug in few views (8-20 answer
+   records name it, 141-172 the table), while the chair's, the crate's and the lamp's masks bleed onto the table,
+   so it drops some of the table's own Gaussians and keeps the mug. Tested on synthetic masks that isolate each object
    (tests/test_object_names.py); not measured with SAM's masks.
 4. **Inside the masks' hull** (:func:`outside_mask_hull`, applied by :func:`.reconstruct.reconstruct_object`). A
    selected Gaussian is dropped when its centre projects outside the views' foreground masks (by more than
@@ -36,15 +35,15 @@
    carving's rule for space out of frame). It counts every view that frames the centre, seen or hidden, whereas
    the probability of step 1 counts only the views that see a Gaussian: floaters and background that few views
    see, over masks that bled, can get a high probability and join the object's cluster. On a 60-view 512 px GPU
-   run of the generated chair 81% of the selected Gaussians were such (benchmarks/README.md); kept, they
-   stretched the voxel domain and made the selection's silhouette disagree with every view's mask, so that no
-   view's failed mask could be replaced by it (:func:`.reconstruct._object_views`). The vote is a majority, not
+   run of the generated chair 81% of the selected Gaussians can be such; kept, they stretch the voxel domain
+   and make the selection's silhouette disagree with every view's mask, so that no view's failed mask can be
+   replaced by it (:func:`.reconstruct._object_views`). The vote is a majority, not
    the carving's 15%: the built-in segmenter's masks miss a part of the object in a quarter of the views or more
    (the chair's seat at 512 px), and the carving's replacement of those masks needs the object's Gaussians kept.
    Each view's vote is weighed by its mask's *recall* (:func:`hull_view_weights`): the share of the centres that
    the views' majority holds inside the masks which this view holds inside too. A plain count trusts every mask
-   alike, and when a third of the views lost the table's top (60-view 512 px GPU run, seed 3434), a vote fraction
-   of 0.35 dropped the top: the mass fell to 0.49x. Weighed, a view that lost a part says little about it, while
+   alike, and when a third of the views lose a table's top, a vote fraction of 0.35 drops the top (half the
+   mass gone). Weighed, a view that lost a part says little about it, while
    the floaters, outside the masks of the views that see the object well, still go.
 """
 

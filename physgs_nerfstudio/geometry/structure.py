@@ -10,24 +10,22 @@ Evidence (``StructureConfig.evidence``):
 
 * The thickness is an answer about one material ("if this is cast iron, it is a 4 mm shell"). A candidate's
   thickness counts for part ``s`` with ``p x share_s x pi_sc``: as far as the part is made of that material.
-* The call "hollow" or "solid" is one judgment per mask ("mask", the default since session 34): what the part
+* The call "hollow" or "solid" is one judgment per mask ("mask", the default): what the part
   shows, whatever it is made of. The simulated VLM makes one per mask, and its candidates share it. Part ``s``
   hears it with ``w_s = P x share_s x max(cover_s, share_s)``. ``P`` is the mask's summed confidence (at most 1).
   ``cover_s`` is the part's mixture weight of the materials the mask named: the call is about the part as far as
   the part is of one of them, or as far as the part is what the mask shows (it fills the mask). The larger of
   the two is how far at least one of them holds. ``w_s`` is split among the candidates (they may call it
   differently) by ``p x pi_sc``, or by ``p`` where no candidate's material is in the part's mixture.
-* ``w_s`` is never less than session 33's ``sum_c p_c x share_s x pi_sc`` ("material": the call counted like
+* ``w_s`` is never less than ``sum_c p_c x share_s x pi_sc`` (the weight of "material": the call counted like
   the thickness), and never more than ``share_s``.
 
 Why: with "material", a part whose material the views split between two names heard only a fraction of what
-the views said about it. At CPU seed 16161 the export split the generated crate (a closed 4 mm cardboard box)
-into two parts. One was 0.63 paper and 0.28 cardboard, while its masks mostly named cardboard first. It heard 2.2
-observations' weight: solid with p = 0.19, and the crate came out at 6.1x its mass by the mean. It now hears 5.3
-(solid with p = 0.05; the crate 2.6x: benchmarks/README.md, session 34). Its share alone, with no material test,
-would give it 6.9 and the crate 1.5x. But then the generated shoe's rubber sole hears "hollow" from its leather
-upper's masks, which spill onto it in the z-buffer: the shoe went from 0.95x to 0.82x its mass at seed 9797, and
-from 1.00x to 0.81x at 17676. The material test keeps such spill out. The share lets a mask that is mostly the part
+the views said about it: a part of a closed cardboard box that is 0.63 paper and 0.28 cardboard, while its masks
+mostly name cardboard first, hears 2.2 observations' weight (solid with p = 0.19, the box several times its mass
+by the mean); with "mask" it hears 5.3 (solid with p = 0.05). Its share alone, with no material test, would give it
+more, but then a shoe's rubber sole would hear "hollow" from its leather upper's masks, which spill onto it in the
+z-buffer, and weigh as hollow. The material test keeps such spill out. The share lets a mask that is mostly the part
 speak for it.
 
 * Hollowness of part ``s``: Beta(a, b) with ``a = a0 + sum w_s [hollow]``, ``b = b0 + sum w_s [solid]``, the

@@ -334,7 +334,7 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
 def _layer_share(surface_m2: float, volume_m3: float, unit_m: float) -> float | None:
     """The share of a solid's volume that one resolution unit of its surface holds, ``S u / V`` (None without
     volume): how far its mass moves when every face is placed a unit off. A slab ``n`` units thick gives about
-    ``2 / n``: a two-voxel table top 1, so half a voxel on each face moves it by half (README, "Limits")."""
+    ``2 / n``: a two-voxel table top 1, so half a voxel on each face moves it by half (docs/mass.md)."""
     return float(surface_m2 * unit_m / volume_m3) if volume_m3 > 0 else None
 
 

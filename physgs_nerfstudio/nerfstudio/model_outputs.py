@@ -85,7 +85,7 @@ class PhysGSOutputsMixin:
     def _camera_size(self, camera: Cameras) -> tuple[int, int]:
         """Full-resolution (width, height) of a one-camera batch. A training camera's size is read from the device
         once and then kept by its `cam_idx`: each `.item()` on a CUDA camera is a host-device synchronisation,
-        and four of them per step left the GPU idle between them (benchmarks/README.md, issue 13)."""
+        and four of them per step would leave the GPU idle between them."""
         idx = camera.metadata.get("cam_idx") if camera.metadata else None
         sizes: dict[int, tuple[int, int]] = self.__dict__.setdefault("_camera_sizes", {})
         if isinstance(idx, int) and idx in sizes:
@@ -113,7 +113,7 @@ class PhysGSOutputsMixin:
         `material` [H, W, 3] (legend colours, or one material's probability: `viewer_settings`), `material_id`
         [H, W, 1] (0 = background) and, if enabled, the property outputs `density`, `friction`, `hardness`,
         `stiffness`, `aleatoric`, `epistemic`, `total_uncertainty`, each [H, W, 3]: colours on fixed scales
-        where Gaussians with material evidence cover the pixel, dimmed RGB elsewhere (README "Viewer")."""
+        where Gaussians with material evidence cover the pixel, dimmed RGB elsewhere (docs/viewer.md)."""
         if not isinstance(camera, Cameras):
             CONSOLE.log("Called get_outputs with not a camera")
             return {}

@@ -17,14 +17,10 @@ and are dropped. With ``thin_chroma`` set, the dropped fragments that are mostly
 and their mean chromaticities (CIE a*, b*) differ by less than ``thin_chroma``; lightness is left out, since shading
 and a white highlight change it along one material, and chromaticity is what tells steel from pine. A group that
 passes the area, sliver, contrast and stability tests (stability: the best IoU with the groups at ``perturb`` times
-the threshold) is a part mask. At 512 px on the twelve generated objects (seed 25247, 8 views; ``thin_chroma`` 4) the
-share of each material that a mask of that majority covers went 0.895 -> 0.921 (lowest 0.33 -> 0.57: the stool's
-steel 0.33 -> 0.73, the chair's aluminium 0.75 -> 0.86, the dumbbell's steel 0.67 -> 0.78), the share painted by a
-mask of another majority stayed 0.024 -> 0.025, and the masks per view (the VLM's calls) rose 6.6 -> 7.0
-(benchmarks/README.md, session 44). On by default since session 45: the GPU suite perceived both ways at fresh
-seed 25450 covered 11 of 12 objects with it and 10 without (the stool 1.05x of its mass against 0.75x; the other
-objects within 1.1%), the CPU suite at 25146 had median APE 0.039 with it and 0.050 without, and the demo's time did
-not change (benchmarks/README.md, session 45).
+the threshold) is a part mask. At 512 px on the twelve generated objects (8 views; ``thin_chroma`` 4) the share of
+each material that a mask of that majority covers goes 0.895 -> 0.921 (lowest 0.33 -> 0.57: a stool's steel
+footrest 0.33 -> 0.73), the share painted by a mask of another majority stays about 0.025, and the masks per view
+(the VLM's calls) rise 6.6 -> 7.0; the demo's time does not change (``benchmarks/segment_coverage.py``).
 
 Built by ``BuiltinSegmenterConfig.setup()``; the protocol, the mask type and the shared mask operations are in
 :mod:`.segment`.
