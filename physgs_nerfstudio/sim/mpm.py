@@ -1,7 +1,8 @@
 """MPM particles: ``particles.npz`` (one particle per voxel that carries mass) and ``mpm_config.json`` in the
 shape of PhysGaussian's scene configs.
 
-Each particle is a voxel of the export's grid with mass: its volume ``fill x voxel^3``, its mass the share of the
+Each particle is a voxel of the export's grid with mass: its volume ``fill x voxel^3`` (a whole voxel where the
+volume counts it at 0 but a wall's face bounds it), its mass the share of the
 body's part masses that lies on it (:func:`.body.element_masses`: a solid part's voxels, a hollow part's wall
 faces, whose mass goes to the voxel they bound), its density mass / volume (a wall thinner than a voxel is
 smeared over its voxels: the density is the wall's mass over the voxel's volume). The particles' total mass is

@@ -58,6 +58,7 @@ def _particles(pf: Any, build: SimBuild, geo: Any, folder: Path) -> list[Path]:
     mix = mix[keep] / np.maximum(mix[keep].sum(1, keepdims=True), 1e-300)
     vox = np.stack(np.unravel_index(keep, shape), 1)
     fill = geo.fill().reshape(-1)[keep]
+    fill = np.where(fill > 0, fill, 1.0)  # a solid voxel the volume counts at 0 that bounds a wall: a whole voxel
     E = pf.material_means()[:, pf.property_index("youngs_modulus")].cpu().numpy()
     nus = [poisson_ratio(n) for n in pf.material_names]
     nu = np.array([x for x, _ in nus])
