@@ -84,9 +84,27 @@ def test_rotated_frame_rotates_the_tensor():
 
 
 # ------------------------------------------------------------------ the written object
+def _box_silhouette(view, half, step=0.01):
+    """The exact mask of the box [-half, half] in ``view``: a dense lattice of its points projected (OpenCV)."""
+    import torch
+
+    axes = [torch.arange(-h, h + 1e-9, step) for h in half]
+    p = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3).float()
+    V = view.viewmat.float()
+    c = p @ V[:3, :3].T + V[:3, 3]
+    uv = c @ view.K.float().T
+    u, w = (uv[:, 0] / uv[:, 2]).floor().long(), (uv[:, 1] / uv[:, 2]).floor().long()
+    ok = (c[:, 2] > 0) & (u >= 0) & (u < view.width) & (w >= 0) & (w < view.height)
+    mask = torch.zeros(view.height, view.width, dtype=torch.bool)
+    mask[w[ok], u[ok]] = True
+    return mask
+
+
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
-    """A two-part box (oak and hollow glass halves) carved from views, its mass report and its sim folder."""
+    """A two-part box (oak and hollow glass halves) carved from 8 views' exact silhouettes, its mass report and its
+    sim folder."""
+    import torch
     from test_geometry import ring_views
 
     from physgs_nerfstudio.export.command import LoadedRun, run_export
@@ -101,7 +119,9 @@ def exported(tmp_path_factory):
                     thickness_m=[None, 0.003], names=["oak", "glass"], metres_per_unit=0.5)  # fmt: skip
     mass = MassConfig(geometry=GeometryConfig(resolution=24, backend="reference", variants=False), n_samples=2000)
     out = tmp_path_factory.mktemp("sim") / "export"
-    views = ring_views(pf, (0, 0, 0), 1.8, n=8, elevations=(-20.0, 50.0), size=40, mask_pf=replace(pf, scales=pf.scales * 4))
+    views = ring_views(pf.subset(torch.arange(1)), (0, 0, 0), 1.8, n=8, elevations=(-20.0, 50.0), size=40)
+    for v in views:
+        v.mask = _box_silhouette(v, (0.3, 0.2, 0.15))
     run = LoadedRun(pf, None, views, [], None)
     res = run_export(run, out, mass=mass, outputs=("mass", "sim"), quiet=True,
                      sim=SimConfig(samples=32, collision="hull"))  # fmt: skip
