@@ -297,3 +297,27 @@ def test_refuses_one_voxel(exported, tmp_path):
     one[tuple(np.argwhere(geo.solid)[0])] = True
     assert "1 solid voxel," in _refused(exported, tmp_path, solid=one, occupancy=one.astype(np.float32),
                                         hidden_edge=None)  # fmt: skip
+
+
+def test_meshes_are_closed_and_coacd_decomposes_a_step():
+    """A step-shaped solid: its visual mesh is watertight with the voxels' volume; its convex hull overfills the
+    step, CoACD's pieces do not (and each is convex)."""
+    import trimesh
+
+    from physgs_nerfstudio.sim.mesh import collision_pieces, part_meshes
+
+    solid = np.zeros((14, 14, 10), bool)
+    solid[2:12, 2:12, 2:8] = True
+    solid[2:12, 6:12, 5:8] = False
+    a = 0.01
+    m = part_meshes(solid, np.where(solid, 0, -1), solid.astype(np.float32), np.zeros(3), a, IDENTITY)[0]
+    tm = m.trimesh()
+    assert tm.is_watertight and tm.volume == pytest.approx(solid.sum() * a**3, rel=0.05)
+    (hull,), method = collision_pieces(m, "hull")
+    assert method == "hull" and trimesh.Trimesh(*hull).volume > 1.12 * tm.volume
+    pytest.importorskip("coacd")
+    pieces, method = collision_pieces(m, "coacd")
+    assert method == "coacd" and len(pieces) >= 2
+    vols = [trimesh.Trimesh(v, f).volume for v, f in pieces]
+    assert all(abs(trimesh.Trimesh(v, f).convex_hull.volume - x) < 1e-9 + 1e-3 * x for (v, f), x in zip(pieces, vols))
+    assert sum(vols) == pytest.approx(tm.volume, rel=0.05)

@@ -66,8 +66,9 @@ def part_materials(pf: Any, share: np.ndarray, friction: np.ndarray, mass: np.nd
     """Per part: its dominant material, friction ``share [P, K] @ friction [K]`` and density mass / volume."""
     mu = np.clip(share @ friction, 0.0, 2.0)
     rho = np.divide(mass, volume, out=np.zeros_like(mass), where=volume > 0)
-    return {p: PartMaterial(pf.material_names[int(np.argmax(share[p]))], float(mu[p]), float(rho[p]))
-            for p in range(share.shape[0])}  # fmt: skip
+    top = [int(np.argmax(share[p])) for p in range(share.shape[0])]
+    return {p: PartMaterial(pf.material_names[k], float(mu[p]), float(rho[p]), tuple(map(int, pf.material_colors[k])))
+            for p, k in enumerate(top)}  # fmt: skip
 
 
 def _check_object(geo: Any, cfg: SimConfig) -> None:

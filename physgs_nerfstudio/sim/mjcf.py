@@ -31,7 +31,7 @@ def mjcf_text(obj: SimObject, free: bool = True) -> str:
     assets, geoms = [], []
     for m in obj.meshes:
         p = m.part
-        rgba = "0.7 0.7 0.7 1"
+        rgba = " ".join(f"{c / 255:.3f}" for c in obj.materials[p].color) + " 1"
         assets.append(f'    <mesh name="part{p}_visual" file={quoteattr(obj.mesh_file(p))}/>')
         geoms.append(f'      <geom name="part{p}_visual" type="mesh" mesh="part{p}_visual" contype="0" '
                      f'conaffinity="0" group="1" rgba="{rgba}"/>')  # fmt: skip

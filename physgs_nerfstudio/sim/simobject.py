@@ -20,6 +20,8 @@ class PartMaterial:
     """kinetic (dynamic) friction coefficient, the fused posterior's (dimensionless)"""
     density: float
     """the part's mass over the volume that weighs (the wall's where it is hollow), kg/m^3"""
+    color: tuple[int, int, int] = (180, 180, 180)
+    """the material's legend colour (RGB 0-255), for the visual meshes"""
 
 
 @dataclass
