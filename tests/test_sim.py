@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from test_export_loader import saved_run  # noqa: F401 - a saved physgs-lite run (fixture)
 
 from physgs_nerfstudio.sim.body import body_from_masses, elements, mass_carriers
 from physgs_nerfstudio.sim.frame import ObjectFrame
@@ -321,3 +322,17 @@ def test_meshes_are_closed_and_coacd_decomposes_a_step():
     vols = [trimesh.Trimesh(v, f).volume for v, f in pieces]
     assert all(abs(trimesh.Trimesh(v, f).convex_hull.volume - x) < 1e-9 + 1e-3 * x for (v, f), x in zip(pieces, vols))
     assert sum(vols) == pytest.approx(tm.volume, rel=0.05)
+
+
+
+def test_export_command_refuses_an_assumed_scale_before_the_geometry(saved_run, tmp_path):  # noqa: F811
+    """`physgs export --outputs sim` on a saved run whose dataset is not known to be metric: one line, nothing
+    written (the check runs right after loading, before the object's geometry)."""
+    from physgs_nerfstudio.export.command import ExportCommand
+    from physgs_nerfstudio.sim import SimError
+
+    out = tmp_path / "export"
+    with pytest.raises(SimError) as err:
+        ExportCommand(load_config=saved_run, output_dir=out, outputs=("mass", "sim"), device="cpu").main()
+    assert "\n" not in str(err.value) and "--scale" in str(err.value) and "metric_dataset" in str(err.value)
+    assert not out.exists()
