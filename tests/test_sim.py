@@ -84,6 +84,27 @@ def test_rotated_frame_rotates_the_tensor():
     np.testing.assert_allclose(b1.inertia, R.T @ b0.inertia @ R, atol=1e-15)
 
 
+
+def test_element_masses_keep_every_kilogram():
+    """A core part enclosed by a shell part, both hollow and both solid, two materials: the elements carry the
+    parts' masses exactly (the enclosed part's wall lies in its voxels: it has no face onto the outside)."""
+    from physgs_nerfstudio.sim.body import element_masses
+
+    solid = np.ones((8, 8, 8), bool)
+    parts = np.zeros(solid.shape, int)
+    parts[3:5, 3:5, 3:5] = 1
+    mix = np.zeros((*solid.shape, 2))
+    mix[..., 0] = 0.7
+    mix[..., 1] = 0.3
+    se, we = elements(solid, parts, mix, solid.astype(np.float32), np.zeros(3), 0.01, IDENTITY)
+    masses = np.array([[[1.0, 0.5], [0.2, 0.1]], [[0.3, 0.0], [0.4, 0.6]]])  # [solid/wall, part, material]
+    for e, m in ((se, masses[0]), (we, masses[1])):
+        got = element_masses(e, m, 2)
+        np.testing.assert_allclose(np.bincount(e.part, got, minlength=2), m.sum(1), rtol=1e-12)
+    b = body_from_masses(masses, mass_carriers(se, we, 2))
+    assert b.mass_kg == pytest.approx(masses.sum(), rel=1e-12)
+    np.testing.assert_allclose(b.com_m, [0.04, 0.04, 0.04], atol=1e-12)  # everything symmetric about the centre
+
 # ------------------------------------------------------------------ the written object
 def _box_silhouette(view, half, step=0.01):
     """The exact mask of the box [-half, half] in ``view``: a dense lattice of its points projected (OpenCV)."""

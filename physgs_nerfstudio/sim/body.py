@@ -4,7 +4,8 @@ The mass report's Monte Carlo (:func:`physgs_nerfstudio.mass.mass_draws`) gives,
 material and whether the part is solid or a wall. Where that mass lies comes from the voxels of the nominal solid
 (:class:`MassCarriers`): a solid part's material ``k`` fills its voxels in proportion to ``fill x mixture_k``
 (each voxel a uniform cube); a wall's mass lies on the part's faces onto the outside (each exposed voxel face a
-uniform square plate, weighted by ``mixture_k``), so a hollow mug weighs in its walls, not in its inside.
+uniform square plate, weighted by ``mixture_k``), so a hollow mug weighs in its walls, not in its inside (a part
+with no face onto the outside, enclosed by others, carries its wall in its voxels).
 
 A body is then ``sum_pk m_pk`` with first and second moments ``sum_pk m_pk c_pk`` and ``sum_pk m_pk S_pk``
 (exact sums over the voxels, nothing fitted): :func:`body_from_masses`. The mean body uses the samples' mean part
@@ -127,6 +128,10 @@ def elements(solid: np.ndarray, parts: np.ndarray, mixture: np.ndarray, fill: np
     plate = np.einsum("ji,njk,kl->nil", R, plate, R)  # R^T D R per face
     wall_e = Elements(v, parts[tuple(v.T)], mixture[tuple(v.T)], frame.to_object(origin_m + (v + 0.5) * a + offset),
                       plate)  # fmt: skip
+    inner = np.isin(solid_e.part, wall_e.part, invert=True)  # a part with no face onto the outside: its voxels
+    if inner.any():
+        wall_e = Elements(*(np.concatenate([getattr(wall_e, k), getattr(solid_e, k)[inner]])
+                            for k in ("voxel", "part", "weight", "centre_m", "own")))  # fmt: skip
     return solid_e, wall_e
 
 
