@@ -53,7 +53,8 @@ def _particles(pf: Any, build: SimBuild, geo: Any, folder: Path) -> list[Path]:
     for e, m in ((build.solid_e, build.masses[0]), (build.wall_e, build.masses[1])):
         np.add.at(flat, np.ravel_multi_index(tuple(e.voxel.T), shape), element_masses(e, m, geo.num_parts))
     mix = np.zeros((flat.size, geo.mixture.shape[-1]))
-    mix[np.ravel_multi_index(tuple(build.solid_e.voxel.T), shape)] = build.solid_e.weight
+    mix[np.ravel_multi_index(tuple(build.wall_e.voxel.T), shape)] = build.wall_e.weight  # a wall's voxels
+    mix[np.ravel_multi_index(tuple(build.solid_e.voxel.T), shape)] = build.solid_e.weight  # every voxel with fill
     keep = np.flatnonzero(flat > 0)
     mix = mix[keep] / np.maximum(mix[keep].sum(1, keepdims=True), 1e-300)
     vox = np.stack(np.unravel_index(keep, shape), 1)
