@@ -22,8 +22,9 @@ class SimConfig:
 
     samples: int = 0
     """posterior samples to write as well (each a body drawn from the mass report's Monte Carlo), 0 for none"""
-    collision: Literal["auto", "coacd", "hull"] = "auto"
-    """collision geometry: CoACD convex decomposition (auto: where installed) or each part's convex hull"""
+    collision: Literal["hull", "coacd", "auto"] = "hull"
+    """collision geometry: each part's convex hull, or CoACD's convex decomposition (minutes on a CPU; auto: CoACD
+    where it is installed)"""
     max_triangles: Annotated[int, tyro.conf.Suppress] = 20000
     """the visual meshes' triangle budget for the whole object"""
     coacd_threshold: Annotated[float, tyro.conf.Suppress] = 0.08
