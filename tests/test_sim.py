@@ -285,6 +285,18 @@ def test_sample_files_load(exported):
     assert any(p.HasAPI(UsdPhysics.CollisionAPI) for p in stage.Traverse())  # the meshes come by reference
 
 
+
+def test_without_usd_core_the_rest_is_written(exported, tmp_path, monkeypatch):
+    from physgs_nerfstudio.sim import SimConfig, write
+    from physgs_nerfstudio.sim.write import write_sim
+
+    monkeypatch.setattr(write, "usd_available", lambda: False)
+    files = write_sim(exported["pf"], exported["res"].geometry, exported["draws"], exported["report"], tmp_path,
+                      SimConfig(samples=2))  # fmt: skip
+    names = {p.name for p in files}
+    assert {"object.xml", "object.urdf", "particles.npz", "manifest.json"} <= names and "object.usda" not in names
+    assert json.loads((tmp_path / "manifest.json").read_text())["usd"].startswith("not written")
+
 # ------------------------------------------------------------------ refusals
 def _refused(exported, tmp_path, **changes):
     from physgs_nerfstudio.export.command import run_export

@@ -44,6 +44,7 @@ def manifest(build: Any, report: Any, files: list[Path], folder: Path, rows: lis
                            "collision_pieces": next((len(x.collision) for x in obj.meshes if x.part == p), 0)}
                   for p, m in obj.materials.items()},
         "collision": obj.collision_method,
+        "usd": "object.usda" if (folder / "object.usda").is_file() else "not written: pip install usd-core",
         "friction_note": "kinetic (dynamic) friction of the fused posterior; static friction is not estimated",
         "samples": _spread(rows, report),
     }  # fmt: skip

@@ -18,7 +18,16 @@ import numpy as np
 
 from .simobject import SimObject
 
-__all__ = ["write_usd", "write_usd_sample"]
+__all__ = ["usd_available", "write_usd", "write_usd_sample"]
+
+
+def usd_available() -> bool:
+    """Whether ``pxr`` (usd-core) imports here."""
+    try:
+        import pxr  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def _pxr():

@@ -14,6 +14,7 @@ Layout of ``<export>/sim/`` (docs/simulation.md)::
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -28,7 +29,9 @@ from .mjcf import mjcf_text, write_mjcf
 from .mpm import poisson_ratio, write_mpm
 from .samples import sample_bodies
 from .urdf import urdf_text, write_urdf
-from .usd import write_usd, write_usd_sample
+from .usd import usd_available, write_usd, write_usd_sample
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["write_sim"]
 
@@ -79,7 +82,9 @@ def _write_samples(pf: Any, build: SimBuild, draws: Any, n: int, seed: int, fold
         obj = build.obj.variant(body, mats, "../../meshes")
         (d / "object.xml").write_text(mjcf_text(obj))
         (d / "object.urdf").write_text(urdf_text(obj))
-        files += [d / "object.xml", d / "object.urdf", *write_usd_sample(obj, d, "../../object.usda")]
+        files += [d / "object.xml", d / "object.urdf"]
+        if usd_available():
+            files += write_usd_sample(obj, d, "../../object.usda")
         rows.append({"index": i, **body.to_dict(), "parts": {str(p): vars(m) for p, m in mats.items()}, **drawn})
     (folder / "samples.json").write_text(json.dumps({"count": n, "samples": rows}, indent=2))
     return [folder / "samples.json", *files], rows
@@ -95,7 +100,12 @@ def write_sim(pf: Any, geo: Any, draws: Any, report: Any, folder: Path, cfg: Sim
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     files = _write_meshes(build, folder / "meshes")
-    files += write_mjcf(build.obj, folder) + write_urdf(build.obj, folder) + write_usd(build.obj, folder)
+    files += write_mjcf(build.obj, folder) + write_urdf(build.obj, folder)
+    if usd_available():
+        files += write_usd(build.obj, folder)
+    else:
+        logger.warning("sim: object.usda not written: USD needs usd-core (pip install usd-core, or "
+                       "physgs-nerfstudio[sim]); the MJCF, URDF and particles are written.")  # fmt: skip
     files += _particles(pf, build, geo, folder)
     rows: list = []
     if cfg.samples:
