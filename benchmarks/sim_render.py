@@ -4,7 +4,8 @@
 
 Loads ``scene.xml`` (the object on a floor), drops the object from ``--drop`` metres, simulates ``--seconds`` and
 renders its resting state (visual meshes, in their materials' legend colours) from a camera framing its bounds.
-Prints the rest height of the object's frame and its largest speed at the end. Needs an OpenGL that MuJoCo can
+Prints the lowest collision point's height (0 = on the floor), the tilt of the object's z axis and its largest
+speed at the end. Needs an OpenGL that MuJoCo can
 open without a display: ``MUJOCO_GL=egl`` (Mesa's EGL works on CPU machines) or ``osmesa``.
 """
 
@@ -42,8 +43,13 @@ def main() -> int:
     renderer.update_scene(data, camera=cam)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(renderer.render()).save(args.out)
-    print(f"{args.out}: {man['object']} ({man['body']['mass_kg']:.4g} kg) at rest after {args.seconds} s: frame "
-          f"height {data.qpos[2] * 1000:.3f} mm, largest speed {np.abs(data.qvel).max():.2e}")
+    geoms = [i for i in range(model.ngeom) if "collision" in model.geom(i).name]
+    low = min(float((data.geom_xpos[i] + model.mesh_vert[model.mesh_vertadr[j]:model.mesh_vertadr[j]
+                                                         + model.mesh_vertnum[j]] @ data.geom_xmat[i].reshape(3, 3).T
+                     )[:, 2].min()) for i, j in ((i, model.geom_dataid[i]) for i in geoms))  # fmt: skip
+    tilt = np.degrees(np.arccos(np.clip(data.xmat[1].reshape(3, 3)[2, 2], -1, 1)))
+    print(f"{args.out}: {man['object']} ({man['body']['mass_kg']:.4g} kg) at rest after {args.seconds} s: lowest "
+          f"collision point {low * 1000:.3f} mm, tilted {tilt:.2f} deg, largest speed {np.abs(data.qvel).max():.2e}")
     return 0
 
 
