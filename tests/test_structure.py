@@ -1,5 +1,5 @@
 """The package's structure rules (docs/architecture.md, "Structure rules"), read from the source with `ast`:
-no function over 80 lines in perception/, export/, nerfstudio/model.py and nerfstudio/model_outputs.py; no
+no function over 80 lines in perception/, export/, sim/, nerfstudio/model.py and nerfstudio/model_outputs.py; no
 import circle between the package's modules (imports inside functions count: they close a circle at run time
 just the same)."""
 
@@ -12,7 +12,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "physgs_nerfstudio"
 MAX_FUNCTION_LINES = 80
-LENGTH_LIMITED = ("perception", "export", "nerfstudio/model.py", "nerfstudio/model_outputs.py")
+LENGTH_LIMITED = ("perception", "export", "sim", "nerfstudio/model.py", "nerfstudio/model_outputs.py")
 
 
 def _modules() -> dict[str, Path]:

@@ -19,7 +19,8 @@ import torch
 from ..errors import PhysGSError
 from ..geometry import GeometryError, ObjectGeometry
 from ..geometry.capture import viewmat_from_c2w
-from ..mass import MassConfig, MassReport, integrate_mass
+from ..mass import MassConfig, MassReport, integrate_mass, mass_draws
+from ..sim import SimConfig
 from . import geometry_cache
 from .maps import View, save_property_maps
 from .ply import write_property_ply
@@ -42,7 +43,7 @@ logger = logging.getLogger(__name__)
 __all__ = ["ExportCommand", "ExportResult", "LoadedRun", "RunSource", "load_run", "object_geometry",
            "precompute_geometry", "run_export", "run_from_pipeline", "views_from_cameras", "write_export"]
 
-Output = Literal["ply", "voxels", "maps", "mass"]
+Output = Literal["ply", "voxels", "maps", "mass", "sim"]
 
 
 @dataclass
@@ -106,10 +107,12 @@ def write_export(
     quiet: bool = False,
     final_dir: Path | None = None,
     geometry: ObjectGeometry | None = None,
+    sim: SimConfig | None = None,
 ) -> ExportResult:
     """Write the chosen outputs of ``run`` straight into ``output_dir`` (no staging; ``final_dir``: where the
     report says the files are) and print the mass table. ``geometry``: the object's geometry already computed with
-    ``mass.geometry`` (:mod:`.geometry_cache`); None = computed here."""
+    ``mass.geometry`` (:mod:`.geometry_cache`); None = computed here. ``sim``: the settings of the "sim" output
+    (:mod:`physgs_nerfstudio.sim`)."""
     from rich.console import Console
 
     console = Console(quiet=quiet)
@@ -124,7 +127,7 @@ def write_export(
         files["ply"] = [write_property_ply(pf, out / "property_field.ply", top_k=top_k)]
         console.log(f"PLY: {files['ply'][0]} ({pf.num_gaussians} Gaussians)")
     report, error, geo = None, None, geometry
-    if "mass" in outputs or "voxels" in outputs:
+    if {"mass", "voxels", "sim"} & set(outputs):
         try:
             with stage(console, "object geometry", unit="steps") as st:
                 if geo is None:
@@ -136,16 +139,20 @@ def write_export(
             error = " ".join(str(err).split())
             console.print(f"[bold red]mass and voxels not written:[/] {error}")
         else:
-            if "mass" in outputs:
-                report = integrate_mass(pf, geo, mass)
+            if "mass" in outputs or "sim" in outputs:
+                draws = mass_draws(pf, geo, mass)
+                report = integrate_mass(pf, geo, mass, draws=draws)
             if "voxels" in outputs:
                 files["voxels"] = [write_voxel_grid(pf, out / "voxels.npz", geo)]
                 console.log(f"voxel grid: {files['voxels'][0]}")
+            if "sim" in outputs:
+                files["sim"] = _write_sim(run, geo, draws, report, out / "sim", sim or SimConfig(), mass.seed)
+                console.log(f"simulator object: {out / 'sim'} ({len(files['sim'])} files)")
     if "maps" in outputs and views:
         with stage(console, "property maps", total=len(views), unit="views") as st:
             files["maps"] = save_property_maps(pf, views, out / "maps", on_view=lambda name: st.advance(1, name))
             st.result = str(out / "maps")
-    if report is not None or (error is not None and "mass" in outputs):
+    if "mass" in outputs and (report is not None or error is not None):
         shown = Path(final_dir or out)
         extra: dict[str, Any] = {"files": {k: [str(shown / p.relative_to(out)) for p in v] for k, v in files.items()},
                                  "legend": pf.legend(), "simulated": pf.simulated}  # fmt: skip
@@ -160,7 +167,22 @@ def write_export(
         files["report"] = [write_report(report, out / "report.json", extra)]
         if report is not None:
             print_mass_table(report, title=title, truth_kg=truth_kg, console=console)
-    return ExportResult(files, report, error, geo if error is None else None)
+    return ExportResult(files, report if "mass" in outputs else None, error, geo if error is None else None)
+
+
+def _write_sim(run: LoadedRun, geo: ObjectGeometry, draws: Any, report: MassReport, folder: Path,
+               cfg: SimConfig, seed: int) -> list[Path]:  # fmt: skip
+    """The "sim" output (:func:`physgs_nerfstudio.sim.write_sim`) with the run's views, dataset and transform."""
+    import json
+
+    from ..sim import write_sim
+    from .scale import DATAPARSER_TRANSFORMS
+
+    dp = None
+    if run.source is not None and (run.source.run_dir / DATAPARSER_TRANSFORMS).is_file():
+        dp = json.loads((run.source.run_dir / DATAPARSER_TRANSFORMS).read_text())
+    return write_sim(run.field, geo, draws, report, folder, cfg, views=run.views, data_dir=run.data_dir, seed=seed,
+                     dataparser=dp)  # fmt: skip
 
 
 _DEPRECATED = "(deprecated spelling of --mass.{}; kept for existing scripts)"
@@ -179,6 +201,8 @@ class ExportCommand:
     outputs: tuple[Output, ...] = ("ply", "voxels", "maps", "mass")
     mass: MassConfig = field(default_factory=MassConfig)
     """the object's geometry (selection, carving, parts, structure) and the Monte Carlo"""
+    sim: SimConfig = field(default_factory=SimConfig)
+    """the simulator-ready object that --outputs sim writes (MuJoCo, URDF, USD, MPM particles, samples)"""
     scale: float | None = None
     """metres per dataset unit (default: the dataset is metric)"""
     known_length: tuple[float, float, float, float, float, float, float] | None = None
@@ -230,9 +254,13 @@ class ExportCommand:
 
     def main(self) -> ExportResult:
         check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
-        needs_geometry = bool({"mass", "voxels"} & set(self.outputs))
+        needs_geometry = bool({"mass", "voxels", "sim"} & set(self.outputs))
         run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env,
                        capture=False)  # fmt: skip
+        if "sim" in self.outputs:  # before any geometry is computed
+            from ..sim.build import check_metric_scale
+
+            check_metric_scale(run.field.scale_source, run.data_dir)
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
         mass = self.mass_config()
         cache, geo = None, None
@@ -250,7 +278,7 @@ class ExportCommand:
         result = run_export(run, self.output_dir, mass=mass, outputs=self.outputs, views=views,
                             top_k=self.top_k, truth_kg=self.truth_kg, overwrite=self.overwrite,
                             source=self.load_config, title=f"Mass of {self.load_config.parent.name}",
-                            geometry=geo)  # fmt: skip
+                            geometry=geo, sim=self.sim)  # fmt: skip
         if cache is not None and geo is None and result.geometry is not None:
             cache.save(result.geometry)
         if result.error is not None:  # the rest is written (a complete export of what could be made): say so, exit 1

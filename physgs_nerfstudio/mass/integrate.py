@@ -65,7 +65,8 @@ import torch
 
 from ..geometry import GeometryConfig, ObjectGeometry
 
-__all__ = ["MassConfig", "MassReport", "MaterialMass", "integrate_mass", "seam_transfer", "wall_volume"]
+__all__ = ["MassConfig", "MassDraws", "MassReport", "MaterialMass", "integrate_mass", "mass_draws", "seam_transfer",
+           "wall_volume"]
 
 
 @dataclass
@@ -242,14 +243,42 @@ def _material_shares(geo: ObjectGeometry, rng: np.random.Generator, S: int) -> n
     return levels[np.arange(geo.num_parts)[None, :], j]
 
 
-def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, *,
-                   keep_samples: bool = False) -> MassReport:  # fmt: skip
-    """Mass mean, median and interval of the object (module doc). ``pf``: the property field (materials' NIG
-    posteriors, scale); ``geo``: :func:`physgs_nerfstudio.geometry.reconstruct_object` of its Gaussians."""
+@dataclass
+class MassDraws:
+    """The Monte Carlo samples behind a :class:`MassReport` (module doc), one row per sample: what the report's
+    mean and interval summarise and what simulator bodies are built from (:mod:`physgs_nerfstudio.sim`)."""
+
+    variant: np.ndarray
+    """int [S]: the carving variant of each sample (index into ``ObjectGeometry.variant_names``)"""
+    share: np.ndarray
+    """[S, P, K]: volume share per material of each part"""
+    density: np.ndarray
+    """[S, K]: density per material, kg/m^3"""
+    hollow: np.ndarray
+    """bool [S, P]: the part is a wall (its mass lies in its faces) rather than solid"""
+    thickness_m: np.ndarray
+    """[S, P]: wall thickness drawn for each part, metres (used where ``hollow``)"""
+    solid_volume_m3: np.ndarray
+    """[S, P]: each part's volume as a solid, m^3"""
+    volume_m3: np.ndarray
+    """[S, P]: the volume that weighs (the solid's, or the wall's where hollow), m^3"""
+    part_mass_kg: np.ndarray
+    """[S, P, K]: mass per part and material, kg"""
+    unit: float
+    """the carving's resolution, scene units"""
+
+    @property
+    def total_kg(self) -> np.ndarray:
+        """[S]: the object's mass in each sample."""
+        return self.part_mass_kg.sum((1, 2))
+
+
+def mass_draws(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None) -> MassDraws:
+    """Draw the Monte Carlo samples of the object's mass (module doc); :func:`integrate_mass` summarises them."""
     cfg = cfg or MassConfig()
     mpu = pf.metres_per_unit
     rng = np.random.default_rng(cfg.seed)
-    S, P, K = cfg.n_samples, geo.num_parts, pf.num_materials
+    S = cfg.n_samples
     G = geo.volumes.shape[0]
     gi = rng.integers(G, size=S) if G > 1 else np.zeros(S, np.int64)
     V = geo.volumes[gi] * mpu**3  # [S, P] m^3
@@ -276,6 +305,19 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
         wall = A * thick
     vol = np.where(hollow, np.minimum(cap, wall), V_solid)
     m_pk = share * rho[:, None, :] * vol[:, :, None]  # [S, P, K]
+    return MassDraws(gi, share, rho, hollow, thick, V_solid, vol, m_pk, unit)
+
+
+def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, *,
+                   keep_samples: bool = False, draws: MassDraws | None = None) -> MassReport:  # fmt: skip
+    """Mass mean, median and interval of the object (module doc). ``pf``: the property field (materials' NIG
+    posteriors, scale); ``geo``: :func:`physgs_nerfstudio.geometry.reconstruct_object` of its Gaussians;
+    ``draws``: :func:`mass_draws` of the same field, geometry and ``cfg`` (None: drawn here)."""
+    cfg = cfg or MassConfig()
+    mpu = pf.metres_per_unit
+    draws = draws if draws is not None else mass_draws(pf, geo, cfg)
+    S, P, K = cfg.n_samples, geo.num_parts, pf.num_materials
+    rho, V_solid, m_pk, unit = draws.density, draws.solid_volume_m3, draws.part_mass_kg, draws.unit
     m = m_pk.sum(-1)  # [S, P]
     total = m.sum(1)
     lo_q, hi_q = (1 - cfg.level) / 2, (1 + cfg.level) / 2
