@@ -77,6 +77,14 @@ class RunState:
         return out[0], out[1]
 
 
+def _checked_dataparser(dp_config: Any) -> Any:
+    """The run's dataparser config, built only after :func:`.runcheck.check_dataparser` passed it."""
+    from .runcheck import check_dataparser
+
+    check_dataparser(dp_config)
+    return dp_config.build() if hasattr(dp_config, "build") else dp_config
+
+
 def _dataparser_outputs(config: Any, run_dir: Path | None = None) -> Any:
     """The training split's DataparserOutputs of a run config (a built one or a ConfigObject tree), as
     ``eval_setup(test_mode="inference")`` makes them: no image opened, no seed points read. With the tree and
@@ -95,9 +103,7 @@ def _dataparser_outputs(config: Any, run_dir: Path | None = None) -> Any:
             return dpo
         except Unsupported as why:
             logger.debug("reading the training cameras through nerfstudio's dataparser: %s", why)
-    dp_config = dm.dataparser
-    if hasattr(dp_config, "build"):
-        dp_config = dp_config.build()
+    dp_config = _checked_dataparser(dm.dataparser)
     if getattr(dm, "data", None) is not None:  # as the datamanager does
         dp_config.data = Path(dm.data)
     else:
