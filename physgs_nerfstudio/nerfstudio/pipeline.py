@@ -184,9 +184,21 @@ class PhysGSPipeline(VanillaPipeline):
             )
         )
         if trainer is not None:
+            self._write_manifest(Path(trainer.config.get_base_dir()))
             cbs.append(TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN], self._precompute_geometry,
                                         args=[Path(trainer.config.get_base_dir()) / "config.yml"]))  # fmt: skip
         return cbs
+
+    def _write_manifest(self, run_dir: Path) -> None:
+        """The run manifest (:mod:`physgs_nerfstudio.runfiles.manifest`): the legend, posteriors and maps this run
+        trains with, which export and the viewer check the dataset against."""
+        from physgs_nerfstudio.runfiles.manifest import dataset_dir, write_manifest
+
+        dpo = self.datamanager.train_dataparser_outputs
+        data_dir = dataset_dir(self.datamanager.config.data or getattr(self.datamanager.config.dataparser, "data", None))
+        if data_dir is not None and "material_legend" in dpo.metadata:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            write_manifest(run_dir, data_dir, dpo.metadata)
 
     def _precompute_geometry(self, config_path: Path, step: int) -> None:
         """`precompute_geometry` (config doc), after nerfstudio saved the final checkpoint."""
