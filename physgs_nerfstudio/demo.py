@@ -183,4 +183,7 @@ class DemoCommand:
 if __name__ == "__main__":
     import tyro
 
-    tyro.cli(DemoCommand).main()
+    from physgs_nerfstudio.cli import one_line_errors
+
+    with one_line_errors("physgs demo"):
+        tyro.cli(DemoCommand).main()

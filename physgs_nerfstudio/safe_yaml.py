@@ -53,7 +53,8 @@ import yaml
 
 from .errors import PhysGSError
 
-__all__ = ["ClassRef", "ConfigObject", "UnsafeConfigError", "check_node", "check_targets", "load_config_tree", "load_config_yaml"]
+__all__ = ["ClassRef", "ConfigObject", "UnsafeConfigError", "check_node", "check_targets", "load_config_tree", "load_config_yaml",
+           "yaml_bounds_problem"]
 
 CLASS_PACKAGES = ("nerfstudio", "physgs_nerfstudio", "torch.optim", "gsplat")
 """packages whose classes a config may name (``!!python/object``, ``!!python/name``)"""
@@ -317,8 +318,8 @@ def _build(value: Any, memo: dict[int, Any]) -> Any:
     return value
 
 
-class _BoundedLoader(yaml.Loader):
-    """nerfstudio's loader, counting alias uses while composing (at most :data:`MAX_ALIASES`)."""
+class _AliasBudget:
+    """Counts alias uses while composing (at most :data:`MAX_ALIASES`); mixed into a PyYAML loader."""
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
@@ -326,7 +327,11 @@ class _BoundedLoader(yaml.Loader):
             if self._aliases > MAX_ALIASES:
                 line = self.peek_event().start_mark.line + 1
                 raise _TooBig(line, f"more than {MAX_ALIASES} aliases")
-        return super().compose_node(parent, index)
+        return super().compose_node(parent, index)  # type: ignore[misc]
+
+
+class _BoundedLoader(_AliasBudget, yaml.Loader):
+    """nerfstudio's loader, with the alias budget."""
 
 
 class _TooBig(Exception):
@@ -394,7 +399,12 @@ def _read(path: Path, loader_cls: type, by_name: bool) -> Any:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise UnsafeConfigError(f"{path}: not a text file; pass the config.yml that ns-train wrote.") from None
-    loader = loader_cls(text)  # it only builds the tree check_node passed
+    try:
+        loader = loader_cls(text)  # it only builds the tree check_node passed
+    except yaml.YAMLError as err:  # a control character the YAML reader refuses
+        problem = " ".join("".join(c if c.isprintable() else " " for c in str(err)).split())[:160]
+        raise UnsafeConfigError(f"{path}: not a readable YAML config ({problem}); pass the config.yml that ns-train "
+                                "wrote.") from None  # fmt: skip
     try:
         node = loader.get_single_node()
         if node is None:
@@ -402,6 +412,9 @@ def _read(path: Path, loader_cls: type, by_name: bool) -> Any:
         check_node(node, path, by_name=by_name)
         _check_size(node)
         return loader.construct_document(node)
+    except RecursionError:
+        raise UnsafeConfigError(f"{path}: nested too deeply to read (lists or maps inside each other thousands of "
+                                "levels deep); pass the config.yml that ns-train wrote.") from None  # fmt: skip
     except _TooBig as err:
         raise UnsafeConfigError(f"{path}, line {err.line}: refused: {err.what} (an alias bomb); a config that "
                                 "ns-train wrote has a few; use that config.yml.") from None  # fmt: skip
@@ -413,6 +426,34 @@ def _read(path: Path, loader_cls: type, by_name: bool) -> Any:
                                 "that ns-train wrote.") from None  # fmt: skip
     finally:
         loader.dispose()
+
+
+class _BoundedSafeLoader(_AliasBudget, yaml.SafeLoader):
+    """PyYAML's safe loader, with the alias budget."""
+
+
+def yaml_bounds_problem(text: str) -> str | None:
+    """None when a plain YAML text (a material library, any file read with ``yaml.safe_load``) is within the
+    alias and size budgets of the module doc and nests less deeply than Python's recursion limit, else what is
+    wrong (with its line). The text is composed with the pure-Python reader: libyaml's C reader overflows its stack
+    on a file nested a hundred thousand levels deep, which ends the process without a word."""
+    try:
+        loader = _BoundedSafeLoader(text)
+    except yaml.YAMLError as err:
+        return " ".join("".join(c if c.isprintable() else " " for c in str(err)).split())[:160]
+    try:
+        node = loader.get_single_node()
+        if node is not None:
+            _check_size(node)
+    except _TooBig as err:
+        return f"line {err.line}: {err.what} (an alias bomb)"
+    except RecursionError:
+        return "nested too deeply (lists or maps inside each other thousands of levels deep)"
+    except yaml.YAMLError:
+        return None  # the caller's own reader names the syntax error
+    finally:
+        loader.dispose()
+    return None
 
 
 def load_config_yaml(path: Path | str) -> Any:

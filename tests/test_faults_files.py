@@ -530,7 +530,7 @@ def test_10d_eval_rejects_zero_or_negative_masses(tmp_path, capsys, truth, pred,
         run_eval(cmd)
     msg = _one_line(ei.value)
     assert where in msg and "item 'b'" in msg and "must be > 0" in msg
-    with pytest.raises(SystemExit):
+    with pytest.raises(PhysGSError):
         cmd.main()
     assert not (tmp_path / "eval").exists()
 

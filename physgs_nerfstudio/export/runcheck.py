@@ -228,6 +228,8 @@ def check_transforms(path: Path) -> dict:
         raise RunFilesError(f"{path}: not valid JSON (line {err.lineno}, column {err.colno}: {err.msg}); {fix}.") from None
     except (OSError, UnicodeDecodeError) as err:
         raise RunFilesError(f"{path}: cannot be read ({err}); {fix}.") from None
+    except RecursionError:
+        raise RunFilesError(f"{path}: nested too deeply to read; {fix}.") from None
     if not isinstance(meta, dict):
         raise RunFilesError(f"{path}: a JSON {type(meta).__name__}, not an object with a \"frames\" list; {fix}.")
     frames = meta.get("frames")

@@ -106,6 +106,9 @@ def load_frames(root: Path) -> tuple[dict, list[dict]]:
     except json.JSONDecodeError as err:
         raise DatasetError(f"{path} is not valid JSON ({err.msg}, line {err.lineno} column {err.colno}); "
                            "fix the file or regenerate it (ns-process-data)") from None  # fmt: skip
+    except RecursionError:
+        raise DatasetError(f"{path} is nested too deeply to read (lists or objects inside each other thousands of "
+                           "levels deep); fix the file or regenerate it (ns-process-data)") from None  # fmt: skip
     if not isinstance(meta, dict):
         raise DatasetError(f"{path} holds a JSON {type(meta).__name__}, not an object; nerfstudio expects "
                            '{"frames": [{"file_path": ...}, ...], ...}')  # fmt: skip
