@@ -81,7 +81,6 @@ def load_run(
     run_files = check_run(Path(config_path))  # safe YAML, method, checkpoint (beside the config if moved)
     rs = load_run_state(run_files.config, run_files.checkpoint, run_files.run_dir)
     data = getattr(run_files.config.pipeline.datamanager, "data", None)
-    check_run_manifest(run_files.run_dir, data, rs.dataparser_outputs.metadata)
     pf = PropertyField.from_run_state(rs, run_files.run_dir, scale=scale, known_length=known_length, env=env)
     run = _assemble_run(pf, rs.dataparser_outputs, data, max_view_width=max_view_width, capture=capture)
     run.source = RunSource(Path(config_path), Path(run_files.run_dir), Path(run_files.checkpoint))
@@ -89,21 +88,6 @@ def load_run(
         dpo = rs.dataparser_outputs
         run.capture_loader = lambda: _load_capture(dpo, run.data_dir, max_view_width)
     return run
-
-
-def check_run_manifest(run_dir: Path, data: Path | str | None, metadata: Any) -> None:
-    """:func:`physgs_nerfstudio.runfiles.manifest.check_manifest` (the run was trained with this dataset's legend,
-    posteriors and maps); one line on stderr for a run without a manifest."""
-    import sys
-
-    from ..runfiles.manifest import MANIFEST, check_manifest, dataset_dir
-
-    data_dir = dataset_dir(data)
-    if data_dir is None or metadata is None or "material_legend" not in metadata:
-        return
-    if not check_manifest(Path(run_dir), data_dir, metadata):
-        print(f"physgs: {Path(run_dir) / MANIFEST} not found (a run trained before runs recorded one): the legend and "
-              "maps it was trained with are not checked.", file=sys.stderr)  # fmt: skip
 
 
 def run_from_pipeline(
@@ -121,6 +105,8 @@ def run_from_pipeline(
 
     dm = pipeline.datamanager
     dpo = getattr(dm, "train_dataparser_outputs", None)
+    from .loader import check_run_manifest
+
     check_run_manifest(Path(run_dir), getattr(getattr(dm, "config", None), "data", None),
                        getattr(dpo, "metadata", None))  # fmt: skip
     pf = PropertyField.from_model(pipeline.model, read_dataparser_scale(Path(run_dir)), scale=scale,

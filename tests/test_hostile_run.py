@@ -1,6 +1,8 @@
-"""The run manifest (issue 72, serious 3): training records the legend, posteriors and maps it trained with;
-export and the viewer refuse, in one line, a dataset that changed since. Oracles: the dataset's files edited by
-hand here (materials reordered, one added, a posterior and a map changed) and the same run exported unedited."""
+"""Loading a run that is not what it should be (issue 72): the run manifest (training records the legend,
+posteriors and maps it trained with; export and the viewer refuse, in one line, a dataset that changed since),
+and checkpoints and poses that cannot be used. Oracles: the dataset's and the checkpoint's contents edited by
+hand here (materials reordered, one added, a posterior and a map changed, NaN tensors, a missing key, a pickle
+payload that would create a file, a zero pose) and the same run loaded unedited."""
 
 from __future__ import annotations
 
@@ -160,3 +162,101 @@ def test_manifest_of_is_the_same_for_the_same_files(run):
     data = run.parents[4] / "scene"
     meta = _metadata_of(run, data)
     assert manifest_of(data, meta) == manifest_of(data, meta)
+
+
+# ------------------------------------------------------------------------------------------ checkpoints
+def _ckpt(cfg: Path) -> Path:
+    return cfg.parent / "nerfstudio_models" / "step-000000007.ckpt"
+
+
+class _Payload:
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (os.system, (f"touch {self.marker}",))
+
+
+@pytest.mark.parametrize("damage,expect", [
+    ("nan", "holds 3 NaN or infinite values"),
+    ("no_evidence", "not a PhysGS checkpoint (no gauss_params.dirichlet_evidence"),
+    ("pickle", "not a checkpoint of tensors"),
+    ("no_pipeline", 'no "pipeline" state'),
+])  # fmt: skip
+def test_a_bad_checkpoint_is_one_line(copy_of, tmp_path, damage, expect):
+    from physgs_nerfstudio.export.runcheck import RunFilesError
+
+    cfg, _ = copy_of
+    ckpt = _ckpt(cfg)
+    loaded = torch.load(ckpt, map_location="cpu", weights_only=True)
+    marker = tmp_path / "pwned.txt"
+    if damage == "nan":
+        loaded["pipeline"]["_model.gauss_params.means"][0] = float("nan")
+    elif damage == "no_evidence":
+        del loaded["pipeline"]["_model.gauss_params.dirichlet_evidence"]
+    elif damage == "pickle":
+        loaded["payload"] = _Payload(marker)
+    else:
+        loaded = {"step": 7}
+    torch.save(loaded, ckpt)
+    with pytest.raises(RunFilesError) as ei:
+        load_run(cfg, capture=False)
+    msg = str(ei.value)
+    assert "\n" not in msg and str(ckpt) in msg and expect in msg, msg
+    assert not marker.exists()
+
+
+def test_a_checkpoint_of_another_legend_size_without_a_manifest_is_one_line(copy_of):
+    from physgs_nerfstudio.export.runcheck import RunFilesError
+
+    cfg, data = copy_of
+    (cfg.parent / MANIFEST).unlink()
+    doc = _materials(data)
+    doc["materials"].append(dict(doc["materials"][0], name="extra"))
+    _write_materials(data, doc)
+    with pytest.raises(RunFilesError, match="trained with 2 materials, the dataset.s materials.json lists 3"):
+        load_run(cfg, capture=False)
+
+
+@pytest.mark.parametrize("pose", ["nan", "zero"])
+def test_a_bad_pose_is_one_line_naming_the_frame(copy_of, pose):
+    from physgs_nerfstudio.export.runcheck import RunFilesError
+
+    cfg, data = copy_of
+    (cfg.parent / MANIFEST).unlink()  # the manifest would refuse the edited transforms.json first
+    meta = json.loads((data / "transforms.json").read_text())
+    value = float("nan") if pose == "nan" else 0.0
+    meta["frames"][1]["transform_matrix"] = [[value] * 4 for _ in range(3)] + [[0, 0, 0, 1]]
+    (data / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(RunFilesError) as ei:
+        load_run(cfg, capture=False)
+    msg = str(ei.value)
+    assert "the pose of frame" in msg and Path(meta["frames"][1]["file_path"]).name in msg and "\n" not in msg
+
+
+# ------------------------------------------------------------------------------------------ an empty object
+def test_an_object_too_small_for_a_surface_is_one_line():
+    import numpy as np
+
+    from physgs_nerfstudio.geometry import GeometryError
+    from physgs_nerfstudio.geometry.grid import VoxelGrid
+    from physgs_nerfstudio.geometry.parts import part_areas
+
+    grid = VoxelGrid((0.0, 0.0, 0.0), 0.1, (9, 9, 9))
+    solid = np.zeros(grid.shape, bool)
+    solid[4, 4, 4] = True  # one voxel: smoothed, it stays below the surface level (marching cubes refused it)
+    with pytest.raises(GeometryError, match="the object came out empty: carving left 1 solid voxel"):
+        part_areas(grid, solid, np.zeros(grid.shape, np.int64), 1)
+    solid[3:6, 3:6, 3:6] = True  # a small cube still has its surface
+    assert part_areas(grid, solid, np.zeros(grid.shape, np.int64), 1).area[0] > 0
+
+
+def test_no_selected_gaussian_says_what_was_seen():
+    from physgs_nerfstudio.geometry.select import SelectConfig, _nothing_selected
+
+    views = [SimpleNamespace(mask=torch.zeros(4, 4, dtype=torch.bool)) for _ in range(3)]
+    prob, opaque = torch.tensor([0.1, 0.2]), torch.tensor([True, True])
+    assert "none of the 3 views has an object mask" in _nothing_selected(prob, opaque, views, SelectConfig())
+    views[0].mask[0, 0] = True
+    msg = _nothing_selected(prob, opaque, views, SelectConfig())
+    assert "1 of 3 views have object masks" in msg and "best foreground probability of an opaque Gaussian is 0.20" in msg
