@@ -260,3 +260,33 @@ def test_no_selected_gaussian_says_what_was_seen():
     views[0].mask[0, 0] = True
     msg = _nothing_selected(prob, opaque, views, SelectConfig())
     assert "1 of 3 views have object masks" in msg and "best foreground probability of an opaque Gaussian is 0.20" in msg
+
+
+# ------------------------------------------------------------------------------------------ LPIPS
+def test_lpips_is_skipped_without_downloading_when_its_weights_are_absent(tmp_path, monkeypatch, capsys):
+    from torchmetrics.image import lpip
+
+    from physgs_nerfstudio.nerfstudio.model import ALEXNET_WEIGHTS, _LazyLPIPS
+
+    built = []
+
+    class Fake:
+        def __init__(self, **kw):
+            built.append(kw)
+
+        def to(self, device):
+            return self
+
+        def __call__(self, a, b):
+            return torch.tensor(0.25)
+
+    monkeypatch.setattr(lpip, "LearnedPerceptualImagePatchSimilarity", Fake)
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))  # torch.hub.get_dir(): no weights there
+    a = torch.zeros(1, 3, 8, 8)
+    metric = _LazyLPIPS(True)
+    assert torch.isnan(metric(a, a)) and torch.isnan(metric(a, a)) and built == []  # never built: no download
+    out = capsys.readouterr().out
+    assert out.count("LPIPS skipped") == 1 and "nothing is downloaded" in out
+    (tmp_path / "torch" / "hub" / "checkpoints").mkdir(parents=True)
+    (tmp_path / "torch" / "hub" / "checkpoints" / ALEXNET_WEIGHTS).write_bytes(b"weights")
+    assert float(_LazyLPIPS(True)(a, a)) == 0.25 and len(built) == 1

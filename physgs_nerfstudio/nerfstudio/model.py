@@ -37,6 +37,7 @@ whose `PhysGSOutputsMixin` this model inherits.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal, NamedTuple
 
 import torch
@@ -140,7 +141,7 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     rasterize_backend: Literal["auto", "gsplat", "reference"] = "auto"
     """auto: gsplat on CUDA, the pure-torch reference rasterizer elsewhere."""
     compute_lpips: bool = True
-    """LPIPS in eval metrics (needs torchvision's AlexNet weights; skipped with a warning when absent)."""
+    """LPIPS in eval metrics, when torchvision's AlexNet weights are on disk (skipped with one line otherwise)."""
 
 
 class MaterialEvidence(NamedTuple):
@@ -156,8 +157,20 @@ class MaterialEvidence(NamedTuple):
     """training views with at least one labelled pixel"""
 
 
+ALEXNET_WEIGHTS = "alexnet-owt-7be5be79.pth"
+"""torchvision's AlexNet weights file (``AlexNet_Weights.IMAGENET1K_V1``), the backbone of torchmetrics' LPIPS"""
+
+
+def alexnet_weights_path() -> Path:
+    """Where torchvision keeps the AlexNet weights (torch hub's ``checkpoints`` folder; ``$TORCH_HOME``)."""
+    import torch.hub
+
+    return Path(torch.hub.get_dir()) / "checkpoints" / ALEXNET_WEIGHTS
+
+
 class _LazyLPIPS:
-    """LPIPS built on first use; nan (with one warning) if its backbone weights cannot be loaded offline.
+    """LPIPS built on first use, only when its backbone's weights are already on disk (nothing is downloaded at
+    run time): else nan, with one line saying where the file would go.
 
     Deliberately not an nn.Module, so its weights stay out of checkpoints.
     """
@@ -168,6 +181,10 @@ class _LazyLPIPS:
         self.failed = not enabled
 
     def __call__(self, a: Tensor, b: Tensor) -> Tensor:
+        if not self.failed and self.metric is None and not alexnet_weights_path().is_file():
+            self.failed = True
+            CONSOLE.log(f"[yellow]LPIPS skipped: its AlexNet weights are not on disk ({alexnet_weights_path()}); nothing "
+                        "is downloaded at run time: put the file there to get LPIPS[/yellow]")  # fmt: skip
         if not self.failed and self.metric is None:
             try:
                 from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
