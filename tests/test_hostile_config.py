@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from physgs_nerfstudio.export.loader import _checked_dataparser
+from physgs_nerfstudio.runfiles.loader import _checked_dataparser
 from physgs_nerfstudio.safe_yaml import (
     MAX_ALIASES,
     MAX_EXPANDED_NODES,

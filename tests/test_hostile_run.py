@@ -184,7 +184,7 @@ class _Payload:
     ("no_pipeline", 'no "pipeline" state'),
 ])  # fmt: skip
 def test_a_bad_checkpoint_is_one_line(copy_of, tmp_path, damage, expect):
-    from physgs_nerfstudio.export.runcheck import RunFilesError
+    from physgs_nerfstudio.runfiles.check import RunFilesError
 
     cfg, _ = copy_of
     ckpt = _ckpt(cfg)
@@ -207,7 +207,7 @@ def test_a_bad_checkpoint_is_one_line(copy_of, tmp_path, damage, expect):
 
 
 def test_a_checkpoint_of_another_legend_size_without_a_manifest_is_one_line(copy_of):
-    from physgs_nerfstudio.export.runcheck import RunFilesError
+    from physgs_nerfstudio.runfiles.check import RunFilesError
 
     cfg, data = copy_of
     (cfg.parent / MANIFEST).unlink()
@@ -220,7 +220,7 @@ def test_a_checkpoint_of_another_legend_size_without_a_manifest_is_one_line(copy
 
 @pytest.mark.parametrize("pose", ["nan", "zero"])
 def test_a_bad_pose_is_one_line_naming_the_frame(copy_of, pose):
-    from physgs_nerfstudio.export.runcheck import RunFilesError
+    from physgs_nerfstudio.runfiles.check import RunFilesError
 
     cfg, data = copy_of
     (cfg.parent / MANIFEST).unlink()  # the manifest would refuse the edited transforms.json first

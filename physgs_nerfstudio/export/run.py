@@ -19,9 +19,9 @@ from ..geometry import (
 )
 from ..geometry.capture import clear_mask_cache
 from ..mass import library_thickness
+from ..runfiles.check import check_run
 from . import geometry_cache
 from .field import PropertyField
-from .runcheck import check_run
 
 __all__ = ["MAX_VIEW_WIDTH", "LoadedRun", "RunSource", "load_run", "object_geometry", "precompute_geometry",
            "run_from_pipeline"]
@@ -72,11 +72,11 @@ def load_run(
     max_view_width: int | None = MAX_VIEW_WIDTH,
     capture: bool = True,
 ) -> LoadedRun:
-    """Load a trained run after the run checks (:func:`.runcheck.check_run`: safe YAML, method, checkpoint beside
-    a moved config): its property field and cameras (:func:`.loader.load_run_state`: the checkpoint's tensors, no
+    """Load a trained run after the run checks (:func:`physgs_nerfstudio.runfiles.check.check_run`: safe YAML, method, checkpoint beside
+    a moved config): its property field and cameras (:func:`physgs_nerfstudio.runfiles.loader.load_run_state`: the checkpoint's tensors, no
     model built, no datamanager, no image opened) and, with ``capture``, the object masks and perception's
     per-mask answers (mass and voxels need them; the PLY and the maps do not)."""
-    from .loader import load_run_state
+    from ..runfiles.loader import load_run_state
 
     run_files = check_run(Path(config_path))  # safe YAML, method, checkpoint (beside the config if moved)
     rs = load_run_state(run_files.config, run_files.checkpoint, run_files.run_dir)
@@ -105,7 +105,7 @@ def run_from_pipeline(
 
     dm = pipeline.datamanager
     dpo = getattr(dm, "train_dataparser_outputs", None)
-    from .loader import check_run_manifest
+    from ..runfiles.loader import check_run_manifest
 
     check_run_manifest(Path(run_dir), getattr(getattr(dm, "config", None), "data", None),
                        getattr(dpo, "metadata", None))  # fmt: skip

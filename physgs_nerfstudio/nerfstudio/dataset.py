@@ -21,7 +21,7 @@ from nerfstudio.data.datasets.base_dataset import InputDataset
 from PIL import Image
 from torch import Tensor
 
-from .legend import PERCEIVE_HINT, MaterialsFileError
+from ..runfiles.legend import PERCEIVE_HINT, MaterialsFileError
 
 
 def load_label_png(path: Path, height: int, width: int) -> UInt8[Tensor, "h w 1"]:

@@ -61,8 +61,15 @@ from torch.nn import Parameter
 from physgs_nerfstudio.bayes import NIG, dirichlet_posterior, property_fields
 from physgs_nerfstudio.viewer.display import ViewerSettings, gaussian_channels, gaussian_materials
 
-from .keys import DECODER_GROUP, EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY
-from .legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
+from ..runfiles.keys import (
+    DECODER_GROUP,
+    EVIDENCE_KEY,
+    LABELLED_KEY,
+    LOGITS_KEY,
+    NON_TRAINABLE_KEYS,
+    WEIGHT_KEY,
+)
+from ..runfiles.legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
 from .material_head import HEAD_TENSORS, MaterialHead, checkpoint_head, head_width, make_decoder
 from .model_outputs import (
     MIN_SPLIT_RADIUS_PX,
@@ -261,7 +268,7 @@ class PhysGSModel(PhysGSOutputsMixin, SplatfactoModel):
             means = seed[0].detach().float().clone()
         else:
             means = (torch.rand((self.config.num_random, 3)) - 0.5) * self.config.random_scale
-        if self.kwargs.get("placeholder_gaussians"):  # a checkpoint replaces them (export/loader.py): no kNN
+        if self.kwargs.get("placeholder_gaussians"):  # a checkpoint replaces them (runfiles/loader.py): no kNN
             means = means[:1]
             scales = torch.zeros_like(means)
         else:

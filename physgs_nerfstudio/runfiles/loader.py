@@ -11,7 +11,7 @@ of the checkpoint through a memory map (the optimizers' moments, twice the model
 The model is the one ``eval_setup`` would build (same class, config, legend, camera count and state dict).
 
 An export does not even build the model (:func:`load_run_state`): the field is a function of the checkpoint's
-model tensors, the legend and two numbers of the model's config (:meth:`.field.PropertyField.from_state`), so
+model tensors, the legend and two numbers of the model's config (:meth:`physgs_nerfstudio.export.field.PropertyField.from_state`), so
 the config is read as a tree of names (:func:`physgs_nerfstudio.safe_yaml.load_config_tree`) and the training
 cameras are read without nerfstudio (:func:`.train_split.read_train_split`, the same values as its dataparser;
 where that reader cannot reproduce it, only the dataparser's config is built and nerfstudio's dataparser runs).
@@ -78,8 +78,8 @@ class RunState:
 
 
 def _checked_dataparser(dp_config: Any) -> Any:
-    """The run's dataparser config, built only after :func:`.runcheck.check_dataparser` passed it."""
-    from .runcheck import check_dataparser
+    """The run's dataparser config, built only after :func:`.check.check_dataparser` passed it."""
+    from .check import check_dataparser
 
     check_dataparser(dp_config)
     return dp_config.build() if hasattr(dp_config, "build") else dp_config
@@ -117,7 +117,7 @@ def _dataparser_outputs(config: Any, run_dir: Path | None = None) -> Any:
 
 def load_run_state(config: Any, checkpoint: Path, run_dir: Path | None = None) -> RunState:
     """The model's checkpoint tensors and the training split's dataparser outputs of a run (module doc): its
-    ``config`` as :func:`.runcheck.check_run` read it, the ``checkpoint`` it chose and its ``run_dir`` (where
+    ``config`` as :func:`.check.check_run` read it, the ``checkpoint`` it chose and its ``run_dir`` (where
     dataparser_transforms.json is; without it the cameras are read through nerfstudio's dataparser)."""
     dpo = _dataparser_outputs(config, run_dir)
     if run_dir is not None:
@@ -134,7 +134,7 @@ def check_run_manifest(run_dir: Path, data: Path | str | None, metadata: Any) ->
     posteriors and maps); one line on stderr for a run without a manifest."""
     import sys
 
-    from ..runfiles.manifest import MANIFEST, check_manifest, dataset_dir
+    from .manifest import MANIFEST, check_manifest, dataset_dir
 
     data_dir = dataset_dir(data)
     if data_dir is None or metadata is None or "material_legend" not in metadata:
@@ -150,10 +150,10 @@ _NIG_KEYS = ("nig_tau", "nig_kappa", "nig_a", "nig_b")
 
 
 def check_state(state: dict[str, torch.Tensor], checkpoint: Path, num_materials: int | None = None) -> None:
-    """:class:`~.runcheck.RunFilesError` naming the checkpoint unless it holds a PhysGS model's tensors
+    """:class:`~.check.RunFilesError` naming the checkpoint unless it holds a PhysGS model's tensors
     (:data:`STATE_KEYS` and the NIG posteriors), all finite, with one evidence column per material of the legend
     (``num_materials``; None: not checked)."""
-    from .runcheck import RunFilesError
+    from .check import RunFilesError
 
     missing = [k for k in (*(f"gauss_params.{k}" for k in STATE_KEYS), *_NIG_KEYS) if k not in state]
     if missing:
@@ -176,9 +176,9 @@ def check_state(state: dict[str, torch.Tensor], checkpoint: Path, num_materials:
 
 
 def check_poses(dpo: Any) -> None:
-    """:class:`~.runcheck.RunFilesError` naming the frame when a training camera's pose is not finite or its
+    """:class:`~.check.RunFilesError` naming the frame when a training camera's pose is not finite or its
     rotation is degenerate (an all-zero transform_matrix)."""
-    from .runcheck import RunFilesError
+    from .check import RunFilesError
 
     c2w = torch.as_tensor(dpo.cameras.camera_to_worlds).float()
     finite = torch.isfinite(c2w).flatten(1).all(1)
@@ -197,7 +197,7 @@ def _model_state(checkpoint: Path) -> tuple[dict[str, torch.Tensor], int]:
     ``module.`` prefixes removed), read through a memory map."""
     import pickle
 
-    from .runcheck import RunFilesError
+    from .check import RunFilesError
 
     try:
         try:
@@ -223,7 +223,7 @@ def _model_state(checkpoint: Path) -> tuple[dict[str, torch.Tensor], int]:
 
 def load_run_model(config: Any, checkpoint: Path) -> RunModel:
     """The trained model and the training split's dataparser outputs of a run: its ``config`` (the TrainerConfig
-    that :func:`.runcheck.check_run` read safely) and the ``checkpoint`` it chose (module doc)."""
+    that :func:`.check.check_run` read safely) and the ``checkpoint`` it chose (module doc)."""
     if hasattr(config, "build"):  # a ConfigObject tree (check_run's): the real TrainerConfig
         config = config.build()
     dpo = _dataparser_outputs(config)
