@@ -274,6 +274,7 @@ def _wrong_target(obj: Any) -> str | None:
     if target is None:
         return None
     own = _own_target(type(obj))
+    own = getattr(own, "__origin__", own)  # a generic alias (``DataManager[T]``): its class
     if not isinstance(own, type):
         return f"its _target {_name(target)} is not declared by {type(obj).__name__}"
     if isinstance(target, type) and issubclass(target, own):

@@ -290,3 +290,28 @@ def test_lpips_is_skipped_without_downloading_when_its_weights_are_absent(tmp_pa
     (tmp_path / "torch" / "hub" / "checkpoints").mkdir(parents=True)
     (tmp_path / "torch" / "hub" / "checkpoints" / ALEXNET_WEIGHTS).write_bytes(b"weights")
     assert float(_LazyLPIPS(True)(a, a)) == 0.25 and len(built) == 1
+
+
+# ------------------------------------------------------------------------------------------ the viewer
+def test_the_viewer_panel_refuses_a_swapped_legend(copy_of):
+    from physgs_nerfstudio.viewer.panel import PhysicalPropertiesPanel
+
+    cfg, data = copy_of
+    doc = _materials(data)
+    doc["materials"].reverse()
+    _write_materials(data, doc)
+    meta = _metadata_of(cfg, data)
+    meta["material_legend"] = SimpleNamespace(names=[m["name"] for m in doc["materials"]], path=data / "materials.json")
+    dm = SimpleNamespace(train_dataparser_outputs=SimpleNamespace(metadata=meta), config=SimpleNamespace(data=data))
+    viewer = SimpleNamespace(pipeline=SimpleNamespace(datamanager=dm), log_filename=cfg.parent / "viewer_log.txt")
+    panel = SimpleNamespace(control=SimpleNamespace(viewer=viewer), a_legend=SimpleNamespace(content=""))
+    panel._run_dir = lambda: cfg.parent
+    why = PhysicalPropertiesPanel.run_mismatch(panel)
+    assert why is not None and "was trained with the materials" in why
+    assert "does not match its dataset" in panel.a_legend.content
+    doc["materials"].reverse()
+    _write_materials(data, doc)
+    meta["material_legend"].names.reverse()
+    panel = SimpleNamespace(control=SimpleNamespace(viewer=viewer), a_legend=SimpleNamespace(content="legend"))
+    panel._run_dir = lambda: cfg.parent
+    assert PhysicalPropertiesPanel.run_mismatch(panel) is None and panel.a_legend.content == "legend"
