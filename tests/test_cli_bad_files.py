@@ -1,7 +1,8 @@
 """Every `physgs` command on a set of bad files ends with one line, `physgs <command>: error: ...`, and exit
 status 1: never a traceback, never the boundary's "unexpected" line (an input no check caught). Issue 72, "one
 line for every bad file". The files are written here: missing, empty, binary, nested 200000 levels deep, a CSV
-field of 5 MB, NUL and CR bytes, a folder where a file goes and a file where a folder goes."""
+field of 300 kB (over csv's 128 KiB limit), NUL and CR bytes, a folder where a file goes and a file where a
+folder goes."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ def _bad_files(d: Path) -> dict[str, Path]:
         "binary": ("junk.bin", bytes(range(256)) * 4),
         "deep_list": ("deep.json", b"[" * 200_000 + b"]" * 200_000),
         "deep_map": ("deepobj.json", b'{"a":' * 100_000 + b"1" + b"}" * 100_000),
-        "huge_field": ("big.csv", b"item,property,mean,unit\na,mass,\"" + b"1" * 5_000_000 + b"\",kg\n"),
+        "huge_field": ("big.csv", b"item,property,mean,unit\na,mass,\"" + b"1" * 300_000 + b"\",kg\n"),
         "control_bytes": ("ctrl.csv", b"item,property,value,unit\n\x00a\r,mass,1,kg\n"),
         "nan": ("nan.json", b'{"predictions": [{"item": "a", "mass_kg": NaN}]}'),
     }
