@@ -315,3 +315,11 @@ def test_the_viewer_panel_refuses_a_swapped_legend(copy_of):
     panel = SimpleNamespace(control=SimpleNamespace(viewer=viewer), a_legend=SimpleNamespace(content="legend"))
     panel._run_dir = lambda: cfg.parent
     assert PhysicalPropertiesPanel.run_mismatch(panel) is None and panel.a_legend.content == "legend"
+
+
+def test_the_demo_retrains_after_perception_is_redone():
+    from physgs_nerfstudio.demo import DemoCommand
+
+    cmd = DemoCommand(force=("perceive",))
+    assert cmd._forced("perceive") and cmd._forced("train") and cmd._forced("export") and not cmd._forced("scene")
+    assert not DemoCommand()._forced("export") and DemoCommand(force=("export",))._forced("export")
