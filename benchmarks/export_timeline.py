@@ -26,8 +26,8 @@ T0 = time.perf_counter()
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 WRAPPED = {
-    "physgs_nerfstudio.export.runcheck": ["check_run"],
-    "physgs_nerfstudio.export.loader": ["load_run_state"],
+    "physgs_nerfstudio.runfiles.check": ["check_run"],
+    "physgs_nerfstudio.runfiles.loader": ["load_run_state"],
     "physgs_nerfstudio.export.field": ["PropertyField.from_run_state", "PropertyField.pi", "PropertyField.pi_rows",
                                        "PropertyField.to"],
     "physgs_nerfstudio.export.command": ["load_run", "object_geometry", "write_export", "run_export"],

@@ -22,7 +22,7 @@ from nerfstudio.plugins.types import MethodSpecification
 from physgs_nerfstudio.nerfstudio.datamanager import PhysGSDatamanagerConfig
 from physgs_nerfstudio.nerfstudio.dataparser import PhysGSDataParserConfig
 from physgs_nerfstudio.nerfstudio.model import PhysGSModelConfig
-from physgs_nerfstudio.nerfstudio.pipeline import PhysGSPipelineConfig
+from physgs_nerfstudio.nerfstudio.pipeline import PhysGSPipelineConfig, hand_in_geometry_step
 from physgs_nerfstudio.nerfstudio.schedulers import FloatExponentialDecaySchedulerConfig
 
 
@@ -131,6 +131,16 @@ def physgs_trainer_config() -> TrainerConfig:
 def physgs_lite_trainer_config() -> TrainerConfig:
     return trainer_config(PHYSGS_LITE)
 
+
+def _precompute_geometry(config_path: Any, device: str) -> Any:
+    """The end-of-run geometry step of training (PhysGSPipelineConfig.precompute_geometry): the exporter's, imported
+    when a run ends (it is not needed before)."""
+    from physgs_nerfstudio.export.run import precompute_geometry
+
+    return precompute_geometry(config_path, device)
+
+
+hand_in_geometry_step(_precompute_geometry)
 
 physgs_method = MethodSpecification(config=physgs_trainer_config(), description=PHYSGS.description)
 physgs_lite_method = MethodSpecification(config=physgs_lite_trainer_config(), description=PHYSGS_LITE.description)

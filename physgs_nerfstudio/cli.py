@@ -7,6 +7,9 @@ imports (nerfstudio, torch models) happen inside ``main()`` so ``physgs --help``
 from __future__ import annotations
 
 import importlib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import NoReturn
 
 # name -> (module, dataclass). Order is the order of the pipeline, as shown by `physgs --help`.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -51,10 +54,8 @@ def entrypoint(argv: list[str] | None = None) -> object:
 
     import tyro
 
-    from physgs_nerfstudio.errors import PhysGSError
-
     args = _upgrade(list(sys.argv[1:] if argv is None else argv))
-    try:
+    with one_line_errors(f"physgs {args[0]}" if args and args[0] in COMMANDS else "physgs"):
         if args and args[0] in COMMANDS:  # one subcommand: import only its module (an export pays for no other)
             config = tyro.cli(_load(args[0]), prog=f"physgs {args[0]}", args=args[1:])
         else:
@@ -66,9 +67,6 @@ def entrypoint(argv: list[str] | None = None) -> object:
                 args=args,
             )
         config.main()
-    except PhysGSError as err:  # a user error: one line, no traceback
-        print(f"physgs {args[0] if args else ''}: error: {one_line(err)}", file=sys.stderr)
-        raise SystemExit(1) from None
     return config
 
 
@@ -109,9 +107,62 @@ def exit_now(code: int = 0) -> None:
     os._exit(code)
 
 
-def one_line(err: BaseException) -> str:
-    """An error's message on one line (user-facing errors are printed without a traceback)."""
-    return " ".join(str(err).split()) or type(err).__name__
+MAX_LINE = 2000
+"""the longest error line a command prints (a message quoting a huge input is cut)"""
+
+
+def one_line(err: BaseException | str) -> str:
+    """An error's message on one line: control characters (NUL, CR, escape sequences a server sent) become spaces,
+    runs of white space one space, at most :data:`MAX_LINE` characters."""
+    text = "".join(c if c.isprintable() else " " for c in str(err))
+    text = " ".join(text.split()) or (type(err).__name__ if isinstance(err, BaseException) else "error")
+    return text if len(text) <= MAX_LINE else text[: MAX_LINE - 3] + "..."
+
+
+TRACEBACK_ENV = "PHYSGS_TRACEBACK"
+"""set to 1 to get the traceback of an unexpected error instead of its one line"""
+
+
+@contextmanager
+def one_line_errors(prog: str) -> Iterator[None]:
+    """The boundary of every command line entry point: whatever the command raises ends as one line on stderr,
+    ``<prog>: error: <what>``, and exit status 1. A :class:`~physgs_nerfstudio.errors.PhysGSError` (a user error:
+    what, where, what to do) prints its message; ``SystemExit`` with a message prints it the same way (tyro's
+    own exits for ``--help`` and bad options, with their status, pass through); Ctrl-C prints ``interrupted``
+    (status 130); an ``OSError`` names its file and the file system's reason; any other exception is a bug or an input no check caught: its type and message, and how to see
+    its traceback (:data:`TRACEBACK_ENV`)."""
+    import os
+    import sys
+
+    from physgs_nerfstudio.errors import PhysGSError
+
+    def fail(message: str, code: int = 1) -> NoReturn:
+        print(f"{prog}: error: {message}", file=sys.stderr)
+        raise SystemExit(code) from None
+
+    try:
+        yield
+    except PhysGSError as err:  # a user error: one line, no traceback
+        fail(one_line(err))
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
+    except SystemExit as err:
+        if err.code is None or isinstance(err.code, int):
+            raise
+        message = one_line(str(err.code))
+        for prefix in (f"{prog}: error: ", f"{prog}: "):
+            message = message.removeprefix(prefix)
+        fail(message)
+    except OSError as err:  # the file system's answer (a full disk, no permission, a file where a folder goes)
+        where = f"{err.filename}: " if err.filename else ""
+        fail(f"{where}{one_line(err.strerror or err)} ({type(err).__name__}); check the path, its permissions and "
+             "the free space")
+    except Exception as err:  # the boundary: nothing reaches the user as a traceback
+        if os.environ.get(TRACEBACK_ENV):
+            raise
+        fail(f"{type(err).__name__}: {one_line(err)} (unexpected: set {TRACEBACK_ENV}=1 for where it came from, and "
+             "report it)")
 
 
 if __name__ == "__main__":

@@ -50,7 +50,8 @@ class DemoCommand:
     device: str = "cpu"
     """training device type (cpu | cuda)"""
     force: tuple[str, ...] = ()
-    """stages to redo even if their outputs exist: scene perceive train export"""
+    """stages to redo even if their outputs exist: scene perceive train export (a stage redone redoes the later ones:
+    a run is tied to the perception it was trained on)"""
     train_args: tuple[str, ...] = field(default_factory=tuple)
     """extra arguments appended to ns-train"""
 
@@ -94,13 +95,18 @@ class DemoCommand:
         res = run_perception(cfg)
         console.log(f"      {res.observations} observations on {res.masks} masks -> {', '.join(res.materials)} {SIM}")
 
+    def _forced(self, stage: str) -> bool:
+        """Whether ``stage`` or a stage before it is in ``force``."""
+        order = ("scene", "perceive", "train", "export")
+        return any(s in self.force for s in order[: order.index(stage) + 1])
+
     def stage_train(self, console: Any) -> Path:
         from .nerfstudio.train import train_in_process
 
         config = self.run_dir / "config.yml"
         ckpt = _latest_checkpoint(self.run_dir)
         done = ckpt is not None and int(ckpt.stem.split("-")[1]) >= self.iterations - 1
-        if config.exists() and done and "train" not in self.force:
+        if config.exists() and done and not self._forced("train"):
             console.log(f"[3/4] training: {ckpt} exists, skipped")
             return config
         args = [
@@ -132,7 +138,7 @@ class DemoCommand:
         from .mass import MassConfig, MassReport
 
         report_path = self.export_dir / "report.json"
-        if report_path.exists() and "export" not in self.force:
+        if report_path.exists() and not self._forced("export"):
             console.log(f"[4/4] export: {report_path} exists, skipped")
             report = MassReport.from_dict(json.loads(report_path.read_text())["mass"])
             print_mass_table(report, title=f"Mass of the generated {self.object}", truth_kg=truth_kg, console=console)
@@ -183,4 +189,7 @@ class DemoCommand:
 if __name__ == "__main__":
     import tyro
 
-    tyro.cli(DemoCommand).main()
+    from physgs_nerfstudio.cli import one_line_errors
+
+    with one_line_errors("physgs demo"):
+        tyro.cli(DemoCommand).main()

@@ -21,6 +21,13 @@ Anything else (``os.system``, ``subprocess.*``, ``builtins.eval``, ``!!python/mo
 re-exported from another package, an unknown tag) is refused with one line naming the file, the line and
 the tag. Nothing of the file is built before the whole tree passed.
 
+The file's size once its aliases are expanded is bounded too (a "billion laughs" file: a few lines of
+aliases of aliases that expand to billions of nodes): at most :data:`MAX_ALIASES` alias uses and
+:data:`MAX_EXPANDED_NODES` nodes with every alias expanded (a config that ns-train wrote has about 15 and 600).
+A config object's ``_target`` must be its class's own target class or a subclass of it
+(``DataParserConfig._target`` a DataParser, never a writer or a trainer): nerfstudio builds what ``_target``
+names when it sets a config up.
+
 :func:`load_config_tree` reads the same files without importing anything they name: every ``!!python/object``
 becomes a :class:`ConfigObject` (the class's dotted name and its fields) and every ``!!python/name`` a
 :class:`ClassRef`; only paths and ``frozenset`` are built. A tag is then checked by its name (a class of one of
@@ -34,6 +41,7 @@ configs with nerfstudio's unsafe loader: they do not protect you this way.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import importlib
 import pathlib
@@ -45,7 +53,8 @@ import yaml
 
 from .errors import PhysGSError
 
-__all__ = ["ClassRef", "ConfigObject", "UnsafeConfigError", "check_node", "load_config_tree", "load_config_yaml"]
+__all__ = ["ClassRef", "ConfigObject", "UnsafeConfigError", "check_node", "check_targets", "load_config_tree", "load_config_yaml",
+           "yaml_bounds_problem"]
 
 CLASS_PACKAGES = ("nerfstudio", "physgs_nerfstudio", "torch.optim", "gsplat")
 """packages whose classes a config may name (``!!python/object``, ``!!python/name``)"""
@@ -56,6 +65,10 @@ _PY = _STD + "python/"
 _PLAIN_TAGS = {"str", "int", "float", "bool", "null", "seq", "map", "set", "omap", "pairs", "binary",
                "timestamp", "merge", "value"}  # fmt: skip
 _PY_PLAIN = {"none", "bool", "str", "unicode", "bytes", "int", "long", "float", "complex", "list", "tuple", "dict"}
+MAX_ALIASES = 64
+"""alias uses (``*name``) a config may hold"""
+MAX_EXPANDED_NODES = 100_000
+"""nodes a config may hold with every alias expanded"""
 _DOTTED = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)+$")
 
 
@@ -238,7 +251,62 @@ class ConfigObject:
             obj.__setstate__(state)
         else:
             obj.__dict__.update(state)
+        why = _wrong_target(obj)
+        if why is not None:
+            raise _refuse(Path("config"), line, tag, why)
         return obj
+
+
+def _own_target(cls: type) -> Any:
+    """The ``_target`` a config dataclass sets by default (its field's default or default factory), else None."""
+    f = getattr(cls, "__dataclass_fields__", {}).get("_target")
+    if f is None:
+        return None
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None if f.default is dataclasses.MISSING else f.default
+
+
+def _wrong_target(obj: Any) -> str | None:
+    """None when ``obj`` has no ``_target`` or it is its class's own target class (or a subclass of it), else why
+    not (module doc)."""
+    target = getattr(obj, "__dict__", {}).get("_target")
+    if target is None:
+        return None
+    own = _own_target(type(obj))
+    own = getattr(own, "__origin__", own)  # a generic alias (``DataManager[T]``): its class
+    if not isinstance(own, type):
+        return f"its _target {_name(target)} is not declared by {type(obj).__name__}"
+    if isinstance(target, type) and issubclass(target, own):
+        return None
+    return f"its _target {_name(target)} is not a {own.__name__}, the class {type(obj).__name__} builds"
+
+
+def _name(obj: Any) -> str:
+    return f"{getattr(obj, '__module__', '?')}.{getattr(obj, '__qualname__', type(obj).__name__)}"
+
+
+def check_targets(document: Any, path: Path | str) -> None:
+    """Raise :class:`UnsafeConfigError` at the first built config object whose ``_target`` is not its class's own
+    (:func:`_wrong_target`), walking dataclass fields, lists, tuples and dicts."""
+    seen: set[int] = set()
+    stack = [document]
+    while stack:
+        obj = stack.pop()
+        if id(obj) in seen or isinstance(obj, (str, bytes, int, float, type, PurePath)) or obj is None:
+            continue
+        seen.add(id(obj))
+        if isinstance(obj, dict):
+            stack.extend(obj.values())
+        elif isinstance(obj, (list, tuple, set, frozenset)):
+            stack.extend(obj)
+        elif dataclasses.is_dataclass(obj):
+            why = _wrong_target(obj)
+            if why is not None:
+                shown = f"!!python/object:{type(obj).__module__}.{type(obj).__qualname__}"
+                raise UnsafeConfigError(f"{path}: refused `{shown}` ({why}); nothing in the file was built beyond "
+                                        "its config classes: use the config.yml that ns-train wrote.")  # fmt: skip
+            stack.extend(getattr(obj, "__dict__", {}).values())
 
 
 def _build(value: Any, memo: dict[int, Any]) -> Any:
@@ -251,7 +319,49 @@ def _build(value: Any, memo: dict[int, Any]) -> Any:
     return value
 
 
-class _TreeLoader(yaml.Loader):
+class _AliasBudget:
+    """Counts alias uses while composing (at most :data:`MAX_ALIASES`); mixed into a PyYAML loader."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            self._aliases = getattr(self, "_aliases", 0) + 1
+            if self._aliases > MAX_ALIASES:
+                line = self.peek_event().start_mark.line + 1
+                raise _TooBig(line, f"more than {MAX_ALIASES} aliases")
+        return super().compose_node(parent, index)  # type: ignore[misc]
+
+
+class _BoundedLoader(_AliasBudget, yaml.Loader):
+    """nerfstudio's loader, with the alias budget."""
+
+
+class _TooBig(Exception):
+    def __init__(self, line: int, what: str):
+        super().__init__(what)
+        self.line, self.what = line, what
+
+
+def _check_size(node: yaml.Node) -> None:
+    """Refuse a tree of more than :data:`MAX_EXPANDED_NODES` nodes with its aliases expanded (module doc); the
+    shared nodes are counted once per use, without expanding anything."""
+    size: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(node, False)]
+    while stack:
+        n, done = stack.pop()
+        if id(n) in size:
+            continue
+        kids = [c for kv in n.value for c in kv] if isinstance(n, yaml.MappingNode) else (
+            list(n.value) if isinstance(n, yaml.SequenceNode) else [])  # fmt: skip
+        if not done:
+            stack.append((n, True))
+            stack.extend((c, False) for c in kids if id(c) not in size)
+            continue
+        size[id(n)] = 1 + sum(size.get(id(c), 0) for c in kids)
+        if size[id(n)] > MAX_EXPANDED_NODES:
+            raise _TooBig(n.start_mark.line + 1, f"more than {MAX_EXPANDED_NODES} nodes with its aliases expanded")
+
+
+class _TreeLoader(_BoundedLoader):
     """nerfstudio's loader with the python object tags building :class:`ConfigObject` / :class:`ClassRef`."""
 
 
@@ -290,13 +400,25 @@ def _read(path: Path, loader_cls: type, by_name: bool) -> Any:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise UnsafeConfigError(f"{path}: not a text file; pass the config.yml that ns-train wrote.") from None
-    loader = loader_cls(text)  # it only builds the tree check_node passed
+    try:
+        loader = loader_cls(text)  # it only builds the tree check_node passed
+    except yaml.YAMLError as err:  # a control character the YAML reader refuses
+        problem = " ".join("".join(c if c.isprintable() else " " for c in str(err)).split())[:160]
+        raise UnsafeConfigError(f"{path}: not a readable YAML config ({problem}); pass the config.yml that ns-train "
+                                "wrote.") from None  # fmt: skip
     try:
         node = loader.get_single_node()
         if node is None:
             raise UnsafeConfigError(f"{path}: the file is empty; pass the config.yml that ns-train wrote.")
         check_node(node, path, by_name=by_name)
+        _check_size(node)
         return loader.construct_document(node)
+    except RecursionError:
+        raise UnsafeConfigError(f"{path}: nested too deeply to read (lists or maps inside each other thousands of "
+                                "levels deep); pass the config.yml that ns-train wrote.") from None  # fmt: skip
+    except _TooBig as err:
+        raise UnsafeConfigError(f"{path}, line {err.line}: refused: {err.what} (an alias bomb); a config that "
+                                "ns-train wrote has a few; use that config.yml.") from None  # fmt: skip
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f", line {mark.line + 1}" if mark is not None else ""
@@ -307,9 +429,40 @@ def _read(path: Path, loader_cls: type, by_name: bool) -> Any:
         loader.dispose()
 
 
+class _BoundedSafeLoader(_AliasBudget, yaml.SafeLoader):
+    """PyYAML's safe loader, with the alias budget."""
+
+
+def yaml_bounds_problem(text: str) -> str | None:
+    """None when a plain YAML text (a material library, any file read with ``yaml.safe_load``) is within the
+    alias and size budgets of the module doc and nests less deeply than Python's recursion limit, else what is
+    wrong (with its line). The text is composed with the pure-Python reader: libyaml's C reader overflows its stack
+    on a file nested a hundred thousand levels deep, which ends the process without a word."""
+    try:
+        loader = _BoundedSafeLoader(text)
+    except yaml.YAMLError as err:
+        return " ".join("".join(c if c.isprintable() else " " for c in str(err)).split())[:160]
+    try:
+        node = loader.get_single_node()
+        if node is not None:
+            _check_size(node)
+    except _TooBig as err:
+        return f"line {err.line}: {err.what} (an alias bomb)"
+    except RecursionError:
+        return "nested too deeply (lists or maps inside each other thousands of levels deep)"
+    except yaml.YAMLError:
+        return None  # the caller's own reader names the syntax error
+    finally:
+        loader.dispose()
+    return None
+
+
 def load_config_yaml(path: Path | str) -> Any:
-    """Parse ``path``, check every tag (module doc), then build and return the document."""
-    return _read(Path(path), yaml.Loader, by_name=False)  # nerfstudio's loader
+    """Parse ``path``, check every tag (module doc), then build and return the document (every config object's
+    ``_target`` checked: :func:`check_targets`)."""
+    document = _read(Path(path), _BoundedLoader, by_name=False)  # nerfstudio's loader, bounded
+    check_targets(document, path)
+    return document
 
 
 def load_config_tree(path: Path | str) -> Any:

@@ -6,6 +6,8 @@ import json
 import pytest
 import tyro
 
+from physgs_nerfstudio.cli import entrypoint
+from physgs_nerfstudio.errors import PhysGSError
 from physgs_nerfstudio.eval.command import EvalCommand, parse_prediction_spec
 
 
@@ -38,25 +40,24 @@ def test_cli_writes_json_and_csv(tmp_path, capsys):
 def test_malformed_input_exits_with_message(tmp_path, capsys):
     t, p = _files(tmp_path)
     p.write_text("item,property,mean,low,high\na,mass,1,3,2\n")
-    cfg = EvalCommand(dataset="table", ground_truth=t, predictions=(str(p),), output_dir=tmp_path / "o")
+    args = ["eval", "--dataset", "table", "--ground-truth", str(t), "--output-dir", str(tmp_path / "o"), "--predictions"]
     with pytest.raises(SystemExit) as exc:
-        cfg.main()
-    assert exc.value.code == 2
-    squash = lambda text: "".join(text.split())
-    assert squash("p.csv, line 2: low 3 > high 2") in squash(capsys.readouterr().out)
+        entrypoint([*args, str(p)])
+    assert exc.value.code == 1  # errors exit 1, as every physgs command's
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("physgs eval: error: ") and "p.csv, line 2: low 3 > high 2" in err[0]
     j = tmp_path / "p.json"
     j.write_text('{"a": 1}')
     with pytest.raises(SystemExit):
-        EvalCommand(dataset="table", ground_truth=t, predictions=(str(j),), output_dir=tmp_path / "o").main()
-    assert squash('{"predictions": [...]}') in squash(capsys.readouterr().out)  # markup-like text survives
+        entrypoint([*args, str(j)])
+    assert '{"predictions": [...]}' in capsys.readouterr().err  # markup-like text survives
 
 
 def test_strict_fails_on_missing_items(tmp_path):
     t, p = _files(tmp_path)
     cfg = EvalCommand(dataset="table", ground_truth=t, predictions=(str(p),), output_dir=tmp_path / "o", strict=True)
-    with pytest.raises(SystemExit) as exc:
+    with pytest.raises(PhysGSError, match="--strict: 1 ground-truth entries were not scored"):
         cfg.main()
-    assert exc.value.code == 1
 
 
 def test_prediction_spec(tmp_path):

@@ -12,8 +12,8 @@ from test_nerfstudio_fixtures import write_blob_scene
 from method_configs.physgs_config import physgs_lite_trainer_config
 from physgs_nerfstudio.export.command import load_run
 from physgs_nerfstudio.export.field import PropertyField
-from physgs_nerfstudio.export.loader import load_run_model
-from physgs_nerfstudio.export.runcheck import check_run
+from physgs_nerfstudio.runfiles.check import check_run
+from physgs_nerfstudio.runfiles.loader import load_run_model
 
 STEP = 7
 
@@ -115,8 +115,8 @@ def test_export_loading_imports_no_model(saved_run) -> None:
 
 
 def test_export_defaults_for_old_configs_are_the_model_config_s() -> None:
-    from physgs_nerfstudio.export.loader import MODEL_DEFAULTS
     from physgs_nerfstudio.nerfstudio.model import PhysGSModelConfig
+    from physgs_nerfstudio.runfiles.loader import MODEL_DEFAULTS
 
     cfg = PhysGSModelConfig()
     assert MODEL_DEFAULTS == {name: getattr(cfg, name) for name in MODEL_DEFAULTS}

@@ -1,4 +1,4 @@
-"""The export's reader of a run's training cameras (export/train_split.py) against nerfstudio's own dataparser."""
+"""The export's reader of a run's training cameras (runfiles/train_split.py) against nerfstudio's own dataparser."""
 
 from __future__ import annotations
 
@@ -13,11 +13,11 @@ import pytest
 import torch
 from test_export_loader import saved_run  # noqa: F401 - the module's trained-run fixture
 
-from physgs_nerfstudio.export import train_split
 from physgs_nerfstudio.export.command import load_run
-from physgs_nerfstudio.export.loader import _dataparser_outputs, load_run_state
-from physgs_nerfstudio.export.runcheck import check_run
-from physgs_nerfstudio.export.train_split import TrainSplit, Unsupported, read_train_split
+from physgs_nerfstudio.runfiles import train_split
+from physgs_nerfstudio.runfiles.check import check_run
+from physgs_nerfstudio.runfiles.loader import _dataparser_outputs, load_run_state
+from physgs_nerfstudio.runfiles.train_split import TrainSplit, Unsupported, read_train_split
 from physgs_nerfstudio.safe_yaml import load_config_tree
 
 
@@ -147,7 +147,7 @@ def test_export_loading_imports_no_nerfstudio(saved_run) -> None:  # noqa: F811
 
 def test_fallback_to_nerfstudio_without_dataparser_transforms(saved_run, tmp_path, caplog) -> None:  # noqa: F811
     files = check_run(saved_run)
-    with caplog.at_level(logging.DEBUG, logger="physgs_nerfstudio.export.loader"):
+    with caplog.at_level(logging.DEBUG, logger="physgs_nerfstudio.runfiles.loader"):
         rs = load_run_state(files.config, files.checkpoint, tmp_path)  # no dataparser_transforms.json there
     assert "dataparser_transforms.json not found" in caplog.text
     assert type(rs.dataparser_outputs).__name__ == "DataparserOutputs"

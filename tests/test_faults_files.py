@@ -26,11 +26,11 @@ import torch
 from physgs_nerfstudio.errors import PhysGSError
 from physgs_nerfstudio.export import command as export_command
 from physgs_nerfstudio.export.command import ExportCommand, LoadedRun, load_run, run_export
-from physgs_nerfstudio.export.runcheck import RunFilesError, check_run
 from physgs_nerfstudio.export.shapes import field_from, solid_box
 from physgs_nerfstudio.export.staging import MARKER, ExportDirError, ExportStage, ExportWriteError
 from physgs_nerfstudio.geometry import GeometryConfig, reconstruct_object
 from physgs_nerfstudio.mass import MassConfig
+from physgs_nerfstudio.runfiles.check import RunFilesError, check_run
 from physgs_nerfstudio.safe_yaml import ConfigObject, UnsafeConfigError, load_config_tree, load_config_yaml
 
 REPO = Path(__file__).resolve().parents[1]
@@ -530,7 +530,7 @@ def test_10d_eval_rejects_zero_or_negative_masses(tmp_path, capsys, truth, pred,
         run_eval(cmd)
     msg = _one_line(ei.value)
     assert where in msg and "item 'b'" in msg and "must be > 0" in msg
-    with pytest.raises(SystemExit):
+    with pytest.raises(PhysGSError):
         cmd.main()
     assert not (tmp_path / "eval").exists()
 

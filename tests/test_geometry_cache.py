@@ -235,8 +235,10 @@ def test_a_failed_precompute_never_fails_the_training(tmp_path, monkeypatch, cap
     exception out of the trainer; "off" and "auto" on a CPU do not compute at all."""
     from types import SimpleNamespace
 
+    from method_configs import physgs_config
     from physgs_nerfstudio.export import run as export_run
     from physgs_nerfstudio.geometry import GeometryError
+    from physgs_nerfstudio.nerfstudio import pipeline as pipeline_module
     from physgs_nerfstudio.nerfstudio.pipeline import PhysGSPipeline
 
     calls = []
@@ -245,6 +247,8 @@ def test_a_failed_precompute_never_fails_the_training(tmp_path, monkeypatch, cap
         calls.append(device)
         raise GeometryError("no training view has an object mask")
 
+    # the plugin's method configs hand the exporter's step in (the pipeline does not import the exporter)
+    assert pipeline_module._GEOMETRY_STEP is physgs_config._precompute_geometry
     monkeypatch.setattr(export_run, "precompute_geometry", fail)
     config = tmp_path / "config.yml"
     config.write_text("x")

@@ -14,7 +14,10 @@ from test_nerfstudio_fixtures import blob_datamanager, blob_model, write_blob_sc
 from method_configs.physgs_config import physgs_lite_trainer_config
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 from physgs_nerfstudio.nerfstudio import PhysGSModelConfig
-from physgs_nerfstudio.nerfstudio.keys import (
+from physgs_nerfstudio.nerfstudio.model import PhysGSModel
+from physgs_nerfstudio.nerfstudio.pipeline import lift_material_maps
+from physgs_nerfstudio.render import rasterize
+from physgs_nerfstudio.runfiles.keys import (
     DECODER_GROUP,
     EVIDENCE_KEY,
     FEATURES_KEY,
@@ -22,9 +25,6 @@ from physgs_nerfstudio.nerfstudio.keys import (
     LOGITS_KEY,
     WEIGHT_KEY,
 )
-from physgs_nerfstudio.nerfstudio.model import PhysGSModel
-from physgs_nerfstudio.nerfstudio.pipeline import lift_material_maps
-from physgs_nerfstudio.render import rasterize
 
 HEADS = ("logits", "latent", "lifted")
 EVAL_OUTPUTS = {"material_id": 1, "depth": 1, "accumulation": 1, "rgb": 3, "material": 3, "background": 3,
@@ -199,8 +199,8 @@ def test_old_run_loads_for_export_under_another_default(tmp_path, monkeypatch) -
     """A run saved by the "logits" head with a config.yml from before `material_head` existed loads through the
     export's loader while the default names another head."""
     from physgs_nerfstudio.export.command import load_run
-    from physgs_nerfstudio.export.loader import load_run_model
-    from physgs_nerfstudio.export.runcheck import check_run
+    from physgs_nerfstudio.runfiles.check import check_run
+    from physgs_nerfstudio.runfiles.loader import load_run_model
 
     write_blob_scene(tmp_path / "data", num_views=6, size=32)
     config = physgs_lite_trainer_config()

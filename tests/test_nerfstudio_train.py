@@ -62,6 +62,9 @@ def test_ns_train_physgs_lite_end_to_end(tmp_path: Path, head: str) -> None:
 
     configs = list(out_dir.glob("*/physgs-lite/*/config.yml"))
     assert len(configs) == 1
+    manifest = json.loads((configs[0].parent / "physgs_manifest.json").read_text())  # written by training
+    assert manifest["materials"] == [m["name"] for m in json.loads((data / "materials.json").read_text())["materials"]]
+    assert "URLError" not in proc.stdout + proc.stderr  # nothing downloads (LPIPS without its weights: skipped)
     ckpts = sorted(configs[0].parent.glob("nerfstudio_models/step-*.ckpt"))
     assert ckpts and ckpts[-1].name == f"step-{ITERATIONS - 1:09d}.ckpt"
     saved = torch.load(ckpts[-1], map_location="cpu", weights_only=True)["pipeline"]  # loads without pickle

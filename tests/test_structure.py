@@ -1,7 +1,8 @@
 """The package's structure rules (docs/architecture.md, "Structure rules"), read from the source with `ast`:
 no function over 80 lines in perception/, export/, sim/, nerfstudio/model.py and nerfstudio/model_outputs.py; no
-import circle between the package's modules (imports inside functions count: they close a circle at run time
-just the same)."""
+import circle between the package's modules, and none between its sub-packages (``nerfstudio/`` -> ``viewer/`` ->
+``export/`` -> ``nerfstudio/`` is a loop even when no two files import each other). Imports inside functions
+count: they close a circle at run time just the same."""
 
 from __future__ import annotations
 
@@ -82,6 +83,44 @@ def test_no_import_circles() -> None:
     graph = {name: _imports(name, path, modules) for name, path in modules.items()}
     assert graph["physgs_nerfstudio.nerfstudio.pipeline"] >= {"physgs_nerfstudio.nerfstudio.model"}  # it reads
     assert _circles(graph) == []
+
+
+def _package(module: str) -> str:
+    """The sub-package of a module (``physgs_nerfstudio.export.run`` -> ``physgs_nerfstudio.export``); a module at
+    the top of the package is its own."""
+    return ".".join(module.split(".")[:2])
+
+
+def _package_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    packages: dict[str, set[str]] = {}
+    for name, deps in graph.items():
+        here = _package(name)
+        packages.setdefault(here, set()).update(_package(d) for d in deps if _package(d) != here)
+    for deps in list(packages.values()):
+        for d in deps:
+            packages.setdefault(d, set())
+    return packages
+
+
+def _edges(graph: dict[str, set[str]], circle: list[str]) -> list[str]:
+    """The module imports that make a package circle (for the failure message)."""
+    inside = set(circle)
+    return sorted(f"{n} -> {d}" for n, deps in graph.items() for d in deps
+                  if _package(n) in inside and _package(d) in inside and _package(n) != _package(d))  # fmt: skip
+
+
+def test_no_import_circles_between_packages() -> None:
+    modules = _modules()
+    graph = {name: _imports(name, path, modules) for name, path in modules.items()}
+    assert "physgs_nerfstudio.runfiles" in _package_graph(graph)["physgs_nerfstudio.export"]
+    circles = _circles(_package_graph(graph))
+    assert circles == [], "; ".join(" / ".join(_edges(graph, c)) for c in circles)
+
+
+def test_the_package_circle_finder_sees_a_loop_no_file_circle_shows() -> None:
+    graph = {"p.a.x": {"p.b.y"}, "p.b.y": {"p.a.z"}, "p.a.z": set()}
+    assert _circles(graph) == []  # no module imports back the module that imports it
+    assert _circles(_package_graph(graph)) == [["p.a", "p.b"]]
 
 
 def test_circle_finder_finds_a_circle() -> None:

@@ -175,18 +175,11 @@ class BatchCommand:
         return bucket.stats() if bucket is not None else {}
 
     def main(self) -> None:
-        import sys
-
         from rich.console import Console
-        from rich.markup import escape
 
-        from .scenes import SceneListError
+        from ..errors import PhysGSError
 
-        console = Console()
-        try:
-            tot = self.run(console)
-        except SceneListError as err:
-            console.print(f"[red]physgs batch: {escape(str(err))}[/red]")
-            sys.exit(2)
+        tot = self.run(Console())  # a bad --scenes: SceneListError, one line (cli.one_line_errors)
         if not self.dry_run and tot.get("failures"):
-            sys.exit(1)
+            raise PhysGSError(f"{tot['failures']} scene(s) failed; the table above names each one's error "
+                              "(rerun to retry them)")

@@ -15,11 +15,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+from ..errors import PhysGSError
+
 TRANSFORMS = "transforms.json"
 SYNTH_TRUTH = "ground_truth.json"
 
 
-class SceneListError(ValueError):
+class SceneListError(PhysGSError, ValueError):
     """--scenes names no usable scenes; the message says where and what to do."""
 
 
@@ -92,14 +94,24 @@ def discover(source: Path, split: str = "test") -> SceneSet:
                              "datasets, an ABO-500 folder or a text file of paths")
     if source.is_file():
         scenes = []
-        for i, line in enumerate(source.read_text().splitlines(), 1):
+        try:
+            text = source.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as err:
+            raise SceneListError(f"--scenes {source}: not a readable text file of dataset paths ({type(err).__name__}); "
+                                 "pass a dataset folder, a folder of datasets or a text file with one path per line") from None
+        for i, line in enumerate(text.splitlines(), 1):
             line = line.split("#", 1)[0].strip()
             if not line:
                 continue
             path = Path(line).expanduser()
             path = path if path.is_absolute() else source.parent / path
-            if not (path / TRANSFORMS).is_file():
-                raise SceneListError(f"{source}:{i}: {path} has no {TRANSFORMS}; list nerfstudio dataset folders")
+            try:
+                listed = (path / TRANSFORMS).is_file()
+            except OSError:  # a name too long for the file system, a NUL byte
+                listed = False
+            if not listed:
+                shown = str(path) if len(str(path)) <= 200 else str(path)[:200] + "..."
+                raise SceneListError(f"{source}:{i}: {shown} has no {TRANSFORMS}; list nerfstudio dataset folders")
             scenes.append(Scene(path.name, path, _truth_of(path)))
         if not scenes:
             raise SceneListError(f"{source}: no dataset paths in the file; write one folder per line")

@@ -86,25 +86,23 @@ class EvalCommand:
     """Exit with an error when any ground-truth item has no usable prediction."""
 
     def main(self) -> None:
-        import sys
-
         from rich.console import Console
-        from rich.markup import escape
 
         console = Console()
         try:
             result = run_eval(self)
-        except (EvalInputError, ValueError) as err:
-            console.print(f"[red]physgs eval: {escape(str(err))}[/red]")
-            sys.exit(2)
+        except EvalInputError:
+            raise  # a PhysGSError: `physgs eval: error: ...`, exit status 1 (cli.one_line_errors)
+        except ValueError as err:
+            raise EvalInputError(None, None, str(err)) from None
         from .output import print_result, write_result
 
         print_result(result, per_group=self.per_group or self.dataset == "terrain", console=console)
         paths = write_result(result, self.output_dir)
         console.print("wrote " + ", ".join(str(p) for p in paths.values()))
         if self.strict and result.missing:
-            console.print(f"[red]--strict: {len(result.missing)} ground-truth entries were not scored.[/red]")
-            sys.exit(1)
+            raise EvalInputError(None, None, f"--strict: {len(result.missing)} ground-truth entries were not scored",
+                                 "see missing.csv for which, and why")  # fmt: skip
 
 
 # ------------------------------------------------------------------------------------------ loading
@@ -249,7 +247,10 @@ def run_eval(cfg: EvalCommand):
 def eval_main(argv: Sequence[str] | None = None) -> None:  # pragma: no cover - convenience for `python -m`
     import tyro
 
-    tyro.cli(EvalCommand, args=argv).main()
+    from ..cli import one_line_errors
+
+    with one_line_errors("physgs eval"):
+        tyro.cli(EvalCommand, args=argv).main()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..errors import PhysGSError
+
 __all__ = ["EvalInputError", "input_error"]
 
 
-class EvalInputError(ValueError):
+class EvalInputError(PhysGSError, ValueError):
     """A ground-truth or prediction file cannot be used as it is.
 
     ``str(error)`` reads ``<file>[, <where>]: <problem>. <fix>`` so a user can open the file at the entry.
@@ -21,7 +23,7 @@ class EvalInputError(ValueError):
         location = str(self.path) if self.path is not None else "<input>"
         if where:
             location += f", {where}"
-        text = f"{location}: {problem.rstrip('.')}."
+        text = f"{location}: {problem.rstrip('.')}." if self.path is not None or where else f"{problem.rstrip('.')}."
         if fix:
             text += f" {fix.rstrip('.')}."
         super().__init__(text)

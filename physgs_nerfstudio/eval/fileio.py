@@ -43,6 +43,18 @@ def load_json(path: Path) -> Any:
                           "Fix the JSON syntax at that position") from None
     except UnicodeDecodeError:
         raise input_error(path, None, "not UTF-8 text", "Save the file as UTF-8 JSON") from None
+    except RecursionError:
+        raise input_error(path, None, "nested too deeply to read (lists or objects inside each other thousands of "
+                          "levels deep)", "Write the records as a flat list") from None
+
+
+def _fields(path: Path, line_no: int, line: str) -> list[str]:
+    """One CSV line's fields; a field over csv's limit (128 KiB) or a malformed line names the line."""
+    try:
+        return next(csv.reader([line]))
+    except csv.Error as err:
+        raise input_error(path, f"line {line_no}", f"not a readable CSV line ({err})",
+                          "Keep each field short (a number, a name or a unit)") from None
 
 
 def read_csv(path: Path, required: Iterable[str], optional: Iterable[str] = ()) -> list[tuple[int, dict[str, str]]]:
@@ -64,7 +76,7 @@ def read_csv(path: Path, required: Iterable[str], optional: Iterable[str] = ()) 
     if not lines:
         raise input_error(path, None, "empty CSV file", f"Write a header line with columns {', '.join(required)}")
     header_no, header_line = lines[0]
-    header = [h.strip().lower() for h in next(csv.reader([header_line]))]
+    header = [h.strip().lower() for h in _fields(path, header_no, header_line)]
     missing = [c for c in required if c not in header]
     if missing:
         raise input_error(path, f"line {header_no} (header)", f"missing column(s) {', '.join(missing)}; "
@@ -76,7 +88,7 @@ def read_csv(path: Path, required: Iterable[str], optional: Iterable[str] = ()) 
                           f"Allowed columns: {', '.join(required + sorted(allowed - set(required)))}")
     rows: list[tuple[int, dict[str, str]]] = []
     for line_no, line in lines[1:]:
-        fields = next(csv.reader([line]))
+        fields = _fields(path, line_no, line)
         if len(fields) > len(header):
             raise input_error(path, f"line {line_no}", f"{len(fields)} fields but the header has {len(header)}",
                               "Quote values that contain commas, or remove the extra fields")

@@ -256,7 +256,7 @@ class PropertyField:
         ``labelled_weight``): a checkpoint from before it, whose labelled fraction is unknown. Other arguments as
         :meth:`from_model`."""
         from ..bayes import dirichlet_posterior
-        from ..nerfstudio.keys import EVIDENCE_KEY, LABELLED_KEY, WEIGHT_KEY
+        from ..runfiles.keys import EVIDENCE_KEY, LABELLED_KEY, WEIGHT_KEY
 
         g = lambda name: state[f"gauss_params.{name}"].detach().float()
         evidence = g(EVIDENCE_KEY)
@@ -298,10 +298,10 @@ class PropertyField:
         known_length: Sequence[float] | None = None,
         env: str | None = None,
     ) -> PropertyField:
-        """Load a trained run (its ``config.yml``) the way ``physgs export`` does: :func:`.runcheck.check_run`, then
-        :func:`.loader.load_run_state` (no model built) and :meth:`from_run_state`."""
-        from .loader import load_run_state
-        from .runcheck import check_run
+        """Load a trained run (its ``config.yml``) the way ``physgs export`` does: :func:`physgs_nerfstudio.runfiles.check.check_run`, then
+        :func:`physgs_nerfstudio.runfiles.loader.load_run_state` (no model built) and :meth:`from_run_state`."""
+        from ..runfiles.check import check_run
+        from ..runfiles.loader import load_run_state
 
         run_files = check_run(Path(config_path))  # safe YAML, PhysGS method, checkpoint (beside the config if moved)
         rs = load_run_state(run_files.config, run_files.checkpoint, run_files.run_dir)
@@ -317,7 +317,7 @@ class PropertyField:
         known_length: Sequence[float] | None = None,
         env: str | None = None,
     ) -> PropertyField:
-        """:meth:`from_state` of a :class:`.loader.RunState` (checkpoint tensors, legend, the model config's prior
+        """:meth:`from_state` of a :class:`physgs_nerfstudio.runfiles.loader.RunState` (checkpoint tensors, legend, the model config's prior
         and weights; ``run_dir``: the folder of its dataparser_transforms.json)."""
         alpha0, lam = rs.prior()
         return cls.from_state(rs.state, rs.dataparser_outputs.metadata["material_legend"],

@@ -19,9 +19,9 @@ from ..geometry import (
 )
 from ..geometry.capture import clear_mask_cache
 from ..mass import library_thickness
+from ..runfiles.check import check_run
 from . import geometry_cache
 from .field import PropertyField
-from .runcheck import check_run
 
 __all__ = ["MAX_VIEW_WIDTH", "LoadedRun", "RunSource", "load_run", "object_geometry", "precompute_geometry",
            "run_from_pipeline"]
@@ -72,16 +72,16 @@ def load_run(
     max_view_width: int | None = MAX_VIEW_WIDTH,
     capture: bool = True,
 ) -> LoadedRun:
-    """Load a trained run after the run checks (:func:`.runcheck.check_run`: safe YAML, method, checkpoint beside
-    a moved config): its property field and cameras (:func:`.loader.load_run_state`: the checkpoint's tensors, no
+    """Load a trained run after the run checks (:func:`physgs_nerfstudio.runfiles.check.check_run`: safe YAML, method, checkpoint beside
+    a moved config): its property field and cameras (:func:`physgs_nerfstudio.runfiles.loader.load_run_state`: the checkpoint's tensors, no
     model built, no datamanager, no image opened) and, with ``capture``, the object masks and perception's
     per-mask answers (mass and voxels need them; the PLY and the maps do not)."""
-    from .loader import load_run_state
+    from ..runfiles.loader import load_run_state
 
     run_files = check_run(Path(config_path))  # safe YAML, method, checkpoint (beside the config if moved)
     rs = load_run_state(run_files.config, run_files.checkpoint, run_files.run_dir)
-    pf = PropertyField.from_run_state(rs, run_files.run_dir, scale=scale, known_length=known_length, env=env)
     data = getattr(run_files.config.pipeline.datamanager, "data", None)
+    pf = PropertyField.from_run_state(rs, run_files.run_dir, scale=scale, known_length=known_length, env=env)
     run = _assemble_run(pf, rs.dataparser_outputs, data, max_view_width=max_view_width, capture=capture)
     run.source = RunSource(Path(config_path), Path(run_files.run_dir), Path(run_files.checkpoint))
     if not capture:
@@ -105,6 +105,10 @@ def run_from_pipeline(
 
     dm = pipeline.datamanager
     dpo = getattr(dm, "train_dataparser_outputs", None)
+    from ..runfiles.loader import check_run_manifest
+
+    check_run_manifest(Path(run_dir), getattr(getattr(dm, "config", None), "data", None),
+                       getattr(dpo, "metadata", None))  # fmt: skip
     pf = PropertyField.from_model(pipeline.model, read_dataparser_scale(Path(run_dir)), scale=scale,
                                   known_length=known_length, env=env)  # fmt: skip
     return _assemble_run(pf, dpo, getattr(getattr(dm, "config", None), "data", None), max_view_width=max_view_width,

@@ -23,7 +23,7 @@ class MapAccuracy:
 
 def material_map_accuracy(root: Path) -> MapAccuracy:
     """Compare ``material_path`` maps of transforms.json with ``ground_truth.json`` maps, per pixel."""
-    from PIL import Image
+    from ..image_files import read_array
 
     root = Path(root)
     gt = json.loads((root / "ground_truth.json").read_text(encoding="utf-8"))
@@ -40,8 +40,8 @@ def material_map_accuracy(root: Path) -> MapAccuracy:
     for fr in tf["frames"]:
         if "material_path" not in fr or fr["file_path"] not in gt_by_view:
             continue
-        pred = np.asarray(Image.open(root / fr["material_path"])).astype(np.int64)
-        truth = np.asarray(Image.open(root / gt_by_view[fr["file_path"]])).astype(np.int64)
+        pred = read_array(root / fr["material_path"]).astype(np.int64)
+        truth = read_array(root / gt_by_view[fr["file_path"]]).astype(np.int64)
         fg = truth > 0
         correct += int((pred[fg] == lut[truth[fg]]).sum())
         covered += int((pred[fg] > 0).sum())

@@ -156,9 +156,9 @@ def _resize_mask(mask: np.ndarray, width: int, height: int) -> np.ndarray:
 def _foreground(data_dir: Path, view: str, label_path: Path | None, width: int, height: int) -> tuple[np.ndarray, str]:
     labelled = None
     if label_path is not None and Path(label_path).is_file():
-        from PIL import Image
+        from ..image_files import read_array
 
-        labelled = _resize_mask(np.asarray(Image.open(label_path)) > 0, width, height)
+        labelled = _resize_mask(read_array(label_path, what=f"material map {label_path}") > 0, width, height)
     read = _read_masks(_mask_file(data_dir, view))
     whole = None
     if read is not None and (read[1] == 0).any():

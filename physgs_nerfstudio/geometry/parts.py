@@ -67,6 +67,7 @@ import torch
 from torch import Tensor
 
 from .carve import bounding_box
+from .errors import GeometryError
 from .grid import VoxelGrid
 from .mesh import face_mean_curvature
 
@@ -260,6 +261,11 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     padded = np.pad(solid, pad).astype(np.float32)
     if area_sigma > 0:
         padded = ndimage.gaussian_filter(padded, area_sigma)
+    if not padded.max() > 0.5:  # a solid too thin or small to have a surface (marching cubes refuses it)
+        raise GeometryError(
+            f"the object came out empty: carving left {int(solid.sum())} solid voxel(s), too few for a surface. "
+            "The masks and the views hardly agree: check the object masks (perception/masks) and the poses, try a "
+            "finer --mass.geometry.resolution, or select the object with --bbox.")  # fmt: skip
     verts, faces, _, _ = marching_cubes(padded, 0.5)
     tri = verts[faces]  # [T, 3, 3] in padded voxel index units
     fa = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) * h**2

@@ -252,6 +252,21 @@ def nearest_cluster(m: Tensor, lab: Tensor, centre: np.ndarray) -> Tensor:
     return lab == int(torch.argmin(dmin))
 
 
+def _nothing_selected(prob: Tensor, opaque: Tensor, views: Sequence[CaptureView], cfg: SelectConfig) -> str:
+    """Why no Gaussian was selected, from what was seen: the masks' coverage and the best foreground probability."""
+    cover = [float(v.mask.float().mean()) for v in views]
+    masked = sum(c > 0 for c in cover)
+    best = float(prob[opaque].max()) if bool(opaque.any()) else float("nan")
+    if masked == 0:
+        seen = f"none of the {len(views)} views has an object mask: check that perception ran on this dataset"
+    else:
+        seen = (f"{masked} of {len(views)} views have object masks (covering {100 * max(cover):.1f}% of a view at "
+                f"most), but the best foreground probability of an opaque Gaussian is {best:.2f} (needs "
+                f">= {cfg.min_prob}): the masks and the trained splat disagree; check the poses and the masks "
+                "(perception/masks), or give --bbox")  # fmt: skip
+    return f"no Gaussian lies on the object masks of the views: {seen}."
+
+
 @torch.no_grad()
 def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None = None, *,
                   backend: str = "auto", labels: ObjectLabels | None = None) -> ObjectSelection:  # fmt: skip
@@ -271,8 +286,7 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
         cand &= ((g.means >= b[:3]) & (g.means <= b[3:])).all(-1)
     centre = np.asarray(cfg.point, dtype=np.float64) if cfg.point is not None else capture_centre(views)
     if not bool(cand.any()):
-        raise GeometryError("no Gaussian lies on the object masks of the views (foreground probability >= "
-                         f"{cfg.min_prob}): check that perception ran on this dataset, or give a bbox.")  # fmt: skip
+        raise GeometryError(_nothing_selected(prob, g.opacities >= cfg.min_opacity, views, cfg))
     idx = torch.nonzero(cand).squeeze(1)
     m_dev = g.means[idx].double()  # the candidates' means, gathered once
     means = m_dev.cpu().numpy()

@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
+from ..errors import PhysGSError
 from . import hardness as _hardness
 from .keys import PROPERTY_KEYS
 
@@ -67,7 +68,7 @@ _FRICTION_MAX = 2.0
 _Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
-class MaterialLibraryError(ValueError):
+class MaterialLibraryError(PhysGSError, ValueError):
     """A library file is malformed; the message names the file, the entry and the fix."""
 
 
@@ -360,10 +361,19 @@ def _parse_entry(raw: Any, where: str) -> Material:
 
 
 def _read_file(path: Path | str, label: str, text: str | None = None) -> tuple[str | None, list[Material]]:
+    from ..safe_yaml import yaml_bounds_problem
+
     try:
-        data = yaml.load(text if text is not None else Path(path).read_text(encoding="utf-8"), Loader=_Loader)
+        if text is None:  # a user's file (a built-in library's text is the package's own)
+            text = Path(path).read_text(encoding="utf-8")
+            problem = yaml_bounds_problem(text)
+            if problem is not None:
+                raise MaterialLibraryError(f"{label}: refused ({problem}); write the library as plain YAML entries.")
+        data = yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as err:
         raise MaterialLibraryError(f"{label}: not valid YAML: {err}") from None
+    except UnicodeDecodeError:
+        raise MaterialLibraryError(f"{label}: not UTF-8 text; save the library as a UTF-8 YAML file.") from None
     except OSError as err:
         raise MaterialLibraryError(f"{label}: cannot read the file: {err}") from None
     if not isinstance(data, Mapping) or "materials" not in data:

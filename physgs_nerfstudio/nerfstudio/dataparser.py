@@ -19,7 +19,7 @@ import torch
 from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, NerfstudioDataParserConfig
 
-from .legend import MATERIALS_FILENAME, check_material_paths, frame_material_maps, load_legend
+from ..runfiles.legend import MATERIALS_FILENAME, check_material_paths, frame_material_maps, load_legend
 
 
 @dataclass

@@ -21,12 +21,18 @@ from nerfstudio.data.datasets.base_dataset import InputDataset
 from PIL import Image
 from torch import Tensor
 
-from .legend import PERCEIVE_HINT, MaterialsFileError
+from ..runfiles.legend import PERCEIVE_HINT, MaterialsFileError
 
 
 def load_label_png(path: Path, height: int, width: int) -> UInt8[Tensor, "h w 1"]:
     """An 8-bit single-channel PNG resized (nearest) to height x width."""
-    img = Image.open(path)
+    from ..image_files import BadImage, open_image
+
+    try:
+        with open_image(path, what=f"material map {path}") as opened:
+            img = opened.copy()
+    except BadImage as err:
+        raise MaterialsFileError(f"{err}. {PERCEIVE_HINT}") from None
     if img.mode not in ("L", "P", "I", "I;16"):
         raise MaterialsFileError(
             f"{path}: a material/confidence map must be a single-channel PNG, got mode {img.mode}"

@@ -29,7 +29,7 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-from .keys import EVIDENCE_KEY, FEATURES_KEY, LOGITS_KEY
+from ..runfiles.keys import EVIDENCE_KEY, FEATURES_KEY, LOGITS_KEY
 
 MaterialHead = Literal["logits", "latent", "lifted"]
 HEADS: tuple[MaterialHead, ...] = ("logits", "latent", "lifted")

@@ -37,6 +37,7 @@ whose `PhysGSOutputsMixin` this model inherits.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal, NamedTuple
 
 import torch
@@ -60,8 +61,15 @@ from torch.nn import Parameter
 from physgs_nerfstudio.bayes import NIG, dirichlet_posterior, property_fields
 from physgs_nerfstudio.viewer.display import ViewerSettings, gaussian_channels, gaussian_materials
 
-from .keys import DECODER_GROUP, EVIDENCE_KEY, LABELLED_KEY, LOGITS_KEY, NON_TRAINABLE_KEYS, WEIGHT_KEY
-from .legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
+from ..runfiles.keys import (
+    DECODER_GROUP,
+    EVIDENCE_KEY,
+    LABELLED_KEY,
+    LOGITS_KEY,
+    NON_TRAINABLE_KEYS,
+    WEIGHT_KEY,
+)
+from ..runfiles.legend import PERCEIVE_HINT, VIEWER_NAMES, MaterialLegend
 from .material_head import HEAD_TENSORS, MaterialHead, checkpoint_head, head_width, make_decoder
 from .model_outputs import (
     MIN_SPLIT_RADIUS_PX,
@@ -140,7 +148,7 @@ class PhysGSModelConfig(SplatfactoModelConfig):
     rasterize_backend: Literal["auto", "gsplat", "reference"] = "auto"
     """auto: gsplat on CUDA, the pure-torch reference rasterizer elsewhere."""
     compute_lpips: bool = True
-    """LPIPS in eval metrics (needs torchvision's AlexNet weights; skipped with a warning when absent)."""
+    """LPIPS in eval metrics, when torchvision's AlexNet weights are on disk (skipped with one line otherwise)."""
 
 
 class MaterialEvidence(NamedTuple):
@@ -156,8 +164,20 @@ class MaterialEvidence(NamedTuple):
     """training views with at least one labelled pixel"""
 
 
+ALEXNET_WEIGHTS = "alexnet-owt-7be5be79.pth"
+"""torchvision's AlexNet weights file (``AlexNet_Weights.IMAGENET1K_V1``), the backbone of torchmetrics' LPIPS"""
+
+
+def alexnet_weights_path() -> Path:
+    """Where torchvision keeps the AlexNet weights (torch hub's ``checkpoints`` folder; ``$TORCH_HOME``)."""
+    import torch.hub
+
+    return Path(torch.hub.get_dir()) / "checkpoints" / ALEXNET_WEIGHTS
+
+
 class _LazyLPIPS:
-    """LPIPS built on first use; nan (with one warning) if its backbone weights cannot be loaded offline.
+    """LPIPS built on first use, only when its backbone's weights are already on disk (nothing is downloaded at
+    run time): else nan, with one line saying where the file would go.
 
     Deliberately not an nn.Module, so its weights stay out of checkpoints.
     """
@@ -168,6 +188,10 @@ class _LazyLPIPS:
         self.failed = not enabled
 
     def __call__(self, a: Tensor, b: Tensor) -> Tensor:
+        if not self.failed and self.metric is None and not alexnet_weights_path().is_file():
+            self.failed = True
+            CONSOLE.log(f"[yellow]LPIPS skipped: its AlexNet weights are not on disk ({alexnet_weights_path()}); nothing "
+                        "is downloaded at run time: put the file there to get LPIPS[/yellow]")  # fmt: skip
         if not self.failed and self.metric is None:
             try:
                 from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
@@ -244,7 +268,7 @@ class PhysGSModel(PhysGSOutputsMixin, SplatfactoModel):
             means = seed[0].detach().float().clone()
         else:
             means = (torch.rand((self.config.num_random, 3)) - 0.5) * self.config.random_scale
-        if self.kwargs.get("placeholder_gaussians"):  # a checkpoint replaces them (export/loader.py): no kNN
+        if self.kwargs.get("placeholder_gaussians"):  # a checkpoint replaces them (runfiles/loader.py): no kNN
             means = means[:1]
             scales = torch.zeros_like(means)
         else:

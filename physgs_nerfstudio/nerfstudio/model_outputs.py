@@ -33,8 +33,8 @@ from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 from physgs_nerfstudio.render import eval_sh_colors, rasterize
 from physgs_nerfstudio.viewer.display import viewer_outputs
 
-from .keys import LOGITS_KEY
-from .legend import VIEWER_NAMES
+from ..runfiles.keys import LOGITS_KEY
+from ..runfiles.legend import VIEWER_NAMES
 from .material_head import HEAD_TENSORS, predictive
 
 PROPERTY_OUTPUTS = ("density", "friction", "hardness", "stiffness")

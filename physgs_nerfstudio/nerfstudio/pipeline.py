@@ -15,7 +15,7 @@ those seen mostly in unknown (label 0) pixels.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -149,6 +149,20 @@ def lift_material_maps(
     return MaterialEvidence(evidence, weight, labelled.clamp_min(0.0), used)
 
 
+GeometryStep = Callable[[Path, str], tuple[Path | None, str]]
+"""The end-of-run geometry step: (the run's config.yml, the device type) -> (where the geometry was stored, or None
+when the run folder is not writable; what was computed). ``physgs_nerfstudio.export.run.precompute_geometry``."""
+_GEOMETRY_STEP: GeometryStep | None = None
+
+
+def hand_in_geometry_step(step: GeometryStep | None) -> None:
+    """Set the step :attr:`PhysGSPipelineConfig.precompute_geometry` runs after the final checkpoint. The plugin's
+    method configs (``method_configs/physgs_config.py``) hand in the exporter's ``precompute_geometry``, so this
+    package never imports the exporter (which reads runs that this package trains). None: no step."""
+    global _GEOMETRY_STEP
+    _GEOMETRY_STEP = step
+
+
 class PhysGSPipeline(VanillaPipeline):
     """VanillaPipeline that lifts the training views' material maps onto the model at set steps."""
 
@@ -184,9 +198,21 @@ class PhysGSPipeline(VanillaPipeline):
             )
         )
         if trainer is not None:
+            self._write_manifest(Path(trainer.config.get_base_dir()))
             cbs.append(TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN], self._precompute_geometry,
                                         args=[Path(trainer.config.get_base_dir()) / "config.yml"]))  # fmt: skip
         return cbs
+
+    def _write_manifest(self, run_dir: Path) -> None:
+        """The run manifest (:mod:`physgs_nerfstudio.runfiles.manifest`): the legend, posteriors and maps this run
+        trains with, which export and the viewer check the dataset against."""
+        from physgs_nerfstudio.runfiles.manifest import dataset_dir, write_manifest
+
+        dpo = self.datamanager.train_dataparser_outputs
+        data_dir = dataset_dir(self.datamanager.config.data or getattr(self.datamanager.config.dataparser, "data", None))
+        if data_dir is not None and "material_legend" in dpo.metadata:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            write_manifest(run_dir, data_dir, dpo.metadata)
 
     def _precompute_geometry(self, config_path: Path, step: int) -> None:
         """`precompute_geometry` (config doc), after nerfstudio saved the final checkpoint."""
@@ -194,13 +220,13 @@ class PhysGSPipeline(VanillaPipeline):
         device = torch.device(self.model.device)
         if mode == "off" or (mode == "auto" and device.type != "cuda") or not config_path.is_file():
             return
+        if _GEOMETRY_STEP is None:  # nothing handed in (hand_in_geometry_step): the export computes it when asked
+            return
         import time
-
-        from physgs_nerfstudio.export.run import precompute_geometry
 
         t0 = time.perf_counter()
         try:
-            path, what = precompute_geometry(config_path, device.type)
+            path, what = _GEOMETRY_STEP(config_path, device.type)
         except Exception as err:  # noqa: BLE001 - the run is complete and saved; the export computes it instead
             CONSOLE.log(f"[yellow]PhysGS: the object's geometry was not precomputed ({' '.join(str(err).split())[:300]});"
                         " `physgs export` computes it when asked[/yellow]")  # fmt: skip

@@ -84,4 +84,7 @@ def main(argv: Sequence[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from physgs_nerfstudio.cli import one_line_errors
+
+    with one_line_errors("physgs train"):
+        main()

@@ -58,8 +58,9 @@ def to_rgb8(im) -> UInt8[np.ndarray, "H W 3"]:
 
 def read_image(path: Path, name: str | None = None) -> UInt8[np.ndarray, "H W 3"]:
     """The image at ``path`` as uint8 RGB; :class:`BadFrame` naming it (``name``: how the dataset calls it)
-    when it is missing, empty, not an image, truncated or a symlink loop."""
-    from PIL import Image, UnidentifiedImageError
+    when it is missing, empty, not an image, truncated, a symlink loop or over the pixel limit
+    (:data:`physgs_nerfstudio.image_files.MAX_PIXELS`)."""
+    from ..image_files import BadImage, open_image
 
     path = Path(path)
     what = f"frame image {name!r} ({path})" if name and name != str(path) else f"frame image {path}"
@@ -78,11 +79,7 @@ def read_image(path: Path, name: str | None = None) -> UInt8[np.ndarray, "H W 3"
     if size == 0:
         raise BadFrame(f"{what} is empty (0 bytes); replace it or remove the frame from transforms.json")
     try:
-        with Image.open(path) as im:
-            im.load()
+        with open_image(path, what=what) as im:  # the pixel limit (image_files.MAX_PIXELS) before decoding
             return np.ascontiguousarray(to_rgb8(im))
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
-        reason = " ".join(str(err).split())[:160] or type(err).__name__
-        raise BadFrame(
-            f"{what} cannot be read as an image ({reason}); replace it or remove the frame"
-        ) from None
+    except BadImage as err:
+        raise BadFrame(f"{err} (the frame is skipped)") from None

@@ -76,6 +76,33 @@ def read_lock(path: Path) -> LockInfo | None:
         return None
 
 
+def holder_of(path: Path) -> str:
+    """Who holds the lock at ``path``, as the refusal says it: the recorded holder, or what the file holds
+    instead (nothing yet, part of a record, something else)."""
+    try:
+        raw = Path(path).read_bytes()
+    except IsADirectoryError:
+        return "nobody (the lock is a folder, not a file)"
+    except OSError as err:
+        return f"unknown (the lock file cannot be read: {err.strerror or err})"
+    info = read_lock(path)
+    if info is not None:
+        alive = "" if info.host != socket.gethostname() or _pid_alive(info.pid) else ", no longer running"
+        return info.describe() + alive
+    if not raw.strip():
+        return f"a run that is starting (the lock file is still empty, {_age_s(path):.0f} s old)"
+    try:
+        d = json.loads(raw)
+        pid = int(d["pid"]) if isinstance(d, dict) else None
+    except (ValueError, KeyError, TypeError):
+        pid = None
+    if pid is not None:
+        state = "running" if _pid_alive(pid) else "not running"
+        return f"pid {pid} ({state} here), in a lock file without its host and start time"
+    return (f"unknown: the lock file holds {len(raw)} bytes that are not a lock record ({_age_s(path):.0f} s old; "
+            f"taken over after {GRACE_S:g} s)")  # fmt: skip
+
+
 def _age_s(path: Path) -> float:
     try:
         return time.time() - path.stat().st_mtime
@@ -84,6 +111,8 @@ def _age_s(path: Path) -> float:
 
 
 def _stale(path: Path, info: LockInfo | None) -> bool:
+    if path.is_dir():  # not a lock file: never removed here (the message says to delete it)
+        return False
     if info is None:
         return path.exists() and _age_s(path) > GRACE_S
     return info.host == socket.gethostname() and not _pid_alive(info.pid)
@@ -141,8 +170,10 @@ class DatasetLock:
         while not _create(self.path, mine):
             if _remove_if_stale(self.path):
                 continue
-            holder = read_lock(self.path)
-            who = holder.describe() if holder else "a run that is starting (the lock file is still empty)"
+            who = holder_of(self.path)
+            if self.path.is_dir():
+                raise LockHeld(f"{self.path} is a folder, not a lock file: no run holds it; delete the folder "
+                               f"(rm -r {self.path}) and rerun.")  # fmt: skip
             if not self.wait:
                 raise LockHeld(
                     f"{self.path.parent.parent} is being perceived by another run: {who}. Wait for it, pass "

@@ -87,6 +87,30 @@ class NoObservations(PhysGSError, RuntimeError):
     """The run ended without a single observation: nothing was written into the dataset."""
 
 
+def usable_observations(observations: list[dict], path: Path) -> list[dict]:
+    """The records fusion can use: a material name and a confidence in (0, 1]. Others (a hand-edited
+    ``observations.jsonl`` with NaN confidences) are left out with one warning; when records exist and none is
+    usable, :class:`NoObservations`: fusing nothing would replace a good materials.json with an empty legend."""
+    import math
+
+    def usable(o: dict) -> bool:
+        try:
+            p = float(o.get("confidence"))
+        except (TypeError, ValueError):
+            return False
+        return isinstance(o.get("material"), str) and math.isfinite(p) and 0.0 < p <= 1.0
+
+    kept = [o for o in observations if usable(o)]
+    if len(kept) < len(observations):
+        if not kept:
+            raise NoObservations(f"{path}: none of its {len(observations)} observations is usable (each needs a "
+                                 "material and a confidence in (0, 1]; NaN is not): the dataset's outputs are left "
+                                 "as they were. Restore the file, or rerun with --overwrite to ask again.")  # fmt: skip
+        logger.warning("%s: %d of %d observations left out (no material, or a confidence not in (0, 1])", path,
+                       len(observations) - len(kept), len(observations))  # fmt: skip
+    return kept
+
+
 # ---------------------------------------------------------------------------------------------------------
 # pieces
 # ---------------------------------------------------------------------------------------------------------
@@ -106,6 +130,9 @@ def load_frames(root: Path) -> tuple[dict, list[dict]]:
     except json.JSONDecodeError as err:
         raise DatasetError(f"{path} is not valid JSON ({err.msg}, line {err.lineno} column {err.colno}); "
                            "fix the file or regenerate it (ns-process-data)") from None  # fmt: skip
+    except RecursionError:
+        raise DatasetError(f"{path} is nested too deeply to read (lists or objects inside each other thousands of "
+                           "levels deep); fix the file or regenerate it (ns-process-data)") from None  # fmt: skip
     if not isinstance(meta, dict):
         raise DatasetError(f"{path} holds a JSON {type(meta).__name__}, not an object; nerfstudio expects "
                            '{"frames": [{"file_path": ...}, ...], ...}')  # fmt: skip
@@ -509,7 +536,7 @@ class PerceptionRun:
         from ..fusion.dataset import write_dataset_outputs
 
         config, result = self.config, self.result
-        observations = self.store.observations()
+        observations = usable_observations(self.store.observations(), self.store.obs_path)
         result.observations = len(observations)
         for o in observations:
             result.material_counts[o["material"]] = result.material_counts.get(o["material"], 0) + 1

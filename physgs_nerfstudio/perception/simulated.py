@@ -157,9 +157,9 @@ class GroundTruth:
 
     def _load_map(self, rel: str) -> np.ndarray:
         if rel not in self._cache:
-            from PIL import Image
+            from ..image_files import read_array
 
-            self._cache[rel] = np.asarray(Image.open(self.root / rel))
+            self._cache[rel] = read_array(self.root / rel)
         return self._cache[rel]
 
     def maps(self, view: str) -> tuple[np.ndarray, np.ndarray | None]:

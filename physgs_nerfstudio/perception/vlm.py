@@ -52,6 +52,10 @@ logger = logging.getLogger(__name__)
 # ---------------------------------------------------------------------------------------------------------
 
 
+MAX_TOKENS_REPORTED = 10**9
+"""the largest token count of one reply that is believed (a larger one is capped)"""
+
+
 @dataclass
 class Usage:
     prompt_tokens: int = 0
@@ -62,10 +66,10 @@ class Usage:
     def from_dict(cls, d: dict | None) -> Usage:
         d = d or {}
 
-        def _int(v: Any) -> int:
+        def _int(v: Any) -> int:  # a count the server reports: 0 when it is not one (1e999, NaN, text)
             try:
-                return max(0, int(v))
-            except (TypeError, ValueError):
+                return min(MAX_TOKENS_REPORTED, max(0, int(v)))
+            except (TypeError, ValueError, OverflowError):
                 return 0
 
         p, c = _int(d.get("prompt_tokens")), _int(d.get("completion_tokens"))
@@ -223,6 +227,10 @@ class OpenAIConfig:
     backoff_base_s: float = 1.0
     backoff_max_s: float = 60.0
     """Cap on one wait (also caps Retry-After)."""
+    max_wait_s: float = 600.0
+    """Run-wide cap on the seconds spent waiting to retry; once spent, the remaining requests fail at once."""
+    basic_auth_env: str = ""
+    """Name of an environment variable holding user:password for HTTP basic authentication."""
     max_concurrency: int = 4
     """Requests in flight at once."""
     response_format: Literal["json_schema", "json_object", "none"] = "json_schema"
@@ -251,6 +259,29 @@ class OpenAIConfig:
         """The backend of this config. ``library`` (the run's material library) gives the names the answer
         schema allows; ``data`` is not needed by a real endpoint (every VLM config's ``setup`` takes both)."""
         return OpenAIBackend(self, material_names=list(library.names) if library is not None else None)
+
+
+def _credentials(cfg: OpenAIConfig, base: str, user: str | None, password: str | None
+                 ) -> tuple[str | None, str | None]:  # fmt: skip
+    """The basic-authentication user and password: ``--vlm.basic-auth-env``'s variable (``user:password``), else the
+    URL's userinfo, else ``~/.netrc``'s entry for the host (None, None: no basic authentication)."""
+    if cfg.basic_auth_env:
+        value = os.environ.get(cfg.basic_auth_env, "")
+        if ":" not in value:
+            raise VLMError(f"environment variable {cfg.basic_auth_env} (--vlm.basic-auth-env) is not set to "
+                           "user:password; export it, or pass --vlm.basic-auth-env ''")  # fmt: skip
+        u, _, p = value.partition(":")
+        return u, p
+    if user is not None:
+        return user, password
+    import netrc
+
+    host = urllib.parse.urlsplit(base).hostname or ""
+    try:
+        entry = netrc.netrc().authenticators(host)
+    except (OSError, netrc.NetrcParseError):  # no ~/.netrc, or one that cannot be read
+        return None, None
+    return (entry[0], entry[2]) if entry else (None, None)
 
 
 RESPONSE_FORMATS = ("json_schema", "json_object", "none")
@@ -324,6 +355,11 @@ class OpenAIBackend:
             self._key = Secret(value)
         else:
             self._key = Secret("")
+        if user is not None and password:
+            logger.warning("the password in --vlm.base-url is visible to other users of this machine in the process "
+                           "list; put user:password in an environment variable named by --vlm.basic-auth-env, or in "
+                           "~/.netrc, instead")  # fmt: skip
+        user, password = _credentials(cfg, base, user, password)
         self._basic = None if user is None or self._key else Secret(
             base64.b64encode(f"{user}:{password or ''}".encode()).decode("ascii")
         )  # fmt: skip
@@ -333,6 +369,10 @@ class OpenAIBackend:
         self._format_level = RESPONSE_FORMATS.index(cfg.response_format)
         self._refused: str | None = None
         """The message of a 401/403 answer: every later query fails with it without a request."""
+        self._waited = 0.0
+        """Seconds this backend has waited to retry, across all requests (``max_wait_s``)."""
+        self._gave_up: str | None = None
+        """Why the run stopped retrying (``max_wait_s`` spent): every later query fails with it at once."""
         self._lock = threading.Lock()
         self._slots = threading.BoundedSemaphore(max(1, cfg.max_concurrency))
         self._rng = random.Random(cfg.seed)
@@ -353,6 +393,7 @@ class OpenAIBackend:
 
     # -- helpers ---------------------------------------------------------------------------------
     def _redact(self, text: str) -> str:
+        text = "".join(c if c.isprintable() else " " for c in str(text))  # a server's NUL, CR, escape bytes
         return redact_urls(redact(text, self._secrets))
 
     def cost_usd(self, usage: Usage) -> float:
@@ -399,6 +440,19 @@ class OpenAIBackend:
         with self._lock:
             jitter = 1.0 + 0.25 * self._rng.random()
         return min(cfg.backoff_max_s, cfg.backoff_base_s * (2**attempt) * jitter)
+
+    def _spend_wait(self, request: VLMRequest, delay: float, problem: str) -> None:
+        """Count ``delay`` against the run-wide ``max_wait_s``; past it, this and every later request fail."""
+        with self._lock:
+            if self._gave_up is None and self._waited + delay > self.config.max_wait_s:
+                self._gave_up = self._redact(
+                    f"stopped retrying: this run already waited {self._waited:.0f} s for the server "
+                    f"(--vlm.max-wait-s {self.config.max_wait_s:g}; last: {problem[:200]}); the answers received "
+                    "are cached, rerun later to ask the rest")  # fmt: skip
+            if self._gave_up is not None:
+                self.failures += 1
+                raise VLMError(f"{request.describe()}: {self._gave_up}")
+            self._waited += delay
 
     def _fail(self, message: str, error: type[VLMError] = VLMError) -> VLMError:
         with self._lock:
@@ -482,6 +536,8 @@ class OpenAIBackend:
             while True:
                 if self._refused is not None:
                     raise VLMAuthError(self._refused)
+                if self._gave_up is not None:
+                    raise VLMError(self._gave_up)
                 self.rate_limiter.acquire(1, 0)
                 outcome = self._attempt(request, self._format_level)
                 if isinstance(outcome, VLMResponse):
@@ -492,6 +548,7 @@ class OpenAIBackend:
                 if attempt >= cfg.max_retries:
                     raise self._fail(f"{request.describe()}: giving up after {attempt + 1} attempts ({problem})")
                 delay = self._backoff(attempt, retry_after)
+                self._spend_wait(request, delay, problem)
                 logger.info("retrying %s in %.2fs after %s", request.describe(), delay, self._redact(problem))
                 with self._lock:
                     self.retries += 1

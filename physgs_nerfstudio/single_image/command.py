@@ -75,7 +75,10 @@ def entrypoint() -> None:
     """Stand-alone entry point (``python -m physgs_nerfstudio.single_image.command``)."""
     import tyro
 
-    tyro.cli(ImageCommand).main()
+    from ..cli import one_line_errors
+
+    with one_line_errors("physgs image"):
+        tyro.cli(ImageCommand).main()
 
 
 if __name__ == "__main__":

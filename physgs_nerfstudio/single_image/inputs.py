@@ -70,16 +70,17 @@ def unique_names(files: Sequence[Path]) -> list[str]:
 
 def load_rgb(path: Path, max_side: int | None) -> tuple[np.ndarray, tuple[int, int]]:
     """uint8 [H, W, 3] with EXIF orientation applied, downscaled (area filter) to ``max_side``."""
-    from PIL import Image, ImageOps, UnidentifiedImageError
+    from PIL import ImageOps
 
+    from ..image_files import BadImage, open_image
     from ..perception.images import to_rgb8
 
     try:
-        with Image.open(path) as im:
+        with open_image(path) as im:  # the pixel limit (image_files.MAX_PIXELS) before decoding
             im = ImageOps.exif_transpose(im)
             rgb = to_rgb8(im)  # 16-bit and float images scaled, not clipped
-    except (OSError, UnidentifiedImageError) as err:
-        raise InputError(f"cannot read image {path}: {err}") from err
+    except BadImage as err:
+        raise InputError(f"cannot read image: {err}") from None
     h, w = rgb.shape[:2]
     if max_side is not None and max(h, w) > max_side:
         import cv2

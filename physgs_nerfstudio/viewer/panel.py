@@ -198,8 +198,33 @@ class PhysicalPropertiesPanel(torch.nn.Module):
             raise RuntimeError("no viewer client is connected")
         return cam, int(W), int(H)
 
+    def run_mismatch(self) -> str | None:
+        """Why this run's legend and maps are not the dataset's any more (its manifest,
+        :mod:`physgs_nerfstudio.runfiles.manifest`), checked once; None when they are or cannot be checked. The
+        panel then answers no point and no mass, and says why in its legend."""
+        if getattr(self, "_mismatch", False) is not False:
+            return self._mismatch
+        from physgs_nerfstudio.runfiles.manifest import RunManifestError, check_manifest, dataset_dir
+
+        self._mismatch = None
+        viewer, run_dir = getattr(self.control, "viewer", None), self._run_dir()
+        dm = getattr(getattr(viewer, "pipeline", None), "datamanager", None)
+        dpo = getattr(dm, "train_dataparser_outputs", None)
+        data_dir = dataset_dir(getattr(getattr(dm, "config", None), "data", None))
+        if run_dir is None or dpo is None or data_dir is None:
+            return None
+        try:
+            check_manifest(run_dir, data_dir, dpo.metadata)
+        except RunManifestError as err:
+            self._mismatch = " ".join(str(err).split())
+            self.a_legend.content = f"**This run does not match its dataset**: {self._mismatch}"
+        return self._mismatch
+
     def _on_click(self, click: ViewerClick) -> None:
         self.control.unregister_pointer_cb()
+        if self.run_mismatch() is not None:
+            self.g_point.content = f"Not answered: {self._mismatch}"
+            return
         try:
             q = self.query(click.screen_pos)
         except Exception as err:  # noqa: BLE001  (shown in the panel; the viewer keeps running)

@@ -36,7 +36,7 @@ import torch
 from jaxtyping import Float, Int
 from torch import Tensor
 
-from ..nerfstudio.legend import MaterialsFileError, check_material_paths, frame_material_maps, load_legend
+from .legend import MaterialsFileError, check_material_paths, frame_material_maps, load_legend
 
 __all__ = ["TrainCameras", "TrainSplit", "Unsupported", "read_train_split"]
 

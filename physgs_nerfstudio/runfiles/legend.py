@@ -17,6 +17,8 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
+from ..errors import PhysGSError
+
 MATERIALS_FILENAME = "materials.json"
 PERCEIVE_HINT = (
     "Run `physgs perceive --data <dataset>` first: it writes materials.json and a per-frame material map "
@@ -33,7 +35,7 @@ VIEWER_NAMES: dict[str, str] = {
 }
 
 
-class MaterialsFileError(ValueError):
+class MaterialsFileError(PhysGSError, ValueError):
     """materials.json is missing or malformed."""
 
 
@@ -73,7 +75,11 @@ def load_legend(path: Path) -> MaterialLegend:
     try:
         meta: dict[str, Any] = json.loads(path.read_text())
     except json.JSONDecodeError as err:
-        raise _fail(path, f"is not valid JSON ({err})") from err
+        raise _fail(path, f"is not valid JSON ({err})") from None
+    except RecursionError:
+        raise _fail(path, "is nested too deeply to read") from None
+    except UnicodeDecodeError:
+        raise _fail(path, "is not UTF-8 text") from None
     mats = meta.get("materials")
     if not isinstance(mats, list) or len(mats) == 0:
         raise _fail(path, "has no `materials` list")

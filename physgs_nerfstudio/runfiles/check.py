@@ -7,7 +7,8 @@ run (:mod:`.loader`; ``eval_setup`` for others). In order:
    of :class:`~physgs_nerfstudio.safe_yaml.ConfigObject` (nothing it names is imported; :meth:`RunFiles.trainer_config`
    builds nerfstudio's TrainerConfig when a caller needs it);
 2. it is a nerfstudio run of a PhysGS method (a splatfacto/nerfacto run is named as such, instead of failing
-   later inside nerfstudio, e.g. with "no NVIDIA driver");
+   later inside nerfstudio, e.g. with "no NVIDIA driver"), and its dataparser config is one of
+   :data:`DATAPARSERS` building that class's dataparser (:func:`check_dataparser`);
 3. the checkpoint folder: a run folder copied or moved elsewhere keeps the stored (old) paths in its config,
    so the folder *beside the config* is used when the stored one is absent or differs (and a line says
    which one was used); the latest ``step-*.ckpt`` must exist and be a complete PyTorch zip archive (a
@@ -32,7 +33,7 @@ from typing import Any
 
 from ..errors import PhysGSError
 
-__all__ = ["RunFiles", "RunFilesError", "check_run", "check_transforms"]
+__all__ = ["DATAPARSERS", "RunFiles", "RunFilesError", "check_dataparser", "check_run", "check_transforms"]
 
 _STEP = re.compile(r"^step-(\d+)\.ckpt$")
 _RETRAIN = "copy the run folder again from where it was trained, or retrain"
@@ -178,6 +179,39 @@ def _check_checkpoint(path: Path) -> None:
         raise RunFilesError(f"{path}: the checkpoint is damaged ({why}); {_RETRAIN}.")
 
 
+DATAPARSERS = {"physgs_nerfstudio.nerfstudio.dataparser.PhysGSDataParserConfig":
+               "physgs_nerfstudio.nerfstudio.dataparser.PhysGSDataParser"}  # fmt: skip
+"""the dataparser config classes a run's config may build to read its cameras, and the class each must build"""
+
+
+def check_dataparser(dp_config: Any, where: Path | str = "config") -> None:
+    """Refuse a run's dataparser config (a ConfigObject of the tree, or a built one) unless it is one of
+    :data:`DATAPARSERS`, its ``_target`` that class's dataparser and no other object inside it: a crafted config
+    could otherwise name any class of nerfstudio there, and ``setup()`` would build it."""
+    from ..safe_yaml import ClassRef, ConfigObject, UnsafeConfigError
+
+    if not isinstance(dp_config, ConfigObject):  # built by the caller from a checked config
+        name = f"{type(dp_config).__module__}.{type(dp_config).__qualname__}"
+        target = getattr(dp_config, "_target", None)
+        target = f"{getattr(target, '__module__', '?')}.{getattr(target, '__qualname__', '?')}"
+        inner: list[str] = []
+    else:
+        name = dp_config.class_name
+        ref = dp_config.fields.get("_target")
+        target = ref.name if isinstance(ref, ClassRef) else repr(ref)
+        inner = [k for k, v in dp_config.fields.items() if k != "_target" and isinstance(v, (ConfigObject, ClassRef))]
+    fix = "use the config.yml that ns-train wrote"
+    if name not in DATAPARSERS:
+        raise UnsafeConfigError(f"{where}: refused dataparser {name} (a PhysGS run reads its cameras with "
+                                f"{', '.join(DATAPARSERS)}); {fix}.")  # fmt: skip
+    if target != DATAPARSERS[name]:
+        raise UnsafeConfigError(f"{where}: refused the dataparser's _target {target} (it must be {DATAPARSERS[name]}); "
+                                f"{fix}.")  # fmt: skip
+    if inner:
+        raise UnsafeConfigError(f"{where}: refused the dataparser's field {inner[0]} (an object where the dataparser "
+                                f"holds plain values); {fix}.")  # fmt: skip
+
+
 def _dataset_path(config: Any) -> Path | None:
     dm = config.pipeline.datamanager
     data = getattr(dm, "data", None) or getattr(getattr(dm, "dataparser", None), "data", None)
@@ -194,6 +228,8 @@ def check_transforms(path: Path) -> dict:
         raise RunFilesError(f"{path}: not valid JSON (line {err.lineno}, column {err.colno}: {err.msg}); {fix}.") from None
     except (OSError, UnicodeDecodeError) as err:
         raise RunFilesError(f"{path}: cannot be read ({err}); {fix}.") from None
+    except RecursionError:
+        raise RunFilesError(f"{path}: nested too deeply to read; {fix}.") from None
     if not isinstance(meta, dict):
         raise RunFilesError(f"{path}: a JSON {type(meta).__name__}, not an object with a \"frames\" list; {fix}.")
     frames = meta.get("frames")
@@ -230,6 +266,7 @@ def check_run(config_path: Path, *, log: Callable[[str], None] | None = None) ->
         raise RunFilesError(f"{config_path} not found: pass the config.yml of an `ns-train physgs` run.")
     config = load_config_tree(config_path)
     _method_of(config_path, config)
+    check_dataparser(config.pipeline.datamanager.dataparser, config_path)
     run_dir, ckpt_dir, relocated = _checkpoint_dir(config_path, config, log)
     steps = _steps(ckpt_dir)
     if not steps:
