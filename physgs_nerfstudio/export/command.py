@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
@@ -163,9 +163,6 @@ def write_export(
     return ExportResult(files, report, error, geo if error is None else None)
 
 
-_DEPRECATED = "(deprecated spelling of --mass.{}; kept for existing scripts)"
-
-
 @dataclass
 class ExportCommand:
     """Export a trained PhysGS run: property PLY, voxel grid, property maps and the mass (mean, interval)."""
@@ -199,42 +196,13 @@ class ExportCommand:
     overwrite: bool = False
     """replace a non-empty --output-dir that is not a previous physgs export (a previous export is always
     replaced, as a unit, once the new one is complete)"""
-    resolution: int | None = None
-    """(deprecated spelling of --mass.geometry.resolution)"""
-    bbox: tuple[float, float, float, float, float, float] | None = None
-    """(deprecated spelling of --mass.geometry.select.bbox)"""
-    n_samples: int | None = None
-    """(deprecated spelling of --mass.n-samples)"""
-    seed: int | None = None
-    """(deprecated spelling of --mass.seed)"""
-    level: float | None = None
-    """(deprecated spelling of --mass.level)"""
-    volume_model: Literal["auto", "solid", "shell"] | None = None
-    """(deprecated spelling of --mass.structure: auto | solid | hollow)"""
-
-    def mass_config(self) -> MassConfig:
-        """``mass`` with the deprecated flat flags applied."""
-        m = self.mass
-        g = m.geometry
-        if self.resolution is not None:
-            g = replace(g, resolution=self.resolution)
-        if self.bbox is not None:
-            g = replace(g, select=replace(g.select, bbox=self.bbox))
-        kw: dict[str, Any] = {"geometry": g}
-        for name in ("n_samples", "seed", "level"):
-            if getattr(self, name) is not None:
-                kw[name] = getattr(self, name)
-        if self.volume_model is not None:
-            kw["structure"] = {"shell": "hollow"}.get(self.volume_model, self.volume_model)
-        return replace(m, **kw)
-
     def main(self) -> ExportResult:
         check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
         needs_geometry = bool({"mass", "voxels"} & set(self.outputs))
         run = load_run(self.load_config, scale=self.scale, known_length=self.known_length, env=self.env,
                        capture=False)  # fmt: skip
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
-        mass = self.mass_config()
+        mass = self.mass
         cache, geo = None, None
         if needs_geometry and self.geometry_cache:
             load_args = geometry_cache.load_args(self.scale, self.known_length, self.env, MAX_VIEW_WIDTH)

@@ -6,7 +6,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from .config import PerceptionConfig
-from .legacy_flags import HELP as DEPRECATED_HELP
 from .pipeline import PerceptionResult
 
 if TYPE_CHECKING:
@@ -92,8 +91,6 @@ class PerceiveCommand(PerceptionConfig):
             raise ValueError("--query-budget / --stop-uncertainty only apply with --active")
         if self.active:
             self.active_config()  # validate the flags before any work
-
-    __doc__ = (__doc__ or "") + "\n\n    " + DEPRECATED_HELP
 
     def run(self) -> PerceptionResult:
         """Run exhaustive or (``active``) active perception; returns the run's result."""
