@@ -17,6 +17,10 @@ LIMITS = {"export": 25, "perceive": 30}
 """The most options `--help` may show (perceive: on its default route, vlm:openai segmenter:builtin)."""
 ROUTES = {"perceive": [(), ("vlm:openai",), ("vlm:openai", "segmenter:builtin")]}
 """The help pages of a command's default route, whose options add up."""
+_VLM_PAGES = [(), ("vlm:openai",), ("vlm:openai", "segmenter:builtin"), ("vlm:openai", "segmenter:sam"),
+              ("vlm:replay",), ("vlm:simulated",)]  # fmt: skip
+PAGES = {"perceive": _VLM_PAGES, "image": _VLM_PAGES}
+"""Every help page of a command, checked for plain help."""
 FORBIDDEN = {
     "a Sphinx role": re.compile(r":(func|class|mod|meth|attr|data|obj|exc|ref|doc):`"),
     "a pointer to a module doc": re.compile(r"module doc", re.IGNORECASE),
@@ -35,21 +39,22 @@ def help_text(capsys, monkeypatch, *args: str) -> str:
 
 
 def options(text: str) -> dict[str, str]:
-    """The options of a help text: first flag -> help (hints removed)."""
+    """The options of a help text: first flag -> help (hints removed). tyro draws boxes on a terminal and plain
+    headed sections elsewhere; a box's line is read as the plain layout's (its content indented by two)."""
     entries: list[list[str]] = []
     current: list[str] | None = None
     for line in text.splitlines():
-        if not (line.startswith("│ ") and line.rstrip().endswith("│")):
-            current = None  # a box's border or a line outside the boxes
-            continue
-        body = line[2:line.rstrip().rindex("│")].rstrip()
-        if body.startswith("─"):
-            current = None
-        elif body.startswith("-") and not (current and current[-1].endswith(",")):
-            current = [body]
+        line = line.rstrip()
+        if line.startswith("│ ") and line.endswith("│"):
+            line = "  " + line[2:line.rindex("│")].rstrip()
+        content = line[2:]
+        if not line.startswith("  ") or content.startswith(("─" * 3, "-" * 3)):
+            current = None  # a blank line, a section's header or border, a separator
+        elif content.startswith("-") and not (current and current[-1].endswith(",")):
+            current = [content]
             entries.append(current)
         elif current is not None:
-            current.append(body)
+            current.append(content)
     out = {}
     for lines in entries:
         flags, first_help = ([*re.split(r"\s{2,}", lines[0], maxsplit=1), ""])[:2]
@@ -94,7 +99,7 @@ def test_help_shows_at_most_the_limit_of_options(capsys, monkeypatch, command):
 
 @pytest.mark.parametrize("command", sorted(COMMANDS))
 def test_every_shown_option_has_plain_help(capsys, monkeypatch, command):
-    texts = [help_text(capsys, monkeypatch, command, *route) for route in ROUTES.get(command, [()])]
+    texts = [help_text(capsys, monkeypatch, command, *page) for page in PAGES.get(command, [()])]
     shown = {k: v for text in texts for k, v in options(text).items()}
     assert [k for k, v in shown.items() if not v] == [], f"physgs {command}: options without help"
     for what, pattern in FORBIDDEN.items():

@@ -168,34 +168,37 @@ class ExportCommand:
     """Export a trained PhysGS run: property PLY, voxel grid, property maps and the mass (mean, interval)."""
 
     fast_exit: ClassVar[bool] = True
-    """the console script ends the process at once when the export is complete (:func:`physgs_nerfstudio.cli.main`)"""
+    """The console script ends the process at once when the export is complete (``physgs_nerfstudio.cli.main``)."""
 
     load_config: Path
-    """config.yml of the `ns-train physgs` / `physgs-lite` run"""
+    """The config.yml of the trained run (`ns-train physgs` or `physgs-lite`)."""
     output_dir: Path = Path("export")
+    """Folder the outputs are written to."""
     outputs: tuple[Output, ...] = ("ply", "voxels", "maps", "mass")
+    """Which outputs to write."""
     mass: MassConfig = field(default_factory=MassConfig)
-    """the object's geometry (selection, carving, parts, structure) and the Monte Carlo"""
+    """How the mass and its interval are computed."""
     scale: float | None = None
-    """metres per dataset unit (default: the dataset is metric)"""
+    """Metres per dataset unit (None: the dataset is metric)."""
     known_length: tuple[float, float, float, float, float, float, float] | None = None
-    """x1 y1 z1 x2 y2 z2 distance_m: two points in dataset coordinates and their true distance"""
+    """Two points in dataset coordinates and their true distance, x1 y1 z1 x2 y2 z2 metres, to set the scale."""
     views: tuple[int, ...] = (0,)
-    """training camera indices to render property maps for"""
+    """Training camera indices to render property maps for."""
     max_map_width: int = 480
+    """Widest property map in pixels (larger views are downscaled)."""
     top_k: int = 3
+    """Most likely materials written per Gaussian in the PLY."""
     env: str | None = None
-    """material library for thickness fallbacks (default: materials.json's env)"""
+    """Material library for thickness fallbacks (None: the one in materials.json)."""
     truth_kg: float | None = None
-    """ground-truth mass, if known: printed and checked against the interval"""
+    """The true mass in kg, if known, printed and checked against the interval."""
     device: Literal["auto", "cpu", "cuda"] = "auto"
+    """Where to compute (auto: CUDA when available)."""
     geometry_cache: bool = True
-    """reuse the object's geometry stored in the run's physgs_cache/ when the checkpoint, the dataset's files, these
-    settings and the code are the same (`ns-train physgs` stores it after training on CUDA), and store what this
-    export computes; False: always compute it, store nothing"""
+    """Reuse the object's geometry stored in the run's physgs_cache/ when its inputs are unchanged, and store it."""
     overwrite: bool = False
-    """replace a non-empty --output-dir that is not a previous physgs export (a previous export is always
-    replaced, as a unit, once the new one is complete)"""
+    """Replace a non-empty --output-dir that is not an earlier export (an earlier export is always replaced)."""
+
     def main(self) -> ExportResult:
         check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
         needs_geometry = bool({"mass", "voxels"} & set(self.outputs))

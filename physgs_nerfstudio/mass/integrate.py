@@ -63,6 +63,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
+from ..advanced import Advanced
 from ..geometry import GeometryConfig, ObjectGeometry
 
 __all__ = ["MassConfig", "MassReport", "MaterialMass", "integrate_mass", "seam_transfer", "wall_volume"]
@@ -72,31 +73,33 @@ __all__ = ["MassConfig", "MassReport", "MaterialMass", "integrate_mass", "seam_t
 class MassConfig:
     """Mass settings: the geometry and the Monte Carlo (module doc)."""
 
-    geometry: GeometryConfig = field(default_factory=GeometryConfig)
+    geometry: Advanced[GeometryConfig] = field(default_factory=GeometryConfig)
     structure: Literal["auto", "solid", "hollow"] = "auto"
-    """auto: each part solid or hollow from perception (Beta posterior); solid/hollow: force every part"""
-    density_key: str = "density"
-    density_draw: Literal["posterior", "predictive"] = "posterior"
+    """How parts are filled: auto decides solid or hollow per part from perception; solid or hollow forces all."""
+    density_key: Advanced[str] = "density"
+    density_draw: Advanced[Literal["posterior", "predictive"]] = "posterior"
     level: float = 0.9
-    """central interval probability"""
+    """Probability of the central mass interval."""
     n_samples: int = 4000
+    """Monte Carlo samples of the mass."""
     seed: int = 0
-    wall_curvature: bool = True
+    """Seed of the Monte Carlo samples."""
+    wall_curvature: Advanced[bool] = True
     """a hollow part's wall inside a curved face holds less than area x thickness (:func:`wall_volume`); False:
     area x thickness everywhere"""
-    surface_offset_voxels: float = 0.0
+    surface_offset_voxels: Advanced[float] = 0.0
     """spread (one standard deviation) of the carved surface's offset, in units of the carving's resolution (the
     larger of the voxel and the pixel footprint), one draw per sample shared by every part (module doc, "Surface
     offset"); 0: the variants alone"""
 
-    wall_cap: Literal["variant", "widest"] = "widest"
+    wall_cap: Advanced[Literal["variant", "widest"]] = "widest"
     """a hollow part's wall holds at most the carved volume of its part: that of the widest carving variant (the
     largest of the part's volumes over the variants; the variants that carve more sample where the surface lies and
     are no bound on the material), or ("variant", session 29) that of the sample's own variant, which pulled a cup
     whose carved inside came down to its wall's volume 4-7% light (module doc, "Part mass"; benchmarks/README.md,
     session 30)"""
 
-    seam_offset_voxels: float = 1.0
+    seam_offset_voxels: Advanced[float] = 1.0
     """spread (one standard deviation) of each seam between two parts inside the object, in units of the carving's
     resolution, one draw per seam and sample (module doc, "Seams"). 1.0: the root mean square of the seams' offsets
     against the truth, each seam weighted by its area (0.95 over 24 seams of CPU demo runs at five development seeds,

@@ -85,6 +85,7 @@ class SingleImageConfig:
     figures: bool = True
     """Write the PNG figures (maps.npz and summary.json are always written)."""
     dpi: int = 150
+    """Resolution of the PNG figures in dots per inch."""
     perception: Annotated[PerceptionConfig, tyro.conf.arg(name="")] = field(
         default_factory=lambda: PerceptionConfig(data=Path("."))
     )
