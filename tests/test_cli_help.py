@@ -121,6 +121,6 @@ def test_advanced_settings_are_hidden_from_help_but_still_parse(capsys, monkeypa
     assert "--mass.geometry.resolution" in every and len(every) > len(shown)
     cmd = cli(ExportCommand, prog="physgs export",
               args=["--load-config", "c.yml", "--mass.geometry.resolution", "96", "--mass.geometry.carve.min-votes",
-                    "3", "--mass.wall-cap", "variant"])  # fmt: skip
+                    "3", "--mass.seam-offset-voxels", "0.5"])  # fmt: skip
     assert cmd.mass.geometry.resolution == 96 and cmd.mass.geometry.carve.min_votes == 3
-    assert cmd.mass.wall_cap == "variant"
+    assert cmd.mass.seam_offset_voxels == 0.5
