@@ -98,7 +98,7 @@ class BuiltinSegmenterConfig:
     thin_chroma: Advanced[float | None] = 4.0
     """Thin parts (module doc, "Thin fragments"): part-level regions that the area or sliver test drops are grouped
     with adjacent such regions whose mean chromaticity (CIE a*, b*) differs by less than this (Delta E), and a
-    group that passes the tests is a part mask. None = off (the masks before session 45)."""
+    group that passes the tests is a part mask. None = off."""
     max_masks_per_level: Advanced[tuple[int, int, int]] = (4, 16, 24)
     """Cap per level (best score x area first); bounds the VLM calls per view."""
     levels: Advanced[tuple[str, ...]] = LEVELS
