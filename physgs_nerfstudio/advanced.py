@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import types
 import typing
 from collections.abc import Sequence
 from typing import Annotated, Any, TypeVar
@@ -43,12 +44,15 @@ def has_advanced(tp: Any, _seen: set | None = None) -> bool:
         return True
     if typing.get_origin(tp) is Annotated:
         return has_advanced(typing.get_args(tp)[0], seen)
-    if typing.get_origin(tp) is typing.Union:
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
         return any(has_advanced(a, seen) for a in typing.get_args(tp))
     if not (isinstance(tp, type) and dataclasses.is_dataclass(tp)) or tp in seen:
         return False
     seen.add(tp)
-    hints = typing.get_type_hints(tp, include_extras=True)
+    try:
+        hints = typing.get_type_hints(tp, include_extras=True)
+    except (NameError, TypeError):  # an annotation only a type checker resolves: tyro reports it when parsing
+        return False
     return any(has_advanced(hints[f.name], seen) for f in dataclasses.fields(tp) if f.name in hints)
 
 

@@ -8,9 +8,13 @@ starts on a line that begins with ``-``; its help is what follows the flags and 
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass, field
+from typing import Annotated
 
 import pytest
+import tyro
 
+from physgs_nerfstudio.advanced import Advanced, has_advanced, is_advanced
 from physgs_nerfstudio.cli import COMMANDS, entrypoint
 
 LIMITS = {"export": 25, "perceive": 30}
@@ -76,7 +80,7 @@ def route_options(capsys, monkeypatch, command: str) -> dict[str, str]:
 
 
 def test_the_option_parser_reads_both_layouts():
-    text = "\n".join([
+    lines = [
         "╭─ options ─╮",
         "│ -h, --help        show this help message and exit │",
         "│ --a INT           the a. (default: 1)               │",
@@ -87,8 +91,12 @@ def test_the_option_parser_reads_both_layouts():
         "│ FLOAT}                                              │",
         "│       (default: None)                               │",
         "╰───────────╯",
-    ])  # fmt: skip
-    assert options(text) == {"--a": "the a.", "--long-flag": "whether.", "--b": ""}
+    ]
+    assert options("\n".join(lines)) == {"--a": "the a.", "--long-flag": "whether.", "--b": ""}
+    plain = [" options", " " + "-" * 20, "  -h, --help    show this help message and exit",
+             "  --c PATH      the c. (required)", "", " g options", " " + "-" * 20, "  A group.", "  " + "-" * 20,
+             "  --g.d INT", "                the d, on", "                two lines (default: 2)"]  # fmt: skip
+    assert options("\n".join(plain)) == {"--c": "the c.", "--g.d": "the d, on two lines"}
 
 
 @pytest.mark.parametrize("command", sorted(LIMITS))
@@ -124,3 +132,26 @@ def test_advanced_settings_are_hidden_from_help_but_still_parse(capsys, monkeypa
                     "3", "--mass.seam-offset-voxels", "0.5"])  # fmt: skip
     assert cmd.mass.geometry.resolution == 96 and cmd.mass.geometry.carve.min_votes == 3
     assert cmd.mass.seam_offset_voxels == 0.5
+
+
+
+@dataclass
+class _Leaf:
+    x: Advanced[int] = 1
+
+
+@dataclass
+class _Plain:
+    y: int = 2
+
+
+@dataclass
+class _Outer:
+    choice: Annotated[_Plain, tyro.conf.subcommand("p")] | Annotated[_Leaf, tyro.conf.subcommand("l")] = field(
+        default_factory=_Plain)
+
+
+def test_has_advanced_looks_through_nesting_and_unions():
+    assert is_advanced(Advanced[int]) and not is_advanced(int) and not is_advanced(Annotated[int, "x"])
+    assert has_advanced(_Leaf) and not has_advanced(_Plain) and has_advanced(_Outer)
+    assert has_advanced(_Plain | _Leaf) and not has_advanced(_Plain | None)
