@@ -22,8 +22,7 @@ class BatchCommand:
     OUT/scenes/<scene>/state.json; a rerun skips finished stages and redoes failed or interrupted ones."""
 
     scenes: Path
-    """A dataset folder, a folder of datasets (e.g. physgs synth --suite), the ABO-500 folder (with --split), or a
-    text file of dataset paths (one per line)."""
+    """A dataset folder, a folder of datasets, the ABO-500 folder (with --split) or a text file of dataset paths."""
     output_dir: Path = Path("batch_output")
     """OUT: scenes/<scene>/ (state.json, runs/, export/, train.log), vlm_cache/, eval/, batch_summary.json."""
     stages: tuple[Stage, ...] = ("perceive", "train", "export", "eval")

@@ -89,8 +89,7 @@ class SingleImageConfig:
     perception: Annotated[PerceptionConfig, tyro.conf.arg(name="")] = field(
         default_factory=lambda: PerceptionConfig(data=Path("."))
     )
-    """The perception settings (VLM, segmenter, library, budget, cache, prompts, fusion); its --data is not
-    used: single-image mode works in --output-dir. --legend chooses the materials of the per-pixel Dirichlet."""
+    """The perception settings; --data is not used (single-image mode works in --output-dir)."""
 
     def __post_init__(self) -> None:
         self.properties = normalize_properties(self.properties)
