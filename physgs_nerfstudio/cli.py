@@ -30,23 +30,6 @@ def _load(name: str):
     return getattr(importlib.import_module(module), cls)
 
 
-def _upgrade(argv: list[str]) -> list[str]:
-    """The deprecated perception flags of `perceive` and `image`, rewritten (perception/legacy_flags.py)."""
-    import sys
-
-    if not argv or argv[0] not in ("perceive", "image"):
-        return argv
-    from physgs_nerfstudio.perception.legacy_flags import LegacyFlagError, upgrade_argv
-
-    try:
-        argv, notes = upgrade_argv(argv)
-    except LegacyFlagError as err:
-        raise SystemExit(f"physgs {argv[0]}: {err}") from None
-    for note in notes:
-        print(f"physgs {argv[0]}: {note}", file=sys.stderr)
-    return argv
-
-
 def entrypoint(argv: list[str] | None = None) -> object:
     """Parse ``argv`` (default: the process's arguments) and run the subcommand; returns the command's config."""
     import sys
@@ -54,10 +37,12 @@ def entrypoint(argv: list[str] | None = None) -> object:
 
     import tyro
 
-    args = _upgrade(list(sys.argv[1:] if argv is None else argv))
+    from physgs_nerfstudio.advanced import cli
+
+    args = list(sys.argv[1:] if argv is None else argv)
     with one_line_errors(f"physgs {args[0]}" if args and args[0] in COMMANDS else "physgs"):
         if args and args[0] in COMMANDS:  # one subcommand: import only its module (an export pays for no other)
-            config = tyro.cli(_load(args[0]), prog=f"physgs {args[0]}", args=args[1:])
+            config = cli(_load(args[0]), prog=f"physgs {args[0]}", args=args[1:])
         else:
             options = tuple(Annotated[_load(name), tyro.conf.subcommand(name)] for name in COMMANDS)
             config = tyro.cli(

@@ -35,25 +35,27 @@ class DemoCommand:
     """Generated scene -> perception (simulated VLM) -> physgs-lite training on CPU -> export -> mass vs truth."""
 
     output_dir: Path = Path("demo_output")
+    """Folder the scene, the run and the export are written to."""
     object: str = "mug"
-    """generated object (see `physgs synth --help`)"""
+    """The generated object (`physgs synth --help` lists them)."""
     views: int = 16
-    """camera views of the generated scene"""
+    """Camera views of the generated scene."""
     resolution: int = 96
-    """image width and height in pixels"""
+    """Image width and height in pixels."""
     iterations: int = 300
-    """training iterations of physgs-lite"""
+    """Training iterations of physgs-lite."""
     seed: int = 0
+    """Seed of the scene, the training and the mass's Monte Carlo samples."""
     export_resolution: int = 96
-    """voxels along the object's longest side for the mass"""
+    """Voxels along the object's longest side for the mass."""
     n_samples: int = 4000
+    """Monte Carlo samples of the mass."""
     device: str = "cpu"
-    """training device type (cpu | cuda)"""
+    """Training device type (cpu or cuda)."""
     force: tuple[str, ...] = ()
-    """stages to redo even if their outputs exist: scene perceive train export (a stage redone redoes the later ones:
-    a run is tied to the perception it was trained on)"""
+    """Stages to redo even if their outputs exist: scene, perceive, train, export (a stage redone redoes the later ones)."""
     train_args: tuple[str, ...] = field(default_factory=tuple)
-    """extra arguments appended to ns-train"""
+    """Extra arguments appended to ns-train."""
 
     # ---------------------------------------------------------------- paths
     @property

@@ -19,8 +19,7 @@ class InfoCommand:
     """Print versions, the rasterizer backend that will be used, and the material libraries."""
 
     build_gsplat: bool = False
-    """compile gsplat's CUDA code now (once after installing or reinstalling gsplat), so that no training or
-    export run pays for it (physgs_nerfstudio/render/gsplat_build.py)"""
+    """Compile gsplat's CUDA code now, once after installing gsplat, so that no training or export pays for it."""
 
     def main(self) -> None:
         import torch

@@ -188,10 +188,7 @@ def test_perceive_command_active_flags(tmp_path):
     console.print(summary_table(res))
     assert "active: masks answered / candidates" in console.export_text()
     # without --active the same command is the exhaustive run (it resumes the 3 answered masks)
-    from physgs_nerfstudio.cli import _upgrade  # the deprecated spelling still works
-
-    full = tyro.cli(PerceiveCommand, args=_upgrade(["perceive", "--data", str(root), "--vlm", "simulated",
-                                                    "--no-progress"])[1:]).run()
+    full = tyro.cli(PerceiveCommand, args=["--data", str(root), "--no-progress", "vlm:simulated"]).run()
     assert not hasattr(full, "stop_reason") and full.resumed_masks == 3
     with pytest.raises(ValueError, match="only apply with --active"):
         PerceiveCommand(data=root, vlm=SimulatedConfig(), query_budget=3)

@@ -35,7 +35,7 @@ def request_():
     )
 
 
-def _backend(server, monkeypatch, **kw):
+def _backend(server, monkeypatch, max_concurrency=None, **kw):
     monkeypatch.setenv("PHYSGS_TEST_KEY", KEY)
     cfg = OpenAIConfig(
         base_url=server.base_url,
@@ -46,7 +46,7 @@ def _backend(server, monkeypatch, **kw):
         timeout_s=2.0,
         **kw,
     )
-    return OpenAIBackend(cfg)
+    return OpenAIBackend(cfg, max_concurrency=max_concurrency)
 
 
 def test_success_usage_and_payload(request_, monkeypatch):

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from ..advanced import Advanced
 from .plan import EstimateRates
 from .state import STAGES
 
@@ -21,13 +22,15 @@ class BatchCommand:
     OUT/scenes/<scene>/state.json; a rerun skips finished stages and redoes failed or interrupted ones."""
 
     scenes: Path
-    """A dataset folder, a folder of datasets (e.g. physgs synth --suite), the ABO-500 folder (with --split), or a
-    text file of dataset paths (one per line)."""
+    """A dataset folder, a folder of datasets, the ABO-500 folder (with --split) or a text file of dataset paths."""
     output_dir: Path = Path("batch_output")
     """OUT: scenes/<scene>/ (state.json, runs/, export/, train.log), vlm_cache/, eval/, batch_summary.json."""
     stages: tuple[Stage, ...] = ("perceive", "train", "export", "eval")
+    """The stages to run, in this order."""
     method: Literal["physgs", "physgs-lite"] = "physgs"
+    """The training method."""
     backend: Literal["local", "ray"] = "local"
+    """Run the scenes on this machine or on a Ray cluster."""
     ray_address: str | None = None
     """Ray: address of an existing cluster (e.g. ray://head:10001 or auto); None: start Ray on this machine."""
     ray_num_cpus: int | None = None
@@ -43,6 +46,7 @@ class BatchCommand:
     dry_run: bool = False
     """Print the plan and the estimate (VLM calls, tokens, cost, device time) and run nothing."""
     device: Literal["auto", "cpu", "cuda"] = "auto"
+    """Where to train and export (auto: CUDA when available)."""
     gpus: tuple[int, ...] = ()
     """Local backend: one worker per listed GPU (one scene per GPU at a time); empty: one worker."""
     overlap_perception: bool | None = None
@@ -52,28 +56,39 @@ class BatchCommand:
     vlm: Literal["openai", "replay", "simulated"] = "openai"
     """VLM backend of perception (simulated: generated scenes only)."""
     model: str = "gpt-5"
+    """The VLM's name at the endpoint."""
     base_url: str = "https://api.openai.com/v1"
+    """The VLM endpoint's root URL."""
     api_key_env: str = "OPENAI_API_KEY"
+    """The environment variable that holds the API key ('' for a local server without a key)."""
     env: str | None = None
     """Material library (indoor/outdoor); None: the scene's ground_truth.json env or indoor."""
     cache_dir: Path | None = None
     """VLM response cache shared by all scenes (default OUT/vlm_cache); on Ray a path every worker sees."""
     max_views: int | None = None
+    """Perceive at most this many frames per scene, evenly spaced (None: all)."""
     max_concurrency: int = 4
     """VLM requests in flight per scene."""
     requests_per_minute: float | None = None
     """Shared VLM limit over the whole batch (all workers); None: no limit."""
     tokens_per_minute: float | None = None
+    """Shared VLM token limit over the whole batch (all workers); None: no limit."""
     usd_per_1k_prompt_tokens: float = 0.0
+    """Price in USD per 1000 prompt tokens, for the cost estimate (0: unknown)."""
     usd_per_1k_completion_tokens: float = 0.0
+    """Price in USD per 1000 completion tokens, for the cost estimate (0: unknown)."""
     export_resolution: int = 128
+    """Voxels along the object's longest side for the mass."""
     n_samples: int = 4000
+    """Monte Carlo samples of each mass."""
     seed: int = 0
+    """Seed of training and of the mass's Monte Carlo samples."""
     train_args: tuple[str, ...] = ()
     """Extra arguments appended to ns-train."""
-    estimate: EstimateRates = field(default_factory=EstimateRates)
-    """--dry-run rates."""
+    estimate: Advanced[EstimateRates] = field(default_factory=EstimateRates)
+    """The rates --dry-run estimates with."""
     progress: bool = True
+    """Show progress bars."""
 
     def resolved_device(self) -> str:
         if self.device != "auto":

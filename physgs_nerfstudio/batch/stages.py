@@ -100,7 +100,6 @@ def run_perceive(scene: Scene, settings: StageSettings, out: Path, overwrite: bo
 
     if settings.vlm == "openai":
         vlm = OpenAIConfig(base_url=settings.base_url, model=settings.model, api_key_env=settings.api_key_env,
-                           max_concurrency=settings.max_concurrency,
                            usd_per_1k_prompt_tokens=settings.usd_per_1k_prompt_tokens,
                            usd_per_1k_completion_tokens=settings.usd_per_1k_completion_tokens)  # fmt: skip
     elif settings.vlm == "replay":

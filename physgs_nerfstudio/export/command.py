@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
@@ -185,72 +185,43 @@ def _write_sim(run: LoadedRun, geo: ObjectGeometry, draws: Any, report: MassRepo
                      dataparser=dp)  # fmt: skip
 
 
-_DEPRECATED = "(deprecated spelling of --mass.{}; kept for existing scripts)"
-
-
 @dataclass
 class ExportCommand:
     """Export a trained PhysGS run: property PLY, voxel grid, property maps and the mass (mean, interval)."""
 
     fast_exit: ClassVar[bool] = True
-    """the console script ends the process at once when the export is complete (:func:`physgs_nerfstudio.cli.main`)"""
+    """The console script ends the process at once when the export is complete (``physgs_nerfstudio.cli.main``)."""
 
     load_config: Path
-    """config.yml of the `ns-train physgs` / `physgs-lite` run"""
+    """The config.yml of the trained run (`ns-train physgs` or `physgs-lite`)."""
     output_dir: Path = Path("export")
+    """Folder the outputs are written to."""
     outputs: tuple[Output, ...] = ("ply", "voxels", "maps", "mass")
+    """Which outputs to write."""
     mass: MassConfig = field(default_factory=MassConfig)
-    """the object's geometry (selection, carving, parts, structure) and the Monte Carlo"""
+    """How the mass and its interval are computed."""
     sim: SimConfig = field(default_factory=SimConfig)
-    """the simulator-ready object that --outputs sim writes (MuJoCo, URDF, USD, MPM particles, samples)"""
+    """The simulator-ready object that --outputs sim writes (MuJoCo, URDF, USD, MPM particles, samples)."""
     scale: float | None = None
-    """metres per dataset unit (default: the dataset is metric)"""
+    """Metres per dataset unit (None: the dataset is metric)."""
     known_length: tuple[float, float, float, float, float, float, float] | None = None
-    """x1 y1 z1 x2 y2 z2 distance_m: two points in dataset coordinates and their true distance"""
+    """Two points in dataset coordinates and their true distance, x1 y1 z1 x2 y2 z2 metres, to set the scale."""
     views: tuple[int, ...] = (0,)
-    """training camera indices to render property maps for"""
+    """Training camera indices to render property maps for."""
     max_map_width: int = 480
+    """Widest property map in pixels (larger views are downscaled)."""
     top_k: int = 3
+    """Most likely materials written per Gaussian in the PLY."""
     env: str | None = None
-    """material library for thickness fallbacks (default: materials.json's env)"""
+    """Material library for thickness fallbacks (None: the one in materials.json)."""
     truth_kg: float | None = None
-    """ground-truth mass, if known: printed and checked against the interval"""
+    """The true mass in kg, if known, printed and checked against the interval."""
     device: Literal["auto", "cpu", "cuda"] = "auto"
+    """Where to compute (auto: CUDA when available)."""
     geometry_cache: bool = True
-    """reuse the object's geometry stored in the run's physgs_cache/ when the checkpoint, the dataset's files, these
-    settings and the code are the same (`ns-train physgs` stores it after training on CUDA), and store what this
-    export computes; False: always compute it, store nothing"""
+    """Reuse the object's geometry stored in the run's physgs_cache/ when its inputs are unchanged, and store it."""
     overwrite: bool = False
-    """replace a non-empty --output-dir that is not a previous physgs export (a previous export is always
-    replaced, as a unit, once the new one is complete)"""
-    resolution: int | None = None
-    """(deprecated spelling of --mass.geometry.resolution)"""
-    bbox: tuple[float, float, float, float, float, float] | None = None
-    """(deprecated spelling of --mass.geometry.select.bbox)"""
-    n_samples: int | None = None
-    """(deprecated spelling of --mass.n-samples)"""
-    seed: int | None = None
-    """(deprecated spelling of --mass.seed)"""
-    level: float | None = None
-    """(deprecated spelling of --mass.level)"""
-    volume_model: Literal["auto", "solid", "shell"] | None = None
-    """(deprecated spelling of --mass.structure: auto | solid | hollow)"""
-
-    def mass_config(self) -> MassConfig:
-        """``mass`` with the deprecated flat flags applied."""
-        m = self.mass
-        g = m.geometry
-        if self.resolution is not None:
-            g = replace(g, resolution=self.resolution)
-        if self.bbox is not None:
-            g = replace(g, select=replace(g.select, bbox=self.bbox))
-        kw: dict[str, Any] = {"geometry": g}
-        for name in ("n_samples", "seed", "level"):
-            if getattr(self, name) is not None:
-                kw[name] = getattr(self, name)
-        if self.volume_model is not None:
-            kw["structure"] = {"shell": "hollow"}.get(self.volume_model, self.volume_model)
-        return replace(m, **kw)
+    """Replace a non-empty --output-dir that is not an earlier export (an earlier export is always replaced)."""
 
     def main(self) -> ExportResult:
         check_output_dir(self.output_dir, overwrite=self.overwrite, protect=(self.load_config,))  # before loading
@@ -262,7 +233,7 @@ class ExportCommand:
 
             check_metric_scale(run.field.scale_source, run.data_dir)
         device = ("cuda" if torch.cuda.is_available() else "cpu") if self.device == "auto" else self.device
-        mass = self.mass_config()
+        mass = self.mass
         cache, geo = None, None
         if needs_geometry and self.geometry_cache:
             load_args = geometry_cache.load_args(self.scale, self.known_length, self.env, MAX_VIEW_WIDTH)

@@ -55,13 +55,13 @@ class GeometryConfig:
     (:func:`.gaussians.surface_excess`, within a voxel behind it; all of them where fewer than 50 are):
     Gaussians under an unseen underside, which no view sees, do not place where the solid ends there; the seen
     faces around it do. False: every selected Gaussian (the GPU lamp's steel base kept a layer of false solid
-    under its bottom, and the lamp came out 1.14-1.17x at 3 of 5 seeds; benchmarks/README.md, session 32)"""
+    under its bottom, and the lamp came out 1.14-1.17x at 3 of 5 seeds; benchmarks/README.md)"""
     extent_outlier_fraction: float = 0.001
     """the polytope of all but this fraction of the object's Gaussians along each of its directions (the outermost
     ones, :func:`.extent.support_heights`): a few strays under an object's unseen bottom face otherwise set where its
     solid ends (the GPU lamp at seed 5757: the lowest of 21,535 Gaussians near it 10 mm under its base, the 20th 4.4
     mm, the 50th 2.5 mm, and its steel base carved 1.3x its volume). 0 = every Gaussian counts; documented range
-    0-0.003 (benchmarks/README.md, session 21)"""
+    0-0.003 (benchmarks/README.md)"""
     extent_variant_voxels: float | None = 1.0
     """the mass interval also samples the nominal carving cut to the polytope grown by this many more voxels: where
     the polytope ends the solid (an underside no view sees past), the surface is placed by the scatter of a few
@@ -74,7 +74,7 @@ class GeometryConfig:
     views end the solid, keep their voxels. None (default) = no such variant: at 1.0 it widened the intervals (a
     first version: median width 0.28 -> 0.31 of the prediction on the GPU at seed 10707, the lamp's 0.33 -> 0.50;
     this one: the CPU lamps' lower ends down by up to a quarter) and covered no more objects at one GPU and three CPU
-    seeds (benchmarks/README.md, session 30)"""
+    seeds (benchmarks/README.md)"""
     hidden_skin_voxels: int | None = 2
     """the solid loses its *hidden open space* (:mod:`.hidden`): voxels that no view could carve (under a table top
     shot from above, under a chair's seat) and that, in most directions, no seen surface encloses. The seen surface
@@ -84,7 +84,7 @@ class GeometryConfig:
     hidden_skin: Literal["centred", "grown"] = "centred"
     """how the skin closes its gaps (:mod:`.hidden`, "The skin"): "centred", a voxel is skin when the samples within
     ``hidden_skin_voxels`` of it each way are centred on it, to ``hidden_skin_tolerance`` (gaps close, edges and faces
-    do not grow); "grown", the samples' voxels grown by ``hidden_skin_voxels`` 6-connected steps (session 23: faces
+    do not grow); "grown", the samples' voxels grown by ``hidden_skin_voxels`` 6-connected steps (faces
     grow too, and the skin under a seen top encloses that many layers of hidden space)"""
     hidden_skin_tolerance: float = 1.5
     """"centred" skin: the largest distance, in voxels, between a voxel's centre and the centroid of the samples
@@ -99,11 +99,11 @@ class GeometryConfig:
     own thickness (its smallest standard deviation, at ``hidden_skin_sigmas``) behind it, as the Gaussians'
     means are seen: an axis end that pokes through the seen surface into space no view sees (a long thin
     Gaussian tilted across a table top, under its unseen underside) is no sample of that surface
-    (:mod:`.hidden`, "Seen samples"). None = every axis end counts (session 32); documented range 0.5-2"""
+    (:mod:`.hidden`, "Seen samples"). None = every axis end counts; documented range 0.5-2"""
     hidden_skin_band: float | None = 0.5
     """the skin's Gaussians are those whose centre some view sees at most this many voxels behind its rendered depth
     (:func:`.gaussians.surface_excess`; :mod:`.hidden`, "The skin's band"); None: ``evidence_surface_voxels``'s
-    band (1 voxel, before session 42), the set whose labels count as material evidence. Documented range 0.5-1"""
+    band (1 voxel), the set whose labels count as material evidence. Documented range 0.5-1"""
     hidden_min_open_fraction: float = 0.5
     """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
     than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""
@@ -111,19 +111,19 @@ class GeometryConfig:
     """a voxel is also hidden open space when the rays leave in at least this many of the 9 directions of one half
     (those with a positive, or a negative, step along one of the grid's axes) and in one across it (:mod:`.hidden`,
     "The open half"): the layer under a seen top that the Gaussians of its partly seen underside enclose sideways;
-    None = the majority alone (session 28); documented range 8-9"""
+    None = the majority alone; documented range 8-9"""
     hidden_passes: int = 8
     """the rules run again on what they leave, at most this many times in all, until a pass removes nothing: the
-    space a pass removed is open to the rays of the next (:mod:`.hidden`, "Passes"); 1 = one pass (session 29);
+    space a pass removed is open to the rays of the next (:mod:`.hidden`, "Passes"); 1 = one pass;
     documented range 1-8"""
     hidden_boundary: Literal["half", "whole"] = "half"
     """how a kept voxel on the boundary with the hidden open space counts in the volume (:mod:`.hidden`, "The
     boundary with hidden open space"): "half", half a voxel, and the mass's Monte Carlo draws its occupancy in
-    [0, 1] (the object's unseen surface lies somewhere in it); "whole", a whole voxel (session 34)"""
+    [0, 1] (the object's unseen surface lies somewhere in it); "whole", a whole voxel"""
     boundary_subsamples: int = 2
     """partial volume (:mod:`.partial`): a voxel on the solid's boundary counts the share of its n x n x n
     sub-points that the vote keeps at the rendered surface (the depth margin a tolerance, not volume); 1 = whole
-    voxels by their centres (session 37); documented range 2-3"""
+    voxels by their centres; documented range 2-3"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall,
@@ -180,7 +180,7 @@ class GeometryConfig:
     Why: an object's boundary Gaussians carry labels mixed with the background's and fall below the selection's 0.5;
     rendered without them the boundary is see-through, and the depth carves it although the masks keep it (the CPU
     table at seed 8383 lost a 3-5 cm rim of its top). A Gaussian rendered but not selected only withholds depth
-    votes. Measured at 0.2 on six CPU seeds (benchmarks/README.md, session 25): the tables' tops are kept and
+    votes. Measured at 0.2 on six CPU seeds (benchmarks/README.md): the tables' tops are kept and
     coverage rises, but the median volume error rises at every seed (more false solid, and the tables' missing legs
     are then made up by excess top), so it is off until measured on the GPU"""
     object_mask_dilate_px: int = 2

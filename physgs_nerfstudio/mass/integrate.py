@@ -14,16 +14,6 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
 * **Structure**: each part draws its "hollow" answer rate ``theta_p`` from its Beta posterior
   (:mod:`physgs_nerfstudio.geometry.structure`) and is hollow when ``theta_p > 1/2``; a hollow part draws its
   wall thickness ``t_p`` from the posterior of its log-thickness mean.
-* **Surface offset** (off by default): one offset ``d ~ N(0, (s u)^2)`` per sample, shared by every part: a solid
-  part's volume becomes ``max(V_p + S_p d, 0)``, ``S_p`` its whole surface area (a hollow part's wall, ``A_p t_p``,
-  does not move). ``u`` is the carving's resolution, the larger of the voxel and the views' pixel footprint at the
-  object; ``s = surface_offset_voxels``. The carved surface is placed to within about that much: the grid's
-  layers, the masks' pixels and the depth margin move every face of the object together, and the variants above
-  try each of these one at a time at fixed sizes, never their sum. ``benchmarks/surface_offset.py`` measures
-  ``s`` as the root mean square of the carved solids' residual offsets against the true ones (0.47 at the CPU
-  demo's settings, 0.67 on 60-view GPU runs). It is off by default because of what it costs (benchmarks/README.md,
-  "The surface offset"): at 0.47 the demo's intervals cover the truth more often but are about twice as wide, and
-  on a thin part carved 2-3 resolution units thick (a table's top) they reach from near zero to 1.6-1.9x.
 * **Seams** (``seam_offset_voxels``): where two parts meet inside the object (a shoe's rubber sole under its
   leather upper, a hammer's steel head on its oak handle), no view sees the boundary: each inside voxel takes the
   material of the nearest surface evidence (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`), so the seam is
@@ -40,7 +30,7 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   unseen face, one offset), so a solid part's volume becomes ``V_p + (o - 1/2) B_p``, ``B_p`` the part's volume of
   them as whole voxels (drawn after the seams: the draws above stay unchanged).
 * Part mass: ``rho x V_p`` (solid) or ``rho x min(V*_p, W_p(t_p))`` (hollow); the object's mass is the sum. The
-  cap ``V*_p`` is the part's largest volume over the variants (``wall_cap="widest"``): the wall lies inside the
+  cap ``V*_p`` is the part's largest volume over the variants: the wall lies inside the
   object, and the carving that kept the most of it bounds it, while a variant that carves more only samples where
   the surface lies (with its own ``V_p`` as the cap, a cup carved down to its wall came out 4-7% light). The
   wall's volume ``W_p`` (:func:`wall_volume`) is ``A_p t_p`` where the faces are sheets (both sides of the wall
@@ -63,6 +53,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
+from ..advanced import Advanced
 from ..geometry import GeometryConfig, ObjectGeometry
 
 __all__ = ["MassConfig", "MassDraws", "MassReport", "MaterialMass", "integrate_mass", "mass_draws", "seam_transfer",
@@ -73,44 +64,29 @@ __all__ = ["MassConfig", "MassDraws", "MassReport", "MaterialMass", "integrate_m
 class MassConfig:
     """Mass settings: the geometry and the Monte Carlo (module doc)."""
 
-    geometry: GeometryConfig = field(default_factory=GeometryConfig)
+    geometry: Advanced[GeometryConfig] = field(default_factory=GeometryConfig)
     structure: Literal["auto", "solid", "hollow"] = "auto"
-    """auto: each part solid or hollow from perception (Beta posterior); solid/hollow: force every part"""
-    density_key: str = "density"
-    density_draw: Literal["posterior", "predictive"] = "posterior"
+    """How parts are filled: auto decides solid or hollow per part from perception; solid or hollow forces all."""
+    density_key: Advanced[str] = "density"
+    density_draw: Advanced[Literal["posterior", "predictive"]] = "posterior"
     level: float = 0.9
-    """central interval probability"""
+    """Probability of the central mass interval."""
     n_samples: int = 4000
+    """Monte Carlo samples of the mass."""
     seed: int = 0
-    wall_curvature: bool = True
+    """Seed of the Monte Carlo samples."""
+    wall_curvature: Advanced[bool] = True
     """a hollow part's wall inside a curved face holds less than area x thickness (:func:`wall_volume`); False:
     area x thickness everywhere"""
-    surface_offset_voxels: float = 0.0
-    """spread (one standard deviation) of the carved surface's offset, in units of the carving's resolution (the
-    larger of the voxel and the pixel footprint), one draw per sample shared by every part (module doc, "Surface
-    offset"); 0: the variants alone"""
-
-    wall_cap: Literal["variant", "widest"] = "widest"
-    """a hollow part's wall holds at most the carved volume of its part: that of the widest carving variant (the
-    largest of the part's volumes over the variants; the variants that carve more sample where the surface lies and
-    are no bound on the material), or ("variant", session 29) that of the sample's own variant, which pulled a cup
-    whose carved inside came down to its wall's volume 4-7% light (module doc, "Part mass"; benchmarks/README.md,
-    session 30)"""
-
-    seam_offset_voxels: float = 1.0
+    seam_offset_voxels: Advanced[float] = 1.0
     """spread (one standard deviation) of each seam between two parts inside the object, in units of the carving's
     resolution, one draw per seam and sample (module doc, "Seams"). 1.0: the root mean square of the seams' offsets
     against the truth, each seam weighted by its area (0.95 over 24 seams of CPU demo runs at five development seeds,
-    ``benchmarks/seam_offset.py``; benchmarks/README.md, session 26); 0: the seams stay where the geometry put them"""
+    ``benchmarks/seam_offset.py``; benchmarks/README.md); 0: the seams stay where the geometry put them"""
 
     def __post_init__(self) -> None:
         if not 0 < self.level < 1:
             raise ValueError(f"MassConfig.level must be in (0, 1), got {self.level}.")
-        if self.wall_cap not in ("variant", "widest"):
-            raise ValueError(f"MassConfig.wall_cap must be 'variant' or 'widest', got {self.wall_cap!r}.")
-        if not (math.isfinite(self.surface_offset_voxels) and self.surface_offset_voxels >= 0):
-            raise ValueError(f"MassConfig.surface_offset_voxels must be finite and >= 0, got "
-                             f"{self.surface_offset_voxels}.")
         if not (math.isfinite(self.seam_offset_voxels) and self.seam_offset_voxels >= 0):
             raise ValueError(f"MassConfig.seam_offset_voxels must be finite and >= 0, got {self.seam_offset_voxels}.")
         if self.n_samples < 10:
@@ -288,12 +264,8 @@ def mass_draws(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None) -> M
     hollow, thick = _structure_draws(geo, cfg, rng)
     unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)  # the carving's resolution, scene units
     V_solid = V
-    # a hollow part's wall holds at most this: the carving that kept the most of the part, or the sample's own
-    cap = geo.volumes.max(0)[None, :] * mpu**3 if cfg.wall_cap == "widest" else V
-    if cfg.surface_offset_voxels > 0:  # drawn after the others: they stay unchanged
-        d = cfg.surface_offset_voxels * unit * rng.standard_normal(S)
-        V_solid = np.maximum(geo.volumes[gi] + geo.surface_areas[gi] * d[:, None], 0.0) * mpu**3
-    if cfg.seam_offset_voxels > 0 and geo.seam_areas is not None:  # drawn after the offset
+    cap = geo.volumes.max(0)[None, :] * mpu**3  # a hollow part's wall holds at most the carving that kept the most
+    if cfg.seam_offset_voxels > 0 and geo.seam_areas is not None:  # drawn after the others: they stay unchanged
         moved = seam_transfer(geo.seam_areas * mpu**2, cfg.seam_offset_voxels * unit * mpu, rng, S)
         cap, V_solid = (np.maximum(x + moved, 0.0) for x in (cap, V_solid))
     if geo.hidden_boundary is not None:  # drawn after the seams
@@ -361,7 +333,7 @@ def integrate_mass(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None, 
     solid_p = st.p_hollow < 0.5
     info = {**geo.summary(), "voxel_size_m": geo.grid.voxel_size * mpu, "structure_mode": cfg.structure,
             "density_draw": cfg.density_draw, "num_gaussians": int(pf.num_gaussians),
-            "surface_offset_voxels": cfg.surface_offset_voxels, "seam_offset_voxels": cfg.seam_offset_voxels,
+            "seam_offset_voxels": cfg.seam_offset_voxels,
             "surface_area_m2": float(Sn.sum()), "resolution_unit_m": unit * mpu,
             "surface_layer_share": _mass_layer_share(m.mean(0), layer, solid_p),
             "volume_by_variant_m3": {n: float(v.sum() * mpu**3) for n, v in zip(geo.variant_names, geo.volumes)}}

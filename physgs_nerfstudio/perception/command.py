@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from ..advanced import Advanced
 from .config import PerceptionConfig
-from .legacy_flags import HELP as DEPRECATED_HELP
 from .pipeline import PerceptionResult
 
 if TYPE_CHECKING:
@@ -61,23 +61,22 @@ class PerceiveCommand(PerceptionConfig):
     (Dirichlet materials per pixel, NIG property posteriors per material) and write materials.json,
     per-frame material maps and their transforms.json entries.
 
-    With ``--active`` only the masks the current beliefs say are most informative are asked (perception.active:
-    material entropy, property epistemic variance, unseen views), until ``--query-budget`` masks are answered
-    or the best remaining score is below ``--stop-uncertainty``; answers go to the same resumable store, so an
-    exhaustive run afterwards only asks the rest.
+    With --active only the masks the current beliefs say are most informative are asked, until --query-budget
+    masks are answered or the best remaining score is below --stop-uncertainty; a later run without --active
+    asks only the rest.
 
     The VLM and the segmenter are subcommands, after the other options:
     physgs perceive --data D vlm:simulated; physgs perceive --data D vlm:openai --vlm.model gpt-5
     segmenter:sam --segmenter.checkpoint sam_vit_h.pth."""
 
     active: bool = False
-    """Active querying instead of asking every mask of every view."""
+    """Ask only the most informative masks instead of every mask of every view."""
     query_budget: int | None = None
-    """Active mode: stop once this many masks are answered (earlier runs included); None: no limit."""
+    """With --active: stop once this many masks are answered, earlier runs included (None: no limit)."""
     stop_uncertainty: float | None = None
-    """Active mode: stop when the best remaining score (no exploration bonus; in [0, 2]) is below this; None: never."""
-    active_batch_size: int = 8
-    """Active mode: masks chosen per round (sent concurrently, then the beliefs are updated)."""
+    """With --active: stop when the best remaining score, between 0 and 2, is below this (None: never)."""
+    active_batch_size: Advanced[int] = 8
+    """With --active: masks chosen per step, sent together before the beliefs are updated."""
 
     def active_config(self) -> ActiveConfig:
         """The :class:`~physgs_nerfstudio.perception.active.ActiveConfig` of the active-mode flags."""
@@ -92,8 +91,6 @@ class PerceiveCommand(PerceptionConfig):
             raise ValueError("--query-budget / --stop-uncertainty only apply with --active")
         if self.active:
             self.active_config()  # validate the flags before any work
-
-    __doc__ = (__doc__ or "") + "\n\n    " + DEPRECATED_HELP
 
     def run(self) -> PerceptionResult:
         """Run exhaustive or (``active``) active perception; returns the run's result."""

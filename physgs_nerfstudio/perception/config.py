@@ -12,12 +12,13 @@ On the command line they are subcommands: ``physgs perceive --data D vlm:simulat
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import tyro
 
+from ..advanced import Advanced
 from ..fusion.maps import MapFusionConfig
 from ..materials import PriorConfig
 from .prompts import PromptConfig
@@ -47,49 +48,52 @@ class PerceptionConfig:
     """Masks -> VLM -> validated observations -> Bayesian fusion -> material maps, for a nerfstudio dataset."""
 
     data: Path
-    """Nerfstudio dataset directory (with transforms.json)."""
+    """The nerfstudio dataset folder (with transforms.json)."""
     vlm: VLMConfig = field(default_factory=OpenAIConfig)
     """The VLM backend, chosen by its config (vlm:openai | vlm:replay | vlm:simulated)."""
     segmenter: SegmenterConfig = field(default_factory=BuiltinSegmenterConfig)
     """The part segmenter, chosen by its config (segmenter:builtin | segmenter:sam, pip install -e ".[sam]")."""
     env: str = "indoor"
-    """Material library: indoor | outdoor | path to a library YAML."""
+    """Material library: indoor, outdoor or the path of a library YAML file."""
     library_files: tuple[Path, ...] = ()
-    """Extra library YAML files merged into --env."""
+    """Extra library YAML files merged into the --env library."""
     max_views: int | None = None
-    """Use at most this many frames (evenly spaced); None: all."""
+    """Use at most this many frames, evenly spaced (None: all)."""
     max_concurrency: int = 4
-    """VLM requests this run keeps in flight at once (its thread pool)."""
+    """The most VLM requests in flight at once."""
     budget: float | None = None
-    """Stop issuing new (uncached) requests once the estimated cost reaches this many USD (needs the
-    --vlm.usd-per-1k-* rates); None: no limit. Unqueried masks are done by a later run."""
+    """Stop sending new requests once their estimated cost reaches this many USD (set the --vlm.usd-per-1k-* prices)."""
     max_calls: int | None = None
-    """At most this many uncached requests in this run; None: no limit."""
+    """Send at most this many new requests in this run (None: no limit)."""
     prompt: Literal["triplet", "baseline"] = "triplet"
-    """triplet: per-mask full | overlay | isolated prompt (PhysGS); baseline: raw image only, one per frame."""
+    """The prompt kind: triplet asks about each mask with three images, baseline about each whole frame."""
     cache_dir: Path | None = None
-    """Response cache directory; default <data>/perception/cache."""
+    """Folder of cached VLM answers (None: <data>/perception/cache)."""
     overwrite: bool = False
-    """Start over even if observations.jsonl exists (old files kept as .bak)."""
+    """Start over even if an earlier run's observations exist (they are kept as .bak files)."""
     strict: bool = False
-    """Fail on the first unreadable frame image and at the end if any request failed (default: skip such
-    frames with a warning, report them and the failures at the end, and fuse what arrived)."""
+    """Fail on the first unreadable frame, and at the end if a request failed, instead of warning and going on."""
     wait_for_lock: bool = False
     """When another run is perceiving this dataset, wait for it to finish instead of refusing to start."""
     allow_outside_paths: bool = False
-    """Read frames whose file_path leaves the dataset (../x.png, absolute paths, symlinks out of it); by default
-    such a dataset is refused, so a downloaded one cannot make the run upload images from elsewhere."""
+    """Accept frames whose file_path points outside the dataset folder (refused by default, for safety)."""
     legend: Literal["observed", "library"] = "observed"
-    """Materials in materials.json: the observed ones, or the whole library."""
+    """Which materials materials.json lists: the observed ones or the whole library."""
     write_outputs: bool = True
-    """Write materials.json, the per-frame maps and transforms.json entries."""
+    """Write materials.json, the per-frame material maps and their transforms.json entries."""
     progress: bool = True
     """Show progress bars."""
-    prompt_options: PromptConfig = field(default_factory=PromptConfig)
-    validation: ValidationConfig = field(default_factory=ValidationConfig)
-    fusion: MapFusionConfig = field(default_factory=MapFusionConfig)
-    prior: PriorConfig = field(default_factory=PriorConfig)
+    prompt_options: Advanced[PromptConfig] = field(default_factory=PromptConfig)
+    """How the prompt images are drawn and encoded."""
+    validation: Advanced[ValidationConfig] = field(default_factory=ValidationConfig)
+    """How the VLM's answers are checked."""
+    fusion: Advanced[MapFusionConfig] = field(default_factory=MapFusionConfig)
+    """How the answers are fused into per-pixel material beliefs."""
+    prior: Advanced[PriorConfig] = field(default_factory=PriorConfig)
+    """How the library's property ranges become priors."""
 
     def __post_init__(self) -> None:
         if self.max_concurrency < 1:
             raise ValueError(f"--max-concurrency must be >= 1, got {self.max_concurrency}")
+        if self.prompt_options.kind != self.prompt:  # one setting: the prompt kind is ``prompt``'s
+            self.prompt_options = replace(self.prompt_options, kind=self.prompt)

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+import tyro
 
 SCHEMA_VERSION = "physgs-vlm-v2"  # v2: the answer names the whole object ("object")
 
@@ -67,7 +68,8 @@ RESPONSE_SCHEMA: dict = {
 class PromptConfig:
     """How the prompt images are drawn and encoded."""
 
-    kind: Literal["triplet", "baseline"] = "triplet"
+    kind: tyro.conf.Suppress[Literal["triplet", "baseline"]] = "triplet"
+    """Triplet or baseline prompt; a perception run sets it from its ``prompt`` (``--prompt``)."""
     panel_size: int = 512
     """Long side of each panel in pixels (images are downscaled, never upscaled)."""
     image_format: Literal["png", "jpeg"] = "png"

@@ -35,6 +35,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from ..advanced import Advanced
 from .segment import LEVELS, Mask, check_image, deduplicate, sort_masks
 
 # ---------------------------------------------------------------------------------------------------------
@@ -49,56 +50,56 @@ class BuiltinSegmenterConfig:
 
     name: ClassVar[str] = "builtin"
 
-    work_size: int = 512
+    work_size: Advanced[int] = 512
     """Images are segmented at this long side (downscaled, never upscaled); masks are upsampled back."""
-    n_segments: int = 600
+    n_segments: Advanced[int] = 600
     """SLIC superpixels per image (the finest possible granularity)."""
-    compactness: float = 10.0
+    compactness: Advanced[float] = 10.0
     """SLIC compactness (higher: squarer superpixels, lower: follow colour edges more)."""
-    oversegment: Literal["slic", "slic+graph"] = "slic+graph"
+    oversegment: Advanced[Literal["slic", "slic+graph"]] = "slic+graph"
     """The superpixels: SLIC's alone, or SLIC's split along Felzenszwalb-Huttenlocher's graph segmentation (module
     doc: keeps parts thinner than a SLIC superpixel apart)."""
-    graph_scale: float = 50.0
+    graph_scale: Advanced[float] = 50.0
     """The graph segmentation's scale (larger: larger regions)."""
-    graph_sigma: float = 0.5
+    graph_sigma: Advanced[float] = 0.5
     """The graph segmentation's Gaussian pre-smoothing, in pixels."""
-    graph_min_size: int = 10
+    graph_min_size: Advanced[int] = 10
     """The graph segmentation's smallest region, in pixels."""
-    thresholds: tuple[float, float, float] = (9.0, 6.0, 3.0)
+    thresholds: Advanced[tuple[float, float, float]] = (9.0, 6.0, 3.0)
     """Dissimilarity (CIE Lab Delta E, see ``colour_weight``) up to which adjacent regions are merged, for
     the whole (background detection) / part / subpart levels."""
-    colour_weight: float = 0.0
+    colour_weight: Advanced[float] = 0.0
     """Region dissimilarity = colour_weight * mean-colour distance + (1 - colour_weight) * mean colour
     step across the shared boundary (0: boundary strength only, which keeps shaded objects apart from a
     similar background)."""
-    perturb: float = 1.5
+    perturb: Advanced[float] = 1.5
     """Stability = best IoU of a region with the regions merged at ``threshold * perturb`` (a heuristic
     stand-in for SAM's stability score: how much the region survives a change of threshold)."""
-    min_area_frac: float = 0.002
+    min_area_frac: Advanced[float] = 0.002
     """Masks smaller than this fraction of the image are dropped."""
-    min_area_px: int = 32
+    min_area_px: Advanced[int] = 32
     """... and smaller than this many pixels."""
-    min_solidity: float = 0.25
+    min_solidity: Advanced[float] = 0.25
     """Drop slivers: masks keeping less than this fraction of their area after a 3x3 erosion."""
-    border_frac: float = 0.15
+    border_frac: Advanced[float] = 0.15
     """A coarse region holding at least this fraction of the image's border pixels is background."""
-    max_background_frac: float = 0.5
+    max_background_frac: Advanced[float] = 0.5
     """Masks with more than this fraction of background pixels are dropped."""
-    min_predicted_iou: float = 0.2
+    min_predicted_iou: Advanced[float] = 0.2
     """Drop masks whose boundary-contrast heuristic is below this."""
-    min_stability: float = 0.3
+    min_stability: Advanced[float] = 0.3
     """Drop masks whose perturbed-threshold IoU is below this."""
-    dedup_iou: float = 0.85
+    dedup_iou: Advanced[float] = 0.85
     """Masks overlapping a better mask by more than this IoU are dropped."""
-    thin_chroma: float | None = 4.0
+    thin_chroma: Advanced[float | None] = 4.0
     """Thin parts (module doc, "Thin fragments"): part-level regions that the area or sliver test drops are grouped
     with adjacent such regions whose mean chromaticity (CIE a*, b*) differs by less than this (Delta E), and a
-    group that passes the tests is a part mask. None = off (the masks before session 45)."""
-    max_masks_per_level: tuple[int, int, int] = (4, 16, 24)
+    group that passes the tests is a part mask. None = off."""
+    max_masks_per_level: Advanced[tuple[int, int, int]] = (4, 16, 24)
     """Cap per level (best score x area first); bounds the VLM calls per view."""
-    levels: tuple[str, ...] = LEVELS
+    levels: Advanced[tuple[str, ...]] = LEVELS
     """Levels to produce."""
-    seed: int = 0
+    seed: Advanced[int] = 0
     """(SLIC is deterministic; kept for future randomised variants.)"""
 
     def setup(self) -> BuiltinSegmenter:

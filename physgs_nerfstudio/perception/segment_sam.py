@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..advanced import Advanced
 from .segment import (
     LEVELS,
     SAM_INSTALL_HINT,
@@ -34,24 +35,24 @@ class SamSegmenterConfig:
     name: ClassVar[str] = "sam"
 
     checkpoint: Path | None = None
-    """Path to a SAM checkpoint (.pth); required (segmenter:sam --segmenter.checkpoint PATH)."""
+    """The SAM checkpoint file (.pth), required."""
     model_type: str = "vit_h"
-    """vit_h | vit_l | vit_b (must match the checkpoint)."""
+    """The checkpoint's model type: vit_h, vit_l or vit_b."""
     device: str = "auto"
-    """auto (cuda if available) | cpu | cuda."""
-    points_per_side: int = 32
-    min_predicted_iou: float = 0.86
+    """Where SAM runs: auto (CUDA when available), cpu or cuda."""
+    points_per_side: Advanced[int] = 32
+    min_predicted_iou: Advanced[float] = 0.86
     """Drop masks with SAM predicted IoU below this (SAM's pred_iou_thresh)."""
-    min_stability: float = 0.92
+    min_stability: Advanced[float] = 0.92
     """Drop masks with SAM stability score below this (SAM's stability_score_thresh)."""
-    dedup_iou: float = 0.85
-    min_area_frac: float = 0.002
-    min_area_px: int = 64
-    containment: float = 0.9
+    dedup_iou: Advanced[float] = 0.85
+    min_area_frac: Advanced[float] = 0.002
+    min_area_px: Advanced[int] = 64
+    containment: Advanced[float] = 0.9
     """A mask is inside another when at least this fraction of it is covered (level assignment)."""
-    max_masks_per_level: tuple[int, int, int] = (4, 16, 24)
-    levels: tuple[str, ...] = LEVELS
-    generator_kwargs: dict = field(default_factory=dict)
+    max_masks_per_level: Advanced[tuple[int, int, int]] = (4, 16, 24)
+    levels: Advanced[tuple[str, ...]] = LEVELS
+    generator_kwargs: Advanced[dict] = field(default_factory=dict)
     """Extra keyword arguments for SamAutomaticMaskGenerator (e.g. crop_n_layers)."""
 
     def setup(self) -> SamSegmenter:

@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from ..advanced import Advanced
 from ..materials import PROPERTY_KEYS, MaterialLibrary, from_canonical
 from .prompts import VLMRequest
 from .vlm import Usage, VLMError, VLMResponse
@@ -52,14 +53,16 @@ SIMULATED_MODEL = "simulated"
 
 @dataclass
 class SimulatedConfig:
+    """A simulated VLM for generated scenes: it answers from the scene's ground truth, with errors."""
+
     p_correct: float = 0.75
     """Probability that the top candidate is the true material."""
-    p_random: float = 0.1
+    p_random: Advanced[float] = 0.1
     """When wrong: probability of a random library material instead of a confusable neighbour."""
-    max_candidates: int = 3
-    concentration: float = 1.5
+    max_candidates: Advanced[int] = 3
+    concentration: Advanced[float] = 1.5
     """Symmetric Dirichlet concentration of the candidate confidences (lower = more peaked)."""
-    sigma: dict[str, float] = field(
+    sigma: Advanced[dict[str, float]] = field(
         default_factory=lambda: {
             "density": 0.15,
             "kinetic_friction": 0.2,
@@ -68,18 +71,19 @@ class SimulatedConfig:
         }
     )
     """Log-normal noise sigma per property."""
-    background_max_fraction: float = 0.5
+    background_max_fraction: Advanced[float] = 0.5
     """Masks with more background than this get an empty answer."""
-    p_structure_error: float = 0.1
+    p_structure_error: Advanced[float] = 0.1
     """Probability that the answer calls a solid part hollow or a hollow part solid (one judgment per mask,
     shared by its candidates)."""
-    thickness_sigma: float = 0.25
+    thickness_sigma: Advanced[float] = 0.25
     """Log-normal noise sigma of the answered wall thickness."""
-    p_object_error: float = 0.1
-    """Probability that the answer names another object than the one the part belongs to (module doc, 6)."""
-    default_thickness_m: float = 0.003
+    p_object_error: Advanced[float] = 0.1
+    """Probability that the answer names another object than the one the part belongs to."""
+    default_thickness_m: Advanced[float] = 0.003
     """Thickness answered for a part called hollow whose candidate material has none in the library."""
     seed: int = 0
+    """Seed of the simulated answers."""
 
     def setup(self, data: Path, library: MaterialLibrary) -> SimulatedBackend:
         """The simulated VLM answering from the generated scene at ``data`` (its ground truth)."""

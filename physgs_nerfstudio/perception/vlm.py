@@ -6,8 +6,8 @@
   size; retries with exponential backoff and jitter on 408/409/429/5xx, timeouts, connection errors and
   unreadable replies (``Retry-After`` / ``retry-after-ms`` honoured, capped); the first 401/403 stops
   every further request (:class:`VLMAuthError`); at most ``max_concurrency`` requests in flight per
-  backend; structured output ``response_format`` json_schema (strict, from answer.py) -> json_object ->
-  none, moving down for the rest of the run when the server refuses one (HTTP 400 naming it); token
+  backend where one is given; structured output ``response_format`` json_schema (strict, from answer.py) ->
+  json_object -> none, moving down for the rest of the run when the server refuses one (HTTP 400 naming it); token
   accounting from ``usage`` and a cost estimate from configurable $/1k-token rates. The API key is read from
   the environment variable named by ``api_key_env`` and is redacted from every message this module
   produces, as is any ``user:password@`` of the URL (urls.py).
@@ -33,9 +33,11 @@ import threading
 import time
 import urllib.parse
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
+from ..advanced import Advanced
 from ..errors import PhysGSError
 from ..urls import redact_url, redact_urls, split_userinfo
 from .answer import response_format
@@ -211,44 +213,42 @@ class OpenAIConfig:
     """An OpenAI-compatible chat-completions endpoint with image input."""
 
     base_url: str = "https://api.openai.com/v1"
-    """Endpoint root; ``/chat/completions`` is appended (e.g. http://localhost:8000/v1 for vLLM). A
-    ``user:password@`` in it is sent as HTTP basic authentication when no API key is used, and is never
-    written anywhere (run.json, logs and messages show ``***@``)."""
+    """The endpoint's root URL, e.g. http://localhost:8000/v1 for a local vLLM server."""
     model: str = "gpt-5"
+    """The model's name at the endpoint."""
     api_key_env: str = "OPENAI_API_KEY"
-    """Name of the environment variable holding the API key ('' for a keyless local server)."""
-    timeout_s: float = 120.0
+    """The environment variable that holds the API key ('' for a local server without a key)."""
+    timeout_s: Advanced[float] = 120.0
     """Wall-clock deadline of one HTTP request: connecting, sending, waiting and reading the whole reply. A
     request still running then is cut off (and retried like a timeout)."""
-    max_reply_bytes: int = 1_048_576
+    max_reply_bytes: Advanced[int] = 1_048_576
     """Largest reply body accepted; a larger one is refused without reading it all (not retried, not cached)."""
-    max_retries: int = 5
+    max_retries: Advanced[int] = 5
     """Retries after the first attempt on 408/409/429/5xx, timeouts, connection errors and unreadable replies."""
-    backoff_base_s: float = 1.0
-    backoff_max_s: float = 60.0
+    backoff_base_s: Advanced[float] = 1.0
+    backoff_max_s: Advanced[float] = 60.0
     """Cap on one wait (also caps Retry-After)."""
-    max_wait_s: float = 600.0
+    max_wait_s: Advanced[float] = 600.0
     """Run-wide cap on the seconds spent waiting to retry; once spent, the remaining requests fail at once."""
     basic_auth_env: str = ""
     """Name of an environment variable holding user:password for HTTP basic authentication."""
-    max_concurrency: int = 4
-    """Requests in flight at once."""
-    response_format: Literal["json_schema", "json_object", "none"] = "json_schema"
+    response_format: Advanced[Literal["json_schema", "json_object", "none"]] = "json_schema"
     """Structured output asked for: json_schema (the answer's strict JSON schema, material names as an enum),
     json_object, or none. A server that refuses it (HTTP 400 naming response_format / the schema) is asked
     with the next one in this order for the rest of the run."""
-    image_detail: str = "auto"
+    image_detail: Advanced[str] = "auto"
     """OpenAI image ``detail``: auto | low | high."""
-    max_tokens: int | None = None
+    max_tokens: Advanced[int | None] = None
     """Completion token limit (None: server default)."""
-    max_tokens_field: str = "max_completion_tokens"
+    max_tokens_field: Advanced[str] = "max_completion_tokens"
     """Name of the limit field: max_completion_tokens (OpenAI) or max_tokens (older servers)."""
-    temperature: float | None = None
+    temperature: Advanced[float | None] = None
     """None: server default (GPT-5 only accepts its default)."""
     usd_per_1k_prompt_tokens: float = 0.0
-    """Price per 1k prompt tokens for the cost estimate (0: unknown, cost shown as 0)."""
+    """Price in USD per 1000 prompt tokens, for the cost estimate and --budget (0: unknown)."""
     usd_per_1k_completion_tokens: float = 0.0
-    seed: int | None = 0
+    """Price in USD per 1000 completion tokens, for the cost estimate and --budget (0: unknown)."""
+    seed: Advanced[int | None] = 0
     """Seed for the retry jitter."""
 
     def __post_init__(self) -> None:
@@ -335,7 +335,10 @@ class OpenAIBackend:
         config: OpenAIConfig | None = None,
         sleep: Callable[[float], None] = time.sleep,
         material_names: list[str] | None = None,
+        max_concurrency: int | None = None,
     ):
+        """``max_concurrency``: requests this backend keeps in flight at once, whatever its callers' threads
+        (None: as many as they send; a perception run's ``max_concurrency`` bounds its own pool)."""
         self.config = cfg = config or OpenAIConfig()
         self.model = cfg.model
         base, user, password = split_userinfo(cfg.base_url.strip())
@@ -374,7 +377,7 @@ class OpenAIBackend:
         self._gave_up: str | None = None
         """Why the run stopped retrying (``max_wait_s`` spent): every later query fails with it at once."""
         self._lock = threading.Lock()
-        self._slots = threading.BoundedSemaphore(max(1, cfg.max_concurrency))
+        self._slots = threading.BoundedSemaphore(max(1, max_concurrency)) if max_concurrency else nullcontext()
         self._rng = random.Random(cfg.seed)
         self.rate_limiter = rate_limiter
         # statistics (thread-safe through _lock)

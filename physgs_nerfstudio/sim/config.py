@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Literal
 
-import tyro
-
+from ..advanced import Advanced
 from ..errors import PhysGSError
 
 __all__ = ["SimConfig", "SimError"]
@@ -21,18 +20,17 @@ class SimConfig:
     """The simulator-ready object written by ``--outputs sim``."""
 
     samples: int = 0
-    """posterior samples to write as well (each a body drawn from the mass report's Monte Carlo), 0 for none"""
+    """Posterior sample bodies to write as well, drawn from the mass report's Monte Carlo (0: none)."""
     collision: Literal["hull", "coacd", "auto"] = "hull"
-    """collision geometry: each part's convex hull, or CoACD's convex decomposition (minutes on a CPU; auto: CoACD
-    where it is installed)"""
-    max_triangles: Annotated[int, tyro.conf.Suppress] = 20000
-    """the visual meshes' triangle budget for the whole object"""
-    coacd_threshold: Annotated[float, tyro.conf.Suppress] = 0.08
-    """CoACD's concavity threshold (smaller: more, tighter pieces)"""
-    max_pieces: Annotated[int, tyro.conf.Suppress] = 16
-    """at most this many convex pieces per part (CoACD)"""
-    min_voxels: Annotated[int, tyro.conf.Suppress] = 8
-    """an object of fewer solid voxels is refused (too coarse for a body)"""
+    """Collision geometry: each part's convex hull, or CoACD's convex decomposition (auto: CoACD if installed)."""
+    max_triangles: Advanced[int] = 20000
+    """The visual meshes' triangle budget for the whole object."""
+    coacd_threshold: Advanced[float] = 0.08
+    """CoACD's concavity threshold (smaller: more, tighter pieces)."""
+    max_pieces: Advanced[int] = 16
+    """At most this many convex pieces per part (CoACD)."""
+    min_voxels: Advanced[int] = 8
+    """An object of fewer solid voxels is refused (too coarse for a body)."""
 
     def __post_init__(self) -> None:
         if self.samples < 0:

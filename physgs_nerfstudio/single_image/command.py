@@ -45,11 +45,6 @@ class ImageCommand(SingleImageConfig):
     The VLM and the segmenter are subcommands, after the other options: physgs image photo.jpg vlm:openai
     --vlm.model gpt-5 segmenter:sam --segmenter.checkpoint sam_vit_h.pth."""
 
-    from ..perception.legacy_flags import HELP as _DEPRECATED
-
-    __doc__ = (__doc__ or "") + "\n\n    " + _DEPRECATED
-    del _DEPRECATED
-
     def main(self) -> None:
         import logging
 

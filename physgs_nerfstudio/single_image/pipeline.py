@@ -85,11 +85,11 @@ class SingleImageConfig:
     figures: bool = True
     """Write the PNG figures (maps.npz and summary.json are always written)."""
     dpi: int = 150
+    """Resolution of the PNG figures in dots per inch."""
     perception: Annotated[PerceptionConfig, tyro.conf.arg(name="")] = field(
         default_factory=lambda: PerceptionConfig(data=Path("."))
     )
-    """The perception settings (VLM, segmenter, library, budget, cache, prompts, fusion); its --data is not
-    used: single-image mode works in --output-dir. --legend chooses the materials of the per-pixel Dirichlet."""
+    """The perception settings; --data is not used (single-image mode works in --output-dir)."""
 
     def __post_init__(self) -> None:
         self.properties = normalize_properties(self.properties)
