@@ -1,9 +1,9 @@
 """Time the mass of one object from a splat of N Gaussians: the object's geometry (selection, depth, carving, parts,
 structure: ``geometry.reconstruct_object``) and the Monte Carlo (``mass.integrate_mass``), stage by stage.
 
-    python benchmarks/mass_integration.py --gaussians 1000000 --views 54 --size 512   # GPU (issue 13: <= 2 s)
-    python benchmarks/mass_integration.py --gaussians 20000 --views 12 --size 96      # CPU smoke run
-    python benchmarks/mass_integration.py --gaussians 1000000 --views 24 --size 256 --reuse-rasterization  # CPU
+    python benchmarks/gpu/mass_integration.py --gaussians 1000000 --views 54 --size 512   # GPU (issue 13: <= 2 s)
+    python benchmarks/gpu/mass_integration.py --gaussians 20000 --views 12 --size 96      # CPU smoke run
+    python benchmarks/gpu/mass_integration.py --gaussians 1000000 --views 24 --size 256 --reuse-rasterization  # CPU
 
 The scene is generated here, so the figures need no trained run: a table (an oak top on four steel legs, flat
 Gaussians on their surfaces, the way 3DGS places them) standing on a floor of other Gaussians (the background
@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import CaptureView, GeometryConfig, reconstruct_object
