@@ -3,7 +3,7 @@ click a point it colours, copy its JSON, enable the crop box and press Mass.
 
 Used by test_viewer_browser.py; as a script it takes the README's screenshots of a trained run:
 
-    python tests/viewer_browser.py --load-config outputs/.../config.yml --out docs/
+    python tests/helpers/viewer_browser.py --load-config outputs/.../config.yml --out docs/
 
 Needs Debian's `chromium` (`apt-get install chromium`) and the `playwright` Python package (only its driver is
 used: Playwright's own browser download is never needed, the system Chromium is launched).
