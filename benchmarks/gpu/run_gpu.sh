@@ -293,7 +293,7 @@ case "${1:-kernels}" in
         wait; echo "[$(elapsed) s] done"
         ;;
       train)
-        # the gsplat build first: six trainings started beside it each found no gsplat_cuda.so (seed 3939)
+        # the gsplat build first: trainings started beside it find no gsplat_cuda.so
         [ -n "${GSPLAT_BUILD_PID:-}" ] && wait "$GSPLAT_BUILD_PID"
         echo "[$(elapsed) s] gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
         n=0 NGPU=$(nvidia-smi -L | wc -l)
