@@ -6,7 +6,7 @@ Each backend gets its own copy of the scenes (perception writes into the dataset
 physgs-lite on the CPU. Reports the wall times, their ratio (local / Ray), and Ray's overhead per task two
 ways: (a) an upper bound, (2 x Ray wall - sum of the stage times measured inside the tasks) / tasks, which
 also counts idle workers at the tail; (b) a rerun on Ray with every stage done (each task only reads its
-state and returns), (wall - ray.init) / tasks. Writes OUT/batch_bench.json.
+state and returns), (wall - ray.init) / tasks. Writes OUT/batch_bench.json and prints one table.
 """
 
 from __future__ import annotations
@@ -14,8 +14,13 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import format_table, write_summary
 
 from physgs_nerfstudio.batch.command import BatchCommand
 from physgs_nerfstudio.synth.dataset import SynthConfig, generate_scene
@@ -44,8 +49,8 @@ def main() -> None:
     for name in SUITE[: args.objects]:
         generate_scene(SynthConfig(out=src / name, object=name, views=args.views, resolution=args.resolution,
                                    num_points=4000))  # fmt: skip
-    common = dict(method="physgs-lite", iterations=args.iterations, device="cpu", vlm="simulated",
-                  export_resolution=48, n_samples=500, progress=False)  # fmt: skip
+    shared = {"method": "physgs-lite", "iterations": args.iterations, "device": "cpu", "vlm": "simulated",
+                  "export_resolution": 48, "n_samples": 500, "progress": False}  # fmt: skip
     res: dict = {"objects": args.objects, "views": args.views, "resolution": args.resolution,
                  "iterations": args.iterations}  # fmt: skip
     for backend in ("local", "ray"):
@@ -53,7 +58,7 @@ def main() -> None:
         shutil.copytree(src, scenes)
         extra = {"backend": "ray", "ray_num_cpus": 2} if backend == "ray" else {}
         t0 = time.perf_counter()
-        tot = BatchCommand(scenes=scenes, output_dir=args.out / f"out_{backend}", **common, **extra).run()
+        tot = BatchCommand(scenes=scenes, output_dir=args.out / f"out_{backend}", **shared, **extra).run()
         wall = time.perf_counter() - t0
         inside, tasks = stage_seconds(args.out / f"out_{backend}")
         res[backend] = {"wall_s": wall, "stage_seconds_sum": inside, "tasks": tasks, "complete": tot["complete"],
@@ -65,12 +70,18 @@ def main() -> None:
     res["ray_overhead_per_task_upper_bound_s"] = (2 * r["wall_s"] - r["stage_seconds_sum"]) / r["tasks"]
     # (b) the same batch again on the running Ray instance: every task finds its stage done
     t0 = time.perf_counter()
-    BatchCommand(scenes=args.out / "scenes_ray", output_dir=args.out / "out_ray", **common, backend="ray",
+    BatchCommand(scenes=args.out / "scenes_ray", output_dir=args.out / "out_ray", **shared, backend="ray",
                  stages=("perceive", "train", "export")).run()  # fmt: skip
     res["ray_overhead_per_task_noop_s"] = (time.perf_counter() - t0) / r["tasks"]
     ray.shutdown()
-    (args.out / "batch_bench.json").write_text(json.dumps(res, indent=2))
-    print(json.dumps(res, indent=2))
+    write_summary(args.out / "batch_bench.json", res)
+    overhead = {"local": None, "ray": res["ray_overhead_per_task_noop_s"]}
+    print(format_table(
+        ("backend", "scenes", "wall s", "stage seconds (sum)", "tasks", "complete", "failures", "overhead s/task"),
+        [(b, args.objects, res[b]["wall_s"], res[b]["stage_seconds_sum"], res[b]["tasks"], res[b]["complete"],
+          res[b]["failures"], overhead[b]) for b in ("local", "ray")],
+    ))  # fmt: skip
+    print(f"local / Ray wall time: {res['ratio_local_over_ray']:.3f}")
 
 
 if __name__ == "__main__":

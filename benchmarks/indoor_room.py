@@ -9,16 +9,15 @@ bottle, a chair, a crate and a lamp), against the generator's exact parts.
 Runs `physgs demo --object indoor_room` (resumable), or takes a finished training (``--run``: a folder whose
 ``runs/`` holds its config.yml, such as `ns-train physgs` at 60 views 512 px on the GPU, benchmarks/gpu/run_gpu.sh
 msuite), then the export's geometry on the trained run, and reports:
-which generated object each selected Gaussian lies on (within ``--near-m`` of a part: the 27-point stencil of
-geometry_diag.py), how many lie on the floor or the rug, the selected object (the one most selected Gaussians lie
+which generated object each selected Gaussian lies on (within ``--near-m`` of a part), how many lie on the floor or the rug, the selected object (the one most selected Gaussians lie
 on), and the carved solid's volume against that object's true volume (its parts' enclosed volumes: the space the
 carving can fill, shells' cavities included). The carved volume is the one the mass uses (the parts' nominal volumes:
-since session 35 the kept voxels on the boundary with hidden open space count half, ``--boundary``); the JSON also
+the kept voxels on the boundary with hidden open space count half); the JSON also
 gives the solid's whole voxels (``solid_voxels_m3``). Issue 12's target: within 15%, none of the floor or walls.
 The selection keeps what stands on the table (the mug and the bottle, 7.4% of the table's true volume): the JSON
 also gives the carved volume over the table's and those selected objects' true volumes together
 (``volume_ratio_with_resting``, a diagnostic; the target's measure is ``volume_ratio``).
-Writes OUT/indoor_room.json.
+Writes OUT/indoor_room.json and prints one table.
 """
 
 from __future__ import annotations
@@ -31,13 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from geometry_diag import _part_of, _to_world, _transform, load_run_on_device  # noqa: E402
+from common import format_table, load_run_on_device, part_of, scene_transform, to_world, write_summary
 
-from physgs_nerfstudio.export.command import object_geometry  # noqa: E402
-from physgs_nerfstudio.geometry.reconstruct import GeometryConfig  # noqa: E402
-from physgs_nerfstudio.synth.objects import build_layout  # noqa: E402
+from physgs_nerfstudio.export.command import object_geometry
+from physgs_nerfstudio.geometry.reconstruct import GeometryConfig
+from physgs_nerfstudio.synth.objects import build_layout
 
 
 def _resting_on(parts: list, chosen: str | None, selected: set[str], gap_m: float = 0.01) -> set[str]:
@@ -73,32 +72,6 @@ def main() -> None:
     ap.add_argument("--export-resolution", type=int, default=None,
                     help="voxels along the object's longest side, for the demo's export and this measurement "
                          "(default: the demo's; with --run, the export's default)")  # fmt: skip
-    ap.add_argument("--contact-band", type=str, default=None,
-                    help="the selection's contact band above a support plane, in the clusters' reach "
-                         "(SelectConfig.contact_band; 'none': off; default: the export's)")  # fmt: skip
-    ap.add_argument("--open-half", type=str, default=None,
-                    help="GeometryConfig.hidden_min_open_half ('none': the majority alone, session 28's rule; "
-                         "default: the export's)")  # fmt: skip
-    ap.add_argument("--passes", type=int, default=None,
-                    help="GeometryConfig.hidden_passes (default: the export's)")
-    ap.add_argument("--skin-band", type=str, default=None,
-                    help="GeometryConfig.hidden_skin_band in voxels: how far behind a view's rendered depth a "
-                         "Gaussian's centre may lie and sample the skin ('none': the evidence's band)")
-    ap.add_argument("--skin-seen", type=str, default=None,
-                    help="GeometryConfig.hidden_skin_seen in voxels ('none': every axis end samples the "
-                         "skin; default: the export's)")  # fmt: skip
-    ap.add_argument("--boundary", choices=("half", "whole"), default=None,
-                    help="GeometryConfig.hidden_boundary (default: the export's)")
-    ap.add_argument("--subsamples", type=int, default=None,
-                    help="GeometryConfig.boundary_subsamples (1: whole voxels; default: the export's)")
-    ap.add_argument("--split-in-band", action="store_true",
-                    help="the split links parts through the contact band too (SelectConfig.split_in_band, before "
-                         "session 39)")  # fmt: skip
-    ap.add_argument("--no-split", action="store_true",
-                    help="keep the coarse cluster over a support plane (SelectConfig.split_on_plane = False)")
-    ap.add_argument("--object-names", type=str, default=None,
-                    help="SelectConfig.object_names: the views' evidence (views) another object's name needs over the "
-                         "object's to drop a Gaussian (1: the tested value); none = the names unused (the default)")
     ap.add_argument("--run", type=Path, default=None,
                     help="measure this finished training instead of running the demo (a folder whose runs/ holds "
                          "its config.yml); the demo flags are then ignored")  # fmt: skip
@@ -127,33 +100,15 @@ def main() -> None:
         )
     run = load_run_on_device(cfg_path)
     geometry = GeometryConfig(resolution=resolution)
-    if a.contact_band is not None:
-        geometry.select.contact_band = None if a.contact_band.lower() == "none" else float(a.contact_band)
-    geometry.select.split_on_plane = not a.no_split
-    geometry.select.split_in_band = a.split_in_band
-    if a.object_names is not None:
-        geometry.select.object_names = None if a.object_names.lower() == "none" else float(a.object_names)
-    if a.open_half is not None:
-        geometry.hidden_min_open_half = None if a.open_half.lower() == "none" else int(a.open_half)
-    if a.passes is not None:
-        geometry.hidden_passes = a.passes
-    if a.boundary is not None:
-        geometry.hidden_boundary = a.boundary
-    if a.subsamples is not None:
-        geometry.boundary_subsamples = a.subsamples
-    if a.skin_band is not None:
-        geometry.hidden_skin_band = None if a.skin_band.lower() == "none" else float(a.skin_band)
-    if a.skin_seen is not None:
-        geometry.hidden_skin_seen = None if a.skin_seen.lower() == "none" else float(a.skin_seen)
     geo = object_geometry(run, geometry)
     pf = run.field
-    T, s = _transform(cfg_path.parent)
+    T, s = scene_transform(cfg_path.parent)
     truth = json.loads((run.data_dir / "ground_truth.json").read_text())
     layout = build_layout(truth["layout"], int(truth.get("seed", 0)))
     parts = list(layout.parts)
     sel = geo.selection.selected.cpu().numpy()
-    pw = _to_world(pf.means[geo.selection.selected].double().cpu().numpy(), T, s)
-    on = _part_of(parts, pw, a.near_m)
+    pw = to_world(pf.means[geo.selection.selected].double().cpu().numpy(), T, s)
+    on = part_of(parts, pw, a.near_m)
     owner = np.array([parts[i].object if i >= 0 else "" for i in on])
     ground = np.array([i >= 0 and parts[i].role == "ground" for i in on])
     counts = {o: int((owner == o).sum()) for o in sorted(set(owner) - {""})}
@@ -169,12 +124,7 @@ def main() -> None:
     voxels = float(geo.solid.sum()) * float(geo.grid.voxel_size) ** 3 * mpu**3
     res = {
         "seed": int(truth.get("seed", a.seed)), "demo_settings": given, "export_resolution": resolution,
-        "contact_band": geometry.select.contact_band, "split_on_plane": geometry.select.split_on_plane,
-        "split_in_band": geometry.select.split_in_band, "object_names": geometry.select.object_names,
         "object_name": geo.selection.object_name, "other_object_gaussians": geo.selection.other_object,
-        "hidden_min_open_half": geometry.hidden_min_open_half, "hidden_passes": geometry.hidden_passes,
-        "hidden_skin_seen": geometry.hidden_skin_seen, "hidden_skin_band": geometry.hidden_skin_band, "hidden_boundary": geometry.hidden_boundary,
-        "boundary_subsamples": geometry.boundary_subsamples,
         "hidden_boundary_voxels": geo.summary()["hidden_boundary_voxels"],
         "selected_gaussians": int(sel.sum()), "selected_on": counts,
         "selected_on_ground": int(ground.sum()), "selected_off_every_part": int((on < 0).sum()),
@@ -185,8 +135,13 @@ def main() -> None:
         "mass_kg": json.loads((d / "export" / "report.json").read_text())["mass"]["mean_kg"]
         if (d / "export" / "report.json").is_file() else None,
     }  # fmt: skip
-    (a.out / "indoor_room.json").write_text(json.dumps(res, indent=1))
-    print(json.dumps(res, indent=1))
+    write_summary(a.out / "indoor_room.json", res)
+    print(format_table(
+        ("seed", "selected object", "selected Gaussians", "on the ground", "carved / true volume",
+         "with what rests on it", "mass kg"),
+        [(res["seed"], chosen, res["selected_gaussians"], res["selected_on_ground"], res["volume_ratio"],
+          res["volume_ratio_with_resting"], res["mass_kg"])],
+    ))  # fmt: skip
 
 
 if __name__ == "__main__":

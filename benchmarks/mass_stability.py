@@ -4,8 +4,9 @@
 
 For each run folder (a `physgs demo --output-dir` folder, trained and exported), re-exports the mass with each
 option set to each end of its documented range (one option at a time, the rest at their defaults) and prints
-the mean mass relative to the default export. Issue 12's target: every change within 20%.
-Results: a JSON per run folder (`mass_stability.json` inside it) and one line per setting.
+the mean mass relative to the default export. Target: every change within 20%.
+Writes one summary JSON (``--out``: every setting's mass per run) and prints one table (per run its largest change
+and the setting that made it).
 """
 
 from __future__ import annotations
@@ -14,9 +15,12 @@ import argparse
 import json
 import subprocess
 import sys
-from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import format_table, write_summary
 
 # option -> the ends of its documented range (GeometryConfig / CarveConfig docs)
 SETTINGS: dict[str, list[str]] = {
@@ -59,11 +63,11 @@ SETTINGS: dict[str, list[str]] = {
 }
 
 
-def export(run: Path, name: str, flags: list[str], extra: Sequence[str] = (), tag: str = "") -> dict:
+def export(run: Path, name: str, flags: list[str]) -> dict:
     cfg = next((run / "runs").glob("**/config.yml"))
-    out = run / f"stability{tag}" / name.replace("=", "_").replace("+", "p")
+    out = run / "stability" / name.replace("=", "_").replace("+", "p")
     cmd = [sys.executable, "-m", "physgs_nerfstudio.cli", "export", "--load-config", str(cfg), "--output-dir",
-           str(out), "--outputs", "mass", "--overwrite", *extra, *flags]  # fmt: skip
+           str(out), "--outputs", "mass", "--overwrite", *flags]  # fmt: skip
     proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
     if proc.returncode != 0:  # the error's own line (a CUDA error's last line is only advice), the rest on disk
         out.mkdir(parents=True, exist_ok=True)
@@ -76,34 +80,39 @@ def export(run: Path, name: str, flags: list[str], extra: Sequence[str] = (), ta
             "volume_m3": rep["volume_m3"]}  # fmt: skip
 
 
+def sweep(run: Path, chosen: dict[str, list[str]], jobs: int) -> dict:
+    """Every chosen setting's export of one run, each relative to the default's mass (the first)."""
+    with ThreadPoolExecutor(max(1, jobs)) as pool:
+        rows = list(pool.map(export, [run] * len(chosen), chosen, chosen.values()))
+    base = rows[0].get("mean_kg")
+    for r in rows:
+        if base and "mean_kg" in r:
+            r["relative_to_default"] = r["mean_kg"] / base
+    changes = [(abs(r["relative_to_default"] - 1), r["setting"]) for r in rows[1:] if "relative_to_default" in r]
+    worst, at = max(changes) if changes else (None, None)
+    failed = [r["setting"] for r in rows if "error" in r]
+    return {"default_kg": base, "largest_change": worst, "largest_change_setting": at, "failed": failed, "rows": rows}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", type=Path, help="physgs demo output folders")
     ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--base-args", default="", help="extra `physgs export` flags for every setting, one quoted "
-                    "string (a geometry option's stability under another default); results then go to "
-                    "stability_NAME/ and mass_stability_NAME.json")
-    ap.add_argument("--name", default="", help="NAME for --base-args (or --settings)")
     ap.add_argument("--settings", nargs="+", default=None, choices=list(SETTINGS), metavar="S",
                     help="only these settings (the default export always runs first)")
+    ap.add_argument("--out", type=Path, default=Path("mass_stability.json"), help="the summary JSON")
     a = ap.parse_args()
-    extra, tag = a.base_args.split(), f"_{a.name}" if a.name else ""
     chosen = {k: SETTINGS[k] for k in SETTINGS if a.settings is None or k == "default" or k in a.settings}
+    runs = {}
     for run in a.runs:
-        with ThreadPoolExecutor(max(1, a.jobs)) as pool:
-            rows = list(pool.map(export, [run] * len(chosen), chosen, chosen.values(), [extra] * len(chosen),
-                                 [tag] * len(chosen)))
-        base = rows[0].get("mean_kg")
-        for r in rows:
-            if base and "mean_kg" in r:
-                r["relative_to_default"] = r["mean_kg"] / base
-            print(run.name, json.dumps(r), flush=True)
-        ok = [abs(r["relative_to_default"] - 1) for r in rows if "relative_to_default" in r]
-        worst = max(ok) if ok else float("nan")
-        failed = [r["setting"] for r in rows if "error" in r]
-        print(f"{run.name}: largest change {worst:.1%} over {len(ok) - 1} settings (target <= 20%)"
-              + (f"; {len(failed)} failed: {' '.join(failed)}" if failed else ""))
-        (run / f"mass_stability{tag}.json").write_text(json.dumps({"rows": rows, "largest_change": worst}, indent=2))
+        runs[run.name] = sweep(run, chosen, a.jobs)
+        print(f"{run.name}: {len(chosen)} exports done", file=sys.stderr, flush=True)
+    write_summary(a.out, {"target_largest_change": 0.2, "settings": chosen, "runs": runs})
+    print(format_table(
+        ("run", "default kg", "settings", "largest change", "at setting", "failed"),
+        [(name, r["default_kg"], len(chosen) - 1, r["largest_change"], r["largest_change_setting"],
+          " ".join(r["failed"]) or None) for name, r in runs.items()],
+    ))  # fmt: skip
 
 
 if __name__ == "__main__":

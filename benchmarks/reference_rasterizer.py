@@ -1,10 +1,10 @@
 """Timing of the pure-torch reference rasterizer on this CPU.
 
-Prints forward and forward+backward times (median of a few runs) for 64x64 and 128x128 images with
+Prints one table of forward and forward+backward times (median of a few runs) for 64x64 and 128x128 images with
 1k, 5k and 20k random Gaussians in front of the camera, each covering a few to tens of pixels; or, with
 ``--checkpoint``, for a trained splat's Gaussians (a nerfstudio checkpoint, such as `physgs demo`'s) seen by
 8 cameras around them in one call (trained splats have larger, overlapping, semi-transparent Gaussians than
-the random scene, and the compositing does more of the work).
+the random scene, and the compositing does more of the work). Writes the rows to one summary JSON (``--out``).
 
     python benchmarks/reference_rasterizer.py [--repeats 5] [--sizes 64 128] [--counts 1000 5000 20000]
     python benchmarks/reference_rasterizer.py --checkpoint demo_output/runs/demo/physgs-lite/demo/\
@@ -16,9 +16,15 @@ from __future__ import annotations
 import argparse
 import math
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import format_table, write_summary
 
 from physgs_nerfstudio.render import reference_rasterization
 
@@ -109,31 +115,33 @@ def main() -> None:
         default=None,
         help="a nerfstudio checkpoint: its Gaussians from 8 cameras, not --counts",
     )
+    parser.add_argument("--out", type=Path, default=Path("reference_rasterizer.json"), help="the summary JSON")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    print(
-        f"torch {torch.__version__}, threads {torch.get_num_threads()}; wall and process-CPU seconds, median"
-    )
-    print(
-        f"{'image':>9} {'gaussians':>9} {'visible':>8} {'fwd wall':>9} {'fwd cpu':>8} {'f+b wall':>9} {'f+b cpu':>8}"
-    )
+    rows = []
     for size in args.sizes:
         for n in [None] if args.checkpoint else args.counts:
             scene = checkpoint_scene(args.checkpoint, size) if n is None else random_scene(n, size)
-            n = len(scene["means"])
             with torch.no_grad():
                 _, _, meta = reference_rasterization(
                     **scene, width=size, height=size, packed=False, sh_degree=_sh_degree(scene)
                 )
-            visible = int((meta["radii"] > 0).sum())  # summed over the cameras
             time_once(scene, size, True)  # warm-up
             fwd = median_times(scene, size, False, args.repeats)
             both = median_times(scene, size, True, args.repeats)
-            print(
-                f"{size:>4}x{size:<4} {n:>9} {visible:>8} {fwd[0]:>9.3f} {fwd[1]:>8.3f} {both[0]:>9.3f} {both[1]:>8.3f}"
-            )
-
+            rows.append({"image": size, "gaussians": len(scene["means"]),
+                         "visible": int((meta["radii"] > 0).sum()),  # summed over the cameras
+                         "forward_wall_s": fwd[0], "forward_cpu_s": fwd[1],
+                         "forward_backward_wall_s": both[0], "forward_backward_cpu_s": both[1]})  # fmt: skip
+    write_summary(args.out, {"torch": torch.__version__, "threads": torch.get_num_threads(),
+                             "repeats": args.repeats, "checkpoint": args.checkpoint, "rows": rows})  # fmt: skip
+    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}; wall and process-CPU seconds, median")
+    print(format_table(
+        ("image", "gaussians", "visible", "fwd wall", "fwd cpu", "f+b wall", "f+b cpu"),
+        [(f"{r['image']}x{r['image']}", r["gaussians"], r["visible"], r["forward_wall_s"], r["forward_cpu_s"],
+          r["forward_backward_wall_s"], r["forward_backward_cpu_s"]) for r in rows],
+    ))  # fmt: skip
 
 if __name__ == "__main__":
     main()

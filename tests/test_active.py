@@ -4,21 +4,18 @@ from __future__ import annotations
 
 import hashlib
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.perception_scene import make_scene
 
-from physgs_nerfstudio.perception.replay import ReplayConfig
-from physgs_nerfstudio.perception.simulated import SimulatedConfig
 from physgs_nerfstudio.materials import load_library
 from physgs_nerfstudio.perception import PerceptionConfig, run_perception
 from physgs_nerfstudio.perception.active import ActiveConfig, ActiveSelector, run_active_perception
+from physgs_nerfstudio.perception.replay import ReplayConfig
 from physgs_nerfstudio.perception.segment import Mask
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from perception_scene import make_scene
+from physgs_nerfstudio.perception.simulated import SimulatedConfig
 
 
 @pytest.fixture(scope="module")

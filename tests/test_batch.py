@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from perception_server import FakeServer, ok
+from helpers.perception_server import FakeServer, ok
 
 from physgs_nerfstudio.batch.command import BatchCommand
 from physgs_nerfstudio.batch.plan import EstimateRates, plan_scene

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from bench_modules import load_benchmark
+from helpers.benchmarks import load_benchmark
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from bench_modules import load_benchmark
+from helpers.benchmarks import load_benchmark
 
 from method_configs.physgs_config import physgs_trainer_config
 

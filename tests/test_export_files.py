@@ -23,7 +23,7 @@ from physgs_nerfstudio.mass import MassConfig
 
 
 def _views(pf):
-    from test_geometry import ring_views
+    from helpers.shapes import ring_views
 
     # the fixture is a sparse lattice of small Gaussians: its silhouettes come from the same lattice with
     # Gaussians as wide as the spacing (what training on images of the box would give)

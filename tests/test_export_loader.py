@@ -2,51 +2,14 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import pytest
 import torch
-import yaml
-from test_nerfstudio_fixtures import write_blob_scene
 
-from method_configs.physgs_config import physgs_lite_trainer_config
 from physgs_nerfstudio.export.command import load_run
 from physgs_nerfstudio.export.field import PropertyField
 from physgs_nerfstudio.runfiles.check import check_run
 from physgs_nerfstudio.runfiles.loader import load_run_model
 
 STEP = 7
-
-
-@pytest.fixture(scope="module")
-def saved_run(tmp_path_factory) -> Path:
-    """A physgs-lite run saved as `ns-train` saves it (config.yml, dataparser_transforms.json, checkpoints),
-    with every Gaussian tensor randomised so that a load that keeps the initial state cannot pass."""
-    root = tmp_path_factory.mktemp("run")
-    write_blob_scene(root / "data", num_views=6, size=32)
-    config = physgs_lite_trainer_config()
-    config.pipeline.datamanager.data = root / "data"
-    config.pipeline.model.sh_degree = 1
-    config.output_dir = root / "outputs"
-    config.timestamp = "t"
-    config.set_experiment_name()
-    pipeline = config.pipeline.setup(device="cpu", test_mode="val")
-    g = torch.Generator().manual_seed(0)
-    with torch.no_grad():
-        for p in pipeline.model.gauss_params.values():
-            p.copy_(torch.rand(p.shape, generator=g))
-        pipeline.model.lifted_views.fill_(3)  # as after a lifting: the labelled fraction and evidence are read
-    base = config.get_base_dir()
-    base.mkdir(parents=True)
-    (base / "config.yml").write_text(yaml.dump(config), "utf8")
-    pipeline.datamanager.train_dataparser_outputs.save_dataparser_transform(base / "dataparser_transforms.json")
-    ckpt_dir = config.get_checkpoint_dir()
-    ckpt_dir.mkdir(parents=True)
-    stale = {k: torch.zeros_like(v) if v.is_floating_point() else v for k, v in pipeline.state_dict().items()}
-    torch.save({"step": 3, "pipeline": stale, "optimizers": {}, "scalers": {}}, ckpt_dir / "step-000000003.ckpt")
-    torch.save({"step": STEP, "pipeline": pipeline.state_dict(), "optimizers": {}, "scalers": {}},
-               ckpt_dir / f"step-{STEP:09d}.ckpt")  # fmt: skip
-    return base / "config.yml"
 
 
 def test_light_loader_matches_eval_setup(saved_run) -> None:

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 import torch
-from test_export_loader import saved_run  # noqa: F401 - the module's trained-run fixture
 
 from physgs_nerfstudio.export.command import load_run
 from physgs_nerfstudio.runfiles import train_split
@@ -81,13 +80,13 @@ def _variant(run: Path, dest: Path, names: dict[int, str] | None = None, **top) 
 @pytest.mark.parametrize("mode", [{"eval_mode": "fraction", "train_split_fraction": 0.5},
                                   {"eval_mode": "fraction"}, {"eval_mode": "interval", "eval_interval": 3},
                                   {"eval_mode": "all"}])  # fmt: skip
-def test_fast_reader_equals_nerfstudio_s_dataparser(saved_run, tmp_path, mode) -> None:  # noqa: F811
+def test_fast_reader_equals_nerfstudio_s_dataparser(saved_run, tmp_path, mode) -> None:
     _oracle(saved_run, tmp_path / "run", **mode)
     data = _variant(saved_run, tmp_path / "data", names={0: "images/a/b.png", 1: "images/a-b.png"})
     _oracle(saved_run, tmp_path / "run2", data, **mode)
 
 
-def test_fast_reader_filename_mode_and_split_lists(saved_run, tmp_path) -> None:  # noqa: F811
+def test_fast_reader_filename_mode_and_split_lists(saved_run, tmp_path) -> None:
     names = {i: f"images/frame_{i:03d}_{'eval' if i % 3 == 1 else 'train'}.png" for i in range(6)}
     data = _variant(saved_run, tmp_path / "named", names=names)
     _oracle(saved_run, tmp_path / "run", data, eval_mode="filename")
@@ -100,12 +99,12 @@ def test_fast_reader_filename_mode_and_split_lists(saved_run, tmp_path) -> None:
         read_train_split(config.pipeline.datamanager.dataparser, val_only, tmp_path / "run2")
 
 
-def test_fast_reader_recovers_a_colmap_applied_transform(saved_run, tmp_path) -> None:  # noqa: F811
+def test_fast_reader_recovers_a_colmap_applied_transform(saved_run, tmp_path) -> None:
     data = _variant(saved_run, tmp_path / "data", applied_transform=[[0, 1, 0, 0], [1, 0, 0, 0], [0, 0, -1, 0]])
     _oracle(saved_run, tmp_path / "run", data)
 
 
-def test_export_through_both_paths_is_the_same(saved_run, monkeypatch) -> None:  # noqa: F811
+def test_export_through_both_paths_is_the_same(saved_run, monkeypatch) -> None:
     fast = load_run(saved_run)
 
     def refuse(*args, **kwargs):
@@ -136,7 +135,7 @@ def test_export_through_both_paths_is_the_same(saved_run, monkeypatch) -> None: 
     assert masses[0] == masses[1]
 
 
-def test_export_loading_imports_no_nerfstudio(saved_run) -> None:  # noqa: F811
+def test_export_loading_imports_no_nerfstudio(saved_run) -> None:
     code = ("import sys; from pathlib import Path; from physgs_nerfstudio.export.command import load_run; "
             "r = load_run(Path(sys.argv[1])); print(r.field.num_gaussians, len(r.views), sorted(m for m in sys.modules "
             "if m.split('.')[0] in ('nerfstudio', 'sympy')))")  # fmt: skip
@@ -145,7 +144,7 @@ def test_export_loading_imports_no_nerfstudio(saved_run) -> None:  # noqa: F811
     assert int(n) > 1 and int(views) > 0 and imported.strip() == "[]", out.stdout + out.stderr[-2000:]
 
 
-def test_fallback_to_nerfstudio_without_dataparser_transforms(saved_run, tmp_path, caplog) -> None:  # noqa: F811
+def test_fallback_to_nerfstudio_without_dataparser_transforms(saved_run, tmp_path, caplog) -> None:
     files = check_run(saved_run)
     with caplog.at_level(logging.DEBUG, logger="physgs_nerfstudio.runfiles.loader"):
         rs = load_run_state(files.config, files.checkpoint, tmp_path)  # no dataparser_transforms.json there
@@ -158,7 +157,7 @@ def test_fallback_to_nerfstudio_without_dataparser_transforms(saved_run, tmp_pat
 @pytest.mark.parametrize("change", [{"camera_model": "OPENCV_FISHEYE"}, {"applied_scale": 2.0},
                                     {"orientation_override": "none"},
                                     {"applied_transform": [[0.6, 0.8, 0, 0], [-0.8, 0.6, 0, 0], [0, 0, 1, 0]]}])  # fmt: skip
-def test_fast_reader_refuses_what_it_does_not_reproduce(saved_run, tmp_path, change) -> None:  # noqa: F811
+def test_fast_reader_refuses_what_it_does_not_reproduce(saved_run, tmp_path, change) -> None:
     data = _variant(saved_run, tmp_path / "data", **change)
     config = _tree(saved_run, data)
     with pytest.raises(Unsupported):

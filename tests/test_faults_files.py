@@ -56,7 +56,7 @@ def _leftovers(d: Path) -> list[str]:
 @pytest.fixture(scope="module")
 def small_run():
     """A two-material box with its carved geometry, computed once (export tests reuse it)."""
-    from test_geometry import ring_views
+    from helpers.shapes import ring_views
 
     means, scales, quats = solid_box((0.6, 0.4, 0.3), 0.05)
     labels = (means[:, 0] > 0).long()
@@ -390,7 +390,7 @@ def test_5_6_the_cli_says_one_line_and_runs_nothing(tmp_path):
 def trained_run(tmp_path_factory):
     """A physgs-lite run folder as ns-train leaves it (config.yml written by nerfstudio,
     dataparser_transforms.json, nerfstudio_models/step-*.ckpt of the pipeline's state), without training."""
-    from test_nerfstudio_fixtures import write_synth_scene
+    from helpers.nerfstudio_scenes import write_synth_scene
 
     root = tmp_path_factory.mktemp("run")
     data = root / "scene"

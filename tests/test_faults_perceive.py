@@ -1,5 +1,5 @@
 """Hostile and careless input to `physgs perceive` (issue 17, perception side): each numbered item of the
-issue is a test here. Local servers only (tests/perception_server.py and the drip server below)."""
+issue is a test here. Local servers only (tests/helpers/perception_server.py and the drip server below)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from perception_scene import make_scene
-from perception_server import ANSWER, FakeServer, ok
+from helpers.perception_scene import make_scene
+from helpers.perception_server import ANSWER, FakeServer, ok
 from PIL import Image
 
 from physgs_nerfstudio.cli import entrypoint

@@ -9,49 +9,13 @@ import math
 import numpy as np
 import pytest
 import torch
+from helpers.shapes import box_on_floor, box_surface, flat_gaussians, geometry_of, ring_views
 
 from physgs_nerfstudio.export.shapes import field_from, shell_sphere
-from physgs_nerfstudio.geometry import CaptureView, CarveConfig, GeometryConfig, MaskObservation, reconstruct_object
-from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
+from physgs_nerfstudio.geometry import CarveConfig, GeometryConfig, MaskObservation, reconstruct_object
 from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.geometry.select import capture_centre
 from physgs_nerfstudio.mass import MassConfig, integrate_mass
-
-RES = 96
-
-
-def _flat(points: torch.Tensor, normals: torch.Tensor, spacing: float):
-    """Flat Gaussians tangent to a surface: in-plane scale ``spacing``, thin along the normal."""
-    z = torch.tensor([0.0, 0.0, 1.0], dtype=points.dtype)
-    n = normals / normals.norm(dim=1, keepdim=True)
-    axis = torch.cross(z.expand_as(n), n, dim=1)
-    s = axis.norm(dim=1, keepdim=True).clamp(max=1.0)
-    c = (n * z).sum(1, keepdim=True)
-    ang = torch.atan2(s, c)
-    axis = torch.where(s > 1e-9, axis / s.clamp_min(1e-12), torch.tensor([1.0, 0.0, 0.0], dtype=points.dtype))
-    quats = torch.cat([torch.cos(ang / 2), axis * torch.sin(ang / 2)], 1)
-    scales = torch.tensor([spacing, spacing, 1e-4], dtype=points.dtype).expand(len(points), 3).clone()
-    return points.float(), scales.float(), quats.float()
-
-
-def box_surface(size, spacing, centre=(0.0, 0.0, 0.0)):
-    pts, nrm = [], []
-    half = torch.tensor(size, dtype=torch.float64) / 2
-    for ax in range(3):
-        a, b = [i for i in range(3) if i != ax]
-        na, nb = max(2, round(size[a] / spacing)), max(2, round(size[b] / spacing))
-        ga = (torch.arange(na, dtype=torch.float64) + 0.5) / na * size[a] - half[a]
-        gb = (torch.arange(nb, dtype=torch.float64) + 0.5) / nb * size[b] - half[b]
-        A, B = torch.meshgrid(ga, gb, indexing="ij")
-        for sign in (-1.0, 1.0):
-            p = torch.zeros(A.numel(), 3, dtype=torch.float64)
-            p[:, a], p[:, b], p[:, ax] = A.reshape(-1), B.reshape(-1), sign * half[ax]
-            n = torch.zeros_like(p)
-            n[:, ax] = sign
-            pts.append(p)
-            nrm.append(n)
-    p = torch.cat(pts) + torch.tensor(centre, dtype=torch.float64)
-    return _flat(p, torch.cat(nrm), spacing * 0.5)
 
 
 def cup_surface(radius, height, spacing):
@@ -69,38 +33,8 @@ def cup_surface(radius, height, spacing):
     disc = disc[(disc[:, :2] ** 2).sum(1) <= radius**2]
     p = torch.cat([wall, disc])
     n = torch.cat([wn, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(disc)])
-    return _flat(p, n, spacing * 0.5)
+    return flat_gaussians(p, n, spacing * 0.5)
 
-
-def ring_views(pf, centre, radius, n=20, elevations=(-20.0, 20.0, 55.0), size=RES, fov_deg=40.0, mask_pf=None):
-    """Cameras on rings looking at ``centre``; masks = rendered silhouettes of ``mask_pf`` (default: pf)."""
-    f = size / (2 * math.tan(math.radians(fov_deg) / 2))
-    K = torch.tensor([[f, 0, size / 2], [0, f, size / 2], [0, 0, 1.0]])
-    views = []
-    c = torch.tensor(centre, dtype=torch.float64)
-    per = max(1, n // len(elevations))
-    for e_i, elev in enumerate(elevations):
-        for i in range(per):
-            az = 2 * math.pi * (i + 0.5 * e_i) / per
-            el = math.radians(elev)
-            pos = c + radius * torch.tensor([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)],
-                                            dtype=torch.float64)  # fmt: skip
-            fwd = (c - pos) / (c - pos).norm()
-            right = torch.cross(fwd, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), dim=0)
-            right /= right.norm()
-            up = torch.cross(right, fwd, dim=0)
-            c2w = torch.stack([right, up, -fwd, pos], 1).float()  # OpenGL axes
-            views.append(CaptureView(viewmat_from_c2w(c2w), K, size, size, torch.zeros(size, size, dtype=torch.bool),
-                                     name=f"v{len(views)}"))  # fmt: skip
-    src = mask_pf if mask_pf is not None else pf
-    for v, r in zip(views, render_depth(src, views, backend="reference")):
-        v.mask = r.alpha > 0.5
-    return views
-
-
-def _geo(pf, views, **kw):
-    cfg = GeometryConfig(resolution=kw.pop("resolution", 56), backend="reference", **kw)
-    return reconstruct_object(pf, pf.pi(), views, (), [t for t in pf.thickness_m], cfg, material_names=pf.material_names)
 
 
 @pytest.fixture(scope="module")
@@ -112,7 +46,7 @@ def box():
 
 def test_box_volume_from_carving(box):
     pf, views = box
-    geo = _geo(pf, views)
+    geo = geometry_of(pf, views)
     v = geo.volumes[0].sum()
     # the centre test is unbiased to first order; the depth margin is 0 on a plane (carve_views.depth_slack)
     assert 0.95 * 0.024 <= v <= 1.1 * 0.024
@@ -128,8 +62,8 @@ def test_unselected_boundary_gaussians_still_block_the_depth(box):
     volume, and the selection is the same."""
     pf, views = box
     strict = _select(min_prob=0.9)
-    alone = _geo(pf, views, select=strict)
-    occluded = _geo(pf, views, select=strict, occluder_min_prob=0.2)
+    alone = geometry_of(pf, views, select=strict)
+    occluded = geometry_of(pf, views, select=strict, occluder_min_prob=0.2)
     assert int(alone.selection.selected.sum()) == int(occluded.selection.selected.sum()) < 0.9 * len(pf.means)
     assert alone.volumes[0].sum() < 0.9 * 0.024
     assert 0.95 * 0.024 <= occluded.volumes[0].sum() <= 1.1 * 0.024
@@ -201,8 +135,8 @@ def test_shrunk_extent_variant_takes_the_layer_over_the_unseen_bottom_only(box):
     its voxels. Off (None) by default: no such variant."""
     pf, _ = box
     views = ring_views(pf, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0))
-    assert not any(n.startswith("extent-") for n in _geo(pf, views, resolution=40).variant_names)
-    geo = _geo(pf, views, resolution=40, extent_shrink_voxels=1.0)
+    assert not any(n.startswith("extent-") for n in geometry_of(pf, views, resolution=40).variant_names)
+    geo = geometry_of(pf, views, resolution=40, extent_shrink_voxels=1.0)
     assert geo.variant_names[-1] == "extent-1vox"
     h = geo.grid.voxel_size
     lost = float(geo.volumes[0].sum() - geo.volumes[-1].sum())
@@ -222,14 +156,14 @@ def test_the_extent_of_the_seen_gaussians_ends_an_unseen_bottom_at_the_seen_face
     X, Y = torch.meshgrid(g, g[(g > -0.1) & (g < 0.1)], indexing="ij")
     under = torch.stack([X.reshape(-1), Y.reshape(-1), torch.full((X.numel(),), -0.1 - 2.5 * h)], 1)
     up = torch.tensor([[0.0, 0.0, 1.0]]).double().expand_as(under)
-    s_means, s_scales, s_quats = _flat(under.double(), up, 0.01)
+    s_means, s_scales, s_quats = flat_gaussians(under.double(), up, 0.01)
     pf2 = field_from(torch.cat([means, s_means]), torch.cat([scales, s_scales]), torch.cat([quats, s_quats]),
                      densities=[700.0], names=["oak"], thickness_m=[None])
     views = ring_views(pf2, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0))
-    all_g = _geo(pf2, views, resolution=40, variants=False, extent_seen=False)
-    seen = _geo(pf2, views, resolution=40, variants=False)  # the default
+    all_g = geometry_of(pf2, views, resolution=40, variants=False, extent_seen=False)
+    seen = geometry_of(pf2, views, resolution=40, variants=False)  # the default
     above = ring_views(pf, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0))
-    plain = _geo(pf, above, resolution=40, variants=False)
+    plain = geometry_of(pf, above, resolution=40, variants=False)
     v_all, v_seen, v_plain = (float(x.volumes[0].sum()) for x in (all_g, seen, plain))
     print("box", 0.024, "without strays", v_plain, "strays, all Gaussians", v_all, "seen only", v_seen)
     slab = 0.24 * 0.18 * h  # the strays' footprint, a voxel deep
@@ -244,7 +178,7 @@ def test_sphere_volume_and_area():
     means, scales, quats = shell_sphere(R, 0.015)
     pf = field_from(means, scales, quats, densities=[1000.0], names=["ceramic"], thickness_m=[None])
     views = ring_views(pf, (0, 0, 0), 1.4)
-    geo = _geo(pf, views, resolution=48)
+    geo = geometry_of(pf, views, resolution=48)
     true_v = 4 / 3 * math.pi * R**3
     assert 0.95 * true_v <= geo.volumes[0].sum() <= 1.25 * true_v
     # a closed hollow object's carved solid is bulky: its wall area counts once (no sheet halving)
@@ -258,8 +192,8 @@ def test_open_cup_inside_is_carved_by_depth():
     pf = field_from(means, scales, quats, densities=[2400.0], names=["ceramic"], thickness_m=[0.004])
     views = ring_views(pf, (0, 0, H / 2), 1.2, n=24, elevations=(15.0, 45.0, 75.0))
     full = math.pi * R**2 * H
-    no_depth = _geo(pf, views, resolution=40, carve=_carve(use_depth=False))
-    with_depth = _geo(pf, views, resolution=40)
+    no_depth = geometry_of(pf, views, resolution=40, carve=_carve(use_depth=False))
+    with_depth = geometry_of(pf, views, resolution=40)
     assert no_depth.volumes[0].sum() >= 0.95 * full  # silhouettes alone fill the cup
     assert with_depth.volumes[0].sum() < 0.6 * no_depth.volumes[0].sum()  # depth sees into it
     # the carved wall is a sheet: its area counts each side half
@@ -272,32 +206,11 @@ def _carve(**kw):
     return CarveConfig(**kw)
 
 
-def _box_on_floor():
-    """A 0.3 m oak box standing on a 2 m tile floor 1 mm below it: (the field, the box's field alone, the box's
-    Gaussians)."""
-    obj = box_surface((0.3, 0.3, 0.3), 0.02, centre=(0.0, 0.0, 0.15))
-    pf, only_obj = on_tile_floor(obj, 1.0)
-    return pf, only_obj, obj
-
-
-def on_tile_floor(obj, half: float):
-    """(an oak object's Gaussians ``obj`` on a tile floor 1 mm below z = 0 spanning [-half, half]^2, the object's
-    field alone)."""
-    g = torch.arange(-half, half, 0.04) + 0.02
-    X, Y = torch.meshgrid(g, g, indexing="ij")
-    fp = torch.stack([X, Y, torch.zeros_like(X) - 1e-3], -1).reshape(-1, 3).double()
-    floor = _flat(fp, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(fp), 0.032)
-    means, scales, quats = (torch.cat([a, b]) for a, b in zip(obj, floor))
-    labels = torch.cat([torch.zeros(len(obj[0])), torch.ones(len(floor[0]))]).long()
-    pf = field_from(means, scales, quats, densities=[700.0, 1500.0], labels=labels, names=["oak", "tile"],
-                    thickness_m=[None, None])  # fmt: skip
-    return pf, field_from(*obj, densities=[700.0], names=["oak"])
-
 
 def test_floor_is_not_the_object():
-    pf, only_obj, obj = _box_on_floor()
+    pf, only_obj, obj = box_on_floor()
     views = ring_views(pf, (0, 0, 0.15), 1.6, elevations=(15.0, 40.0, 70.0), mask_pf=only_obj)
-    geo = _geo(pf, views)
+    geo = geometry_of(pf, views)
     sel = geo.selection.selected
     print("selected object share", float(sel[: len(obj[0])].float().mean()), "floor share",
           float(sel[len(obj[0]) :].float().mean()), "volume", geo.volumes[0].sum())
@@ -313,9 +226,9 @@ def test_resting_plane_among_the_background_ends_the_solid():
     from physgs_nerfstudio.geometry.select import SelectConfig
     from physgs_nerfstudio.geometry.support import SupportConfig
 
-    pf, only_obj, obj = _box_on_floor()
+    pf, only_obj, obj = box_on_floor()
     views = ring_views(pf, (0, 0, 0.15), 1.6, elevations=(15.0, 40.0, 70.0), mask_pf=only_obj)
-    geo = _geo(pf, views, resolution=40)
+    geo = geometry_of(pf, views, resolution=40)
     plane = geo.selection.plane
     assert plane is not None and geo.selection.support is None  # found among the background, not the foreground
     assert abs(plane.normal[2]) > 0.999 and abs(plane.offset + 1e-3) < 0.01
@@ -323,7 +236,7 @@ def test_resting_plane_among_the_background_ends_the_solid():
     z = np.asarray(geo.grid.origin)[2] + (ijk[:, 2] + 0.5) * geo.grid.voxel_size
     assert (plane.height(np.column_stack([np.zeros((len(z), 2)), z])) >= 0).all()
     assert 0.9 * 0.3**3 <= geo.volumes[0].sum() <= 1.2 * 0.3**3
-    off = _geo(pf, views, resolution=40, select=SelectConfig(support=SupportConfig(cut_below=False)))
+    off = geometry_of(pf, views, resolution=40, select=SelectConfig(support=SupportConfig(cut_below=False)))
     assert off.selection.plane is None
     # nothing below the plane is cut that the carving kept above it
     assert (geo.solid <= off.solid).all() if geo.solid.shape == off.solid.shape else True
@@ -370,7 +283,7 @@ def _select(**kw):
 
 def test_mass_interval_from_the_same_samples(box):
     pf, views = box
-    geo = _geo(pf, views)
+    geo = geometry_of(pf, views)
     rep = integrate_mass(pf, geo, MassConfig(n_samples=3000, seed=1), keep_samples=True)
     s = rep.samples
     assert rep.mean_kg == pytest.approx(float(s.mean()))
@@ -391,7 +304,7 @@ def test_the_report_says_how_much_one_resolution_unit_of_surface_holds(box):
     from physgs_nerfstudio.export.report import _layer_caption
 
     pf, views = box
-    rep = integrate_mass(pf, _geo(pf, views), MassConfig(n_samples=200, structure="solid"))
+    rep = integrate_mass(pf, geometry_of(pf, views), MassConfig(n_samples=200, structure="solid"))
     g = rep.geometry
     assert g["surface_layer_share"] == pytest.approx(0.52 * g["resolution_unit_m"] / 0.024, rel=0.15)
     (part,) = rep.parts
@@ -421,8 +334,8 @@ def test_the_report_says_how_much_of_the_surface_no_view_saw(box):
     from physgs_nerfstudio.geometry.reconstruct import unseen_face_share
 
     pf, views = box
-    around = _geo(pf, views, variants=False)
-    above = _geo(pf, ring_views(pf, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0)), variants=False)
+    around = geometry_of(pf, views, variants=False)
+    above = geometry_of(pf, ring_views(pf, (0, 0, 0), 1.5, n=16, elevations=(35.0, 60.0)), variants=False)
     assert around.unseen_surface_share < 0.03
     assert above.unseen_surface_share == pytest.approx(0.12 / 0.52, abs=0.06)
     assert above.summary()["unseen_surface_share"] == above.unseen_surface_share
@@ -450,7 +363,7 @@ def test_a_walls_cap_is_the_widest_variants_volume(box):
     from dataclasses import replace
 
     pf, views = box
-    geo = _geo(pf, views)
+    geo = geometry_of(pf, views)
     assert geo.volumes.shape[0] > 1
     widest = geo.volumes.argmax(0)
     others = np.full(geo.volumes.shape, 1e-4)
@@ -560,8 +473,8 @@ def test_a_failed_selection_neither_replaces_the_masks_nor_coarsens_the_grid(box
         return rec.ObjectSelection(sel.prob, torch.ones_like(sel.selected), sel.centre, sel.num_clusters)
 
     monkeypatch.setattr(rec, "select_object", everything)
-    assert _geo(both, views).selection.outside_hull == 300  # the masks' hull drops the far ones; without it:
-    geo = _geo(both, views, select=_select(hull_vote_fraction=2.0))
+    assert geometry_of(both, views).selection.outside_hull == 300  # the masks' hull drops the far ones; without it:
+    geo = geometry_of(both, views, select=_select(hull_vote_fraction=2.0))
     assert geo.selection.num_selected == both.num_gaussians
     assert 0.93 * 0.024 <= geo.volumes[0].sum() <= 1.12 * 0.024
     assert geo.grid.voxel_size < 0.02  # fitted to the box (0.4 m); the 5 m spread gave 0.09
@@ -586,9 +499,9 @@ def test_the_masks_hull_drops_gaussians_outside_the_masks_whatever_their_probabi
     # the lifted probability says "object" everywhere (the failure this test is about)
     monkeypatch.setattr(sel, "lift_masks", lambda g, vs, **kw: (torch.full((n,), 5.0, dtype=torch.float64),
                                                                  torch.zeros(n, dtype=torch.float64)))  # fmt: skip
-    without = _geo(both, views, select=_select(hull_vote_fraction=2.0)).selection
+    without = geometry_of(both, views, select=_select(hull_vote_fraction=2.0)).selection
     assert bool(without.selected[n_obj:].all())  # the trail is one cluster with the box
-    geo = _geo(both, views)
+    geo = geometry_of(both, views)
     kept = geo.selection.selected
     assert float(kept[:n_obj].float().mean()) == 1.0
     # a point near the +x face projects into the box's silhouette from most azimuths; 15 cm out it does not
@@ -663,8 +576,8 @@ def test_masks_that_lost_a_part_are_completed_by_the_consensus_silhouette(box):
         damaged.append(replace(v, mask=m))
     for kind in ("expected", "median"):  # the masks' effect, whichever depth carves
         carve = CarveConfig(depth_render=kind)
-        lost = _geo(pf, damaged, complete_masks=False, carve=carve).volumes[0].sum()
-        kept = _geo(pf, damaged, carve=carve).volumes[0].sum()
+        lost = geometry_of(pf, damaged, complete_masks=False, carve=carve).volumes[0].sum()
+        kept = geometry_of(pf, damaged, carve=carve).volumes[0].sum()
         assert lost < (0.85 if kind == "expected" else 0.9) * 0.024, kind  # carved away without the completion
         assert 0.93 * 0.024 <= kept <= 1.1 * 0.024, kind  # (0.949 with the expected depth)
 
@@ -690,7 +603,7 @@ def capsule_surface(radius, length, spacing):
         nn = torch.stack([r * torch.cos(phi), r * torch.sin(phi), sign * zz], -1)
         pts.append(radius * nn + torch.tensor([0.0, 0.0, sign * length / 2], dtype=torch.float64))
         nrm.append(nn)
-    return _flat(torch.cat(pts), torch.cat(nrm), spacing * 0.5)
+    return flat_gaussians(torch.cat(pts), torch.cat(nrm), spacing * 0.5)
 
 
 def exact_capsule_masks(views, length, radius):
@@ -726,8 +639,8 @@ def test_compact_solids_are_not_carved_from_the_front_by_the_median_depth(radius
     true_v = math.pi * radius**2 * length + 4 / 3 * math.pi * radius**3
     # (whole voxels: the rules' carving compared, without partial volume's shares)
     kw = {"resolution": 48, "variants": False, "boundary_subsamples": 1}
-    new = _geo(pf, views, carve=_carve(depth_render="median"), **kw).volumes[0].sum() / true_v
-    old = _geo(pf, views, carve=_carve(depth_render="expected"), **kw).volumes[0].sum() / true_v
+    new = geometry_of(pf, views, carve=_carve(depth_render="median"), **kw).volumes[0].sum() / true_v
+    old = geometry_of(pf, views, carve=_carve(depth_render="expected"), **kw).volumes[0].sum() / true_v
     assert 0.9 <= new <= 1.12
     assert old < 0.88
 
@@ -763,7 +676,7 @@ def test_a_parts_whole_surface_is_reported(box):
     """The part's whole surface is the box's (marching cubes of the carved solid against 2 (0.4 x 0.3 + 0.4 x 0.2 +
     0.3 x 0.2) m^2), per variant, and the report carries the nominal variant's."""
     pf, views = box
-    geo = _geo(pf, views)
+    geo = geometry_of(pf, views)
     assert geo.surface_areas.shape == geo.volumes.shape
     assert geo.surface_areas[0].sum() == pytest.approx(2 * (0.12 + 0.08 + 0.06), rel=0.1)
     rep = integrate_mass(pf, geo, MassConfig(n_samples=200, seed=3, structure="solid"))
@@ -840,7 +753,7 @@ def test_seams_move_mass_only_between_parts_of_unlike_weight(box):
     import dataclasses
 
     pf, views = box
-    geo = _split_in_two(_geo(pf, views))
+    geo = _split_in_two(geometry_of(pf, views))
     area = float(geo.seam_areas[0, 1])
     assert area == pytest.approx(0.4 * 0.3, rel=0.15)  # the box's horizontal section
     unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_geometry import _box_on_floor, ring_views
+from helpers.shapes import box_on_floor, ring_views
 
 from physgs_nerfstudio.export import geometry_cache as gc
 from physgs_nerfstudio.geometry import GeometryConfig, reconstruct_object
@@ -22,7 +22,7 @@ from physgs_nerfstudio.mass import MassConfig, integrate_mass
 def floor_geometry():
     """A box on a floor (a resting plane, a selection, parts, a structure with its NIG): the field and its
     geometry."""
-    pf, _, _ = _box_on_floor()
+    pf, _, _ = box_on_floor()
     views = ring_views(pf, (0.0, 0.0, 0.15), 1.6, n=12, elevations=(20.0, 50.0))
     cfg = GeometryConfig(resolution=40, backend="reference")
     geo = reconstruct_object(pf, pf.pi(), views, (), list(pf.thickness_m), cfg, material_names=pf.material_names)

@@ -56,12 +56,11 @@ def test_a_plate_over_removed_space_has_its_lower_layer_as_boundary():
 def table_geometries():
     """The table of test_hidden_space shot from above (every view 35-75 degrees up), at the default ("half") and
     with every boundary voxel whole."""
-    from test_geometry import _geo, ring_views
-    from test_hidden_space import _table_on_floor
+    from helpers.shapes import geometry_of, ring_views, table_on_floor
 
-    pf, only_obj = _table_on_floor()
+    pf, only_obj = table_on_floor()
     views = ring_views(pf, (0, 0, 0.3), 2.2, n=18, elevations=(35.0, 55.0, 75.0), mask_pf=only_obj)
-    return pf, _geo(pf, views, resolution=64), _geo(pf, views, resolution=64, hidden_boundary="whole")
+    return pf, geometry_of(pf, views, resolution=64), geometry_of(pf, views, resolution=64, hidden_boundary="whole")
 
 
 def test_the_volume_counts_the_boundary_at_half(table_geometries):
@@ -153,7 +152,7 @@ def test_a_plate_filled_through_its_thickness_keeps_less_under_it_with_the_narro
     from above: with a whole voxel's band the inner layers' centres, within a voxel behind the rendered upper face,
     sample the skin and it reaches under the top; with half a voxel (the default) less hidden space stays under it.
     Both keep the top."""
-    from test_geometry import _flat, _geo, box_surface, on_tile_floor, ring_views
+    from helpers.shapes import box_surface, flat_gaussians, geometry_of, on_tile_floor, ring_views
 
     t = 0.025
     parts = [box_surface((0.8, 0.5, t), 0.02, centre=(0.0, 0.0, 0.5 + t / 2))]
@@ -161,13 +160,13 @@ def test_a_plate_filled_through_its_thickness_keeps_less_under_it_with_the_narro
                           torch.arange(-0.24, 0.25, 0.02, dtype=torch.float64), indexing="ij")  # fmt: skip
     for k in range(3):
         p = torch.stack([X, Y, torch.full_like(X, 0.5 + t * (k + 1) / 4)], -1).reshape(-1, 3)
-        parts.append(_flat(p, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(p), 0.01))
+        parts.append(flat_gaussians(p, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(p), 0.01))
     parts += [box_surface((0.04, 0.04, 0.5), 0.02, centre=(x, y, 0.25)) for x in (-0.37, 0.37) for y in (-0.22, 0.22)]
     pf, only = on_tile_floor([torch.cat(c) for c in zip(*parts)], 1.2)
     views = ring_views(pf, (0, 0, 0.3), 2.2, n=18, elevations=(35.0, 55.0, 75.0), mask_pf=only)
     truth = 0.8 * 0.5 * t + 4 * 0.04 * 0.04 * 0.5
-    wide = _geo(pf, views, resolution=64, hidden_skin_band=1.0)
-    narrow = _geo(pf, views, resolution=64)
+    wide = geometry_of(pf, views, resolution=64, hidden_skin_band=1.0)
+    narrow = geometry_of(pf, views, resolution=64)
     v_wide, v_narrow = float(wide.volumes[0].sum()), float(narrow.volumes[0].sum())
     print("truth", truth, "band 1", v_wide, "band 0.5", v_narrow)
     assert truth < v_narrow < v_wide

@@ -368,27 +368,16 @@ def test_the_support_plane_encloses_an_unseen_bottom():
         torch.from_numpy(np.argwhere(surface[:, :, 6:]) + [0.5, 0.5, 6.5]), np.zeros(3), 1.0, shape, 1)).any()
 
 
-def _table_on_floor():
-    """A 0.8 x 0.5 m table (a 4 cm top at 0.5 m on four 4 cm legs) on a tile floor; the masks hold the table alone.
-    (Not square: from the middle of a square table aligned with the grid, the lattice's horizontal diagonals run
-    straight into its legs, and they count as enclosing; :mod:`physgs_nerfstudio.geometry.hidden`, limits.)"""
-    from test_geometry import box_surface, on_tile_floor
-
-    parts = [box_surface((0.8, 0.5, 0.04), 0.02, centre=(0.0, 0.0, 0.52))]
-    parts += [box_surface((0.04, 0.04, 0.5), 0.02, centre=(x, y, 0.25)) for x in (-0.37, 0.37) for y in (-0.22, 0.22)]
-    return on_tile_floor([torch.cat(t) for t in zip(*parts)], 1.2)
-
-
 def test_a_table_shot_from_above_loses_the_space_under_its_top():
     """Every camera looks down on the top (elevations 35-75 degrees), so no view sees past the space under it: the
     carving alone keeps it as solid; the hidden-space rule removes it and keeps the top and the legs."""
-    from test_geometry import _geo, ring_views
+    from helpers.shapes import geometry_of, ring_views, table_on_floor
 
-    pf, only_obj = _table_on_floor()
+    pf, only_obj = table_on_floor()
     views = ring_views(pf, (0, 0, 0.3), 2.2, n=18, elevations=(35.0, 55.0, 75.0), mask_pf=only_obj)
     truth = 0.8 * 0.5 * 0.04 + 4 * 0.04 * 0.04 * 0.5
-    kept = _geo(pf, views, resolution=64, hidden_skin_voxels=None).volumes[0].sum()
-    geo = _geo(pf, views, resolution=64)
+    kept = geometry_of(pf, views, resolution=64, hidden_skin_voxels=None).volumes[0].sum()
+    geo = geometry_of(pf, views, resolution=64)
     v = geo.volumes[0].sum()
     print("truth", truth, "carving alone", kept, "without hidden space", v, geo.hidden_removed,
           geo.summary()["hidden_boundary_voxels"])
@@ -406,8 +395,8 @@ def test_a_table_shot_from_above_loses_the_space_under_its_top():
     # visual hull (module doc); the grown skin reaches 2 voxels under it
     assert 0.8 * truth <= v <= 0.45 * kept
     # the skins compared at one pass (passes bring the grown skin's layers down too)
-    one = _geo(pf, views, resolution=64, hidden_passes=1).volumes[0].sum()
-    grown = _geo(pf, views, resolution=64, hidden_skin="grown", hidden_passes=1).volumes[0].sum()
+    one = geometry_of(pf, views, resolution=64, hidden_passes=1).volumes[0].sum()
+    grown = geometry_of(pf, views, resolution=64, hidden_skin="grown", hidden_passes=1).volumes[0].sum()
     print("one pass", one, "grown skin", grown)
     assert v <= one <= 0.9 * grown
     # the top itself stays: the solid's voxels at the top's height cover its footprint
@@ -436,9 +425,9 @@ def test_axis_ends_that_no_view_sees_do_not_sample_the_skin():
     end as a skin sample that skin encloses the hidden space under the top. Counting only the ends that some
     view sees on its rendered surface (``hidden_skin_seen``, within a voxel plus the Gaussian's own
     thickness), the table keeps the volume it has without the needles."""
-    from test_geometry import _geo, ring_views
+    from helpers.shapes import geometry_of, ring_views, table_on_floor
 
-    pf, only_obj = _table_on_floor()
+    pf, only_obj = table_on_floor()
     g = torch.arange(-0.36, 0.37, 0.06)
     X, Y = torch.meshgrid(g, torch.arange(-0.21, 0.22, 0.06), indexing="ij")
     means = torch.stack([X.reshape(-1), Y.reshape(-1), torch.full((X.numel(),), 0.54)], 1)
@@ -455,7 +444,7 @@ def test_axis_ends_that_no_view_sees_do_not_sample_the_skin():
             rendered[id(field)] = ring_views(field, (0, 0, 0.3), 2.2, n=18, elevations=(35.0, 55.0, 75.0),
                                              mask_pf=mask_field)
         # (whole voxels: the skin rules compared, without partial volume's shares)
-        return _geo(field, rendered[id(field)], resolution=64, boundary_subsamples=1, **kw).volumes[0].sum() / truth
+        return geometry_of(field, rendered[id(field)], resolution=64, boundary_subsamples=1, **kw).volumes[0].sum() / truth
 
     # the means' band of session 33 (a whole voxel), where the rule was measured; the default's below
     plain = volume(pf, only_obj, hidden_skin_band=1.0)

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from perception_scene import make_scene
-from perception_server import FakeServer
+from helpers.perception_scene import make_scene
+from helpers.perception_server import FakeServer
 from PIL import Image
 
 from physgs_nerfstudio.image_files import MAX_PIXELS, BadImage, open_image, read_array

@@ -11,8 +11,8 @@ import threading
 from pathlib import Path
 
 import pytest
-from perception_scene import make_scene
-from perception_server import FakeServer, ok
+from helpers.perception_scene import make_scene
+from helpers.perception_server import FakeServer, ok
 
 from physgs_nerfstudio.perception import PerceptionConfig, run_perception
 from physgs_nerfstudio.perception.lock import GRACE_S, LOCK_FILE, DatasetLock, LockHeld

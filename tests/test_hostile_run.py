@@ -30,7 +30,7 @@ def run(tmp_path_factory) -> Path:
     (get_training_callbacks with a trainer, as nerfstudio's Trainer.setup calls it), without training."""
     from nerfstudio.configs.method_configs import all_methods
     from nerfstudio.engine.callbacks import TrainingCallbackAttributes
-    from test_nerfstudio_fixtures import write_synth_scene
+    from helpers.nerfstudio_scenes import write_synth_scene
 
     root = tmp_path_factory.mktemp("run")
     data = root / "scene"

@@ -9,7 +9,7 @@ import torch
 import yaml
 from gsplat.strategy.ops import duplicate, remove, split
 from nerfstudio.engine.optimizers import Optimizers
-from test_nerfstudio_fixtures import blob_datamanager, blob_model, write_blob_scene
+from helpers.nerfstudio_scenes import blob_datamanager, blob_model, write_blob_scene
 
 from method_configs.physgs_config import physgs_lite_trainer_config
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w

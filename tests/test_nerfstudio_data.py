@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
-from test_nerfstudio_fixtures import fixture_materials_json, look_at_c2w, write_material_files
+from helpers.nerfstudio_scenes import fixture_materials_json, look_at_c2w, write_material_files
 
 from physgs_nerfstudio.nerfstudio import MaterialsFileError, PhysGSDatamanagerConfig, PhysGSDataParserConfig
 

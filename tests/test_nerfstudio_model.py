@@ -7,7 +7,7 @@ import torch
 from gsplat.strategy.ops import duplicate, remove, split
 from nerfstudio.data.scene_box import SceneBox
 from nerfstudio.engine.optimizers import Optimizers
-from test_nerfstudio_fixtures import blob_datamanager, blob_model
+from helpers.nerfstudio_scenes import blob_datamanager, blob_model
 
 from method_configs.physgs_config import physgs_lite_trainer_config
 from physgs_nerfstudio.bayes import vacuity

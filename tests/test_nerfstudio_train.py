@@ -1,7 +1,7 @@
 """End to end through the real CLI: `ns-train physgs-lite` on a generated scene, then nerfstudio's eval_setup.
 
 The material maps are written from the generated scene's ground truth (a stand-in for `physgs perceive`,
-see test_nerfstudio_fixtures.py); the check is on held-out (eval split) views, against ground truth.
+see tests/helpers/nerfstudio_scenes.py); the check is on held-out (eval split) views, against ground truth.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
-from test_nerfstudio_fixtures import write_synth_scene
+from helpers.nerfstudio_scenes import write_synth_scene
 
 ITERATIONS = 200
 

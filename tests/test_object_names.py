@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from test_geometry import box_surface, ring_views
+from helpers.shapes import box_surface, ring_views
 
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import GeometryConfig, MaskObservation, SelectConfig, reconstruct_object

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from test_geometry import _select, box_surface, ring_views
+from helpers.shapes import box_surface, ring_views
 
 from physgs_nerfstudio.export.shapes import field_from
-from physgs_nerfstudio.geometry import GeometryConfig, MaskObservation, reconstruct_object
+from physgs_nerfstudio.geometry import GeometryConfig, MaskObservation, SelectConfig, reconstruct_object
 from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.geometry.part_evidence import fuse_part_materials, observation_shares, part_maps
 from physgs_nerfstudio.mass import MassConfig, integrate_mass
@@ -46,7 +46,7 @@ def geos(two_boxes):
 
 
 def _reconstruct(pf, views, obs, part_materials):
-    cfg = GeometryConfig(resolution=48, backend="reference", select=_select(bridge_cells=1, cluster_cells=4),
+    cfg = GeometryConfig(resolution=48, backend="reference", select=SelectConfig(bridge_cells=1, cluster_cells=4),
                          part_materials=part_materials)  # fmt: skip
     return reconstruct_object(pf, pf.pi(), views, obs, [None] * len(NAMES), cfg, material_names=NAMES,
                               alpha=pf.alpha, dirichlet_prior=(1.0, 4.0))  # fmt: skip

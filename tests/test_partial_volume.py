@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from test_geometry import _flat, _geo, box_surface, ring_views
+from helpers.shapes import box_surface, flat_gaussians, geometry_of, ring_views
 
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import CarveConfig, GeometryConfig, VoxelGrid
@@ -177,7 +177,7 @@ def tray_surface(outer=(0.4, 0.4, 0.2), inner=(0.28, 0.28, 0.12), spacing=0.012)
     p = torch.cat([q for q, _ in parts])
     n = torch.cat([m for _, m in parts])
     volume = outer[0] * outer[1] * outer[2] - inner[0] * inner[1] * inner[2]
-    return _flat(p, n, spacing * 0.5), volume
+    return flat_gaussians(p, n, spacing * 0.5), volume
 
 
 @pytest.fixture(scope="module")
@@ -189,7 +189,7 @@ def tray():
 
 
 def _depth_variants(pf, views, sub):
-    geo = _geo(pf, views, resolution=48, boundary_subsamples=sub,
+    geo = geometry_of(pf, views, resolution=48, boundary_subsamples=sub,
                depth_margin_variants=(-0.5, 1.0))  # fmt: skip
     vol = dict(zip(geo.variant_names, geo.volumes.sum(1)))
     return vol["nominal"], vol["depth1vox"], geo
@@ -213,7 +213,7 @@ def test_the_depth_margin_no_longer_adds_a_layer_on_the_faces_only_the_depth_pla
 
 def test_one_subsample_is_whole_voxels(tray):
     pf, views, _ = tray
-    geo = _geo(pf, views, resolution=32, boundary_subsamples=1)
+    geo = geometry_of(pf, views, resolution=32, boundary_subsamples=1)
     assert geo.occupancy is None
     edge = 0.0 if geo.hidden_boundary is None else geo.hidden_boundary[0].sum()
     assert geo.volumes[0].sum() == pytest.approx(geo.solid.sum() * geo.grid.voxel_size**3 - 0.5 * edge)

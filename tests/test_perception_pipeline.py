@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from perception_scene import make_scene
-from perception_server import FakeServer
+from helpers.perception_scene import make_scene
+from helpers.perception_server import FakeServer
 
 from physgs_nerfstudio.perception.simulated import SimulatedConfig
 from physgs_nerfstudio.perception.vlm import OpenAIConfig
@@ -88,7 +88,7 @@ def test_kill_and_resume_loses_and_repeats_nothing(tmp_path, monkeypatch, caplog
 def test_failed_requests_are_reported_and_retried_next_run(tmp_path, monkeypatch):
     monkeypatch.setenv("PHYSGS_PIPE_KEY", KEY)
     root = make_scene(tmp_path / "scene", num_views=1)
-    from perception_server import ok
+    from helpers.perception_server import ok
 
     with FakeServer(lambda i, b: (404, {}, {"error": "nope"}, 0.0) if i == 0 else ok()) as srv:
         r1 = run_perception(_config(root, srv, max_concurrency=1))

@@ -7,7 +7,7 @@ import logging
 
 import numpy as np
 import pytest
-from perception_server import FakeServer, ok
+from helpers.perception_server import FakeServer, ok
 
 from physgs_nerfstudio.perception.replay import ReplayConfig
 from physgs_nerfstudio.perception.cache import ResponseCache

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from test_geometry import ring_views
+from helpers.shapes import ring_views
 
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import CarveConfig

@@ -9,7 +9,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from test_export_loader import saved_run  # noqa: F401 - a saved physgs-lite run (fixture)
 
 from physgs_nerfstudio.sim.body import body_from_masses, elements, mass_carriers
 from physgs_nerfstudio.sim.frame import ObjectFrame
@@ -127,7 +126,7 @@ def exported(tmp_path_factory):
     """A two-part box (oak and hollow glass halves) carved from 8 views' exact silhouettes, its mass report and its
     sim folder."""
     import torch
-    from test_geometry import ring_views
+    from helpers.shapes import ring_views
 
     from physgs_nerfstudio.export.command import LoadedRun, run_export
     from physgs_nerfstudio.export.shapes import field_from, solid_box

@@ -268,7 +268,7 @@ def test_tyro_parses_the_command(scene):
 
 
 def test_command_with_an_openai_compatible_endpoint(scene, tmp_path, capsys):
-    from perception_server import FakeServer
+    from helpers.perception_server import FakeServer
 
     from physgs_nerfstudio.single_image.command import ImageCommand
 

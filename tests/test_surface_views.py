@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 import torch
+from helpers.shapes import ring_views
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_geometry import ring_views
 
 from physgs_nerfstudio.export.shapes import field_from, solid_box
 from physgs_nerfstudio.geometry.capture import CaptureView

@@ -9,9 +9,8 @@ import math
 import numpy as np
 import pytest
 import torch
+from helpers.nerfstudio_scenes import blob_gaussians, look_at_c2w
 from nerfstudio.data.scene_box import OrientedBox
-from test_nerfstudio_fixtures import blob_gaussians, look_at_c2w
-from viewer_scene import trained_scene
 
 from physgs_nerfstudio.bayes import NIG
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
@@ -180,10 +179,10 @@ def test_crop_box_and_rectangle_to_box():
 
 # ---------------------------------------------------------------------------------------------- trained scene
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory):
+def trained(viewer_run):
     from nerfstudio.utils.eval_utils import eval_setup
 
-    config, data, gt = trained_scene(tmp_path_factory)
+    config, data, gt = viewer_run
     trainer_config, pipeline, _, _ = eval_setup(config, test_mode="inference")
     pipeline.model.eval()
     return config, data, gt, trainer_config, pipeline
@@ -258,10 +257,10 @@ def test_selection_mass_equals_physgs_export_with_the_same_box(trained, tmp_path
 def test_panel_elements_are_found_by_nerfstudio(tmp_path):
     """nerfstudio's viewer collects ViewerElements / ViewerControl by walking the pipeline's modules; the panel
     must be found and the walk must end (a public back reference to the model would recurse forever)."""
+    from helpers.nerfstudio_scenes import write_blob_scene
     from nerfstudio.data.scene_box import SceneBox
     from nerfstudio.viewer.utils import parse_object
     from nerfstudio.viewer.viewer_elements import ViewerControl, ViewerElement
-    from test_nerfstudio_fixtures import write_blob_scene
 
     from physgs_nerfstudio.nerfstudio import (
         PhysGSDatamanagerConfig,

@@ -1,7 +1,7 @@
 """A real browser: `ns-viewer` on a tiny trained scene (CPU), opened in headless Chromium (Debian's `chromium`),
 a click on a labelled point and the Mass button, checked against `physgs export` with the same selection.
 
-Skipped without a system Chromium or the `playwright` package (tests/viewer_browser.py says how to get them).
+Skipped without a system Chromium or the `playwright` package (tests/helpers/viewer_browser.py says how to get them).
 """
 
 from __future__ import annotations
@@ -15,8 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from viewer_browser import chromium_path, drive, free_port, start_viewer, wait_http
-from viewer_scene import trained_scene
+from helpers.viewer_browser import chromium_path, drive, free_port, start_viewer, wait_http
 
 pytestmark = pytest.mark.slow
 
@@ -27,9 +26,9 @@ def _physgs() -> list[str]:
 
 
 @pytest.mark.skipif(chromium_path() is None, reason="no system Chromium (apt-get install chromium)")
-def test_click_and_mass_in_a_real_browser(tmp_path_factory, tmp_path):
+def test_click_and_mass_in_a_real_browser(viewer_run, tmp_path):
     pytest.importorskip("playwright.sync_api", reason="pip install playwright (its browser download is not needed)")
-    config, data, _ = trained_scene(tmp_path_factory)
+    config, data, _ = viewer_run
     names = [m["name"] for m in json.loads((data / "materials.json").read_text())["materials"]]
     shots = Path(os.environ.get("PHYSGS_VIEWER_SCREENSHOTS", tmp_path / "shots"))
     port = free_port()

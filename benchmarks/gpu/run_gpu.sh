@@ -5,21 +5,13 @@
 #   BASE=../other_checkout bash benchmarks/gpu/run_gpu.sh perf  # issue 13: exports before/after
 #   bash benchmarks/gpu/run_gpu.sh perf-training                  # issue 13: training cost on the same scene
 #   SEEDS="404 505" bash benchmarks/gpu/run_gpu.sh suite          # issue 12: CPU mass suite + gsplat build
-#   [REPEAT=2] [ROUNDS=0] bash benchmarks/gpu/run_gpu.sh interleaved  # issue 13: the training ratio, one process
-#   [ROUNDS=2] bash benchmarks/gpu/run_gpu.sh variants  # issue 13: the training step, physgs's pieces swapped one at a time
 #   bash benchmarks/gpu/run_gpu.sh mem       # issue 13: memory and iteration cost of the material heads (chair)
 #   HEAD=lifted bash benchmarks/gpu/run_gpu.sh full   # the full run with another material head
 #   BASE=.export_base bash benchmarks/gpu/run_gpu.sh export  # issues 12+13: full chair run, its mass, exports before/after
-#                                            # (TIMELINE=N: then N mass exports timed function by function)
 #                                            # (MID=NAME=DIR: a third tree between them)
 #   OBJECTS=5 STEPS=3000 bash benchmarks/gpu/run_gpu.sh batch     # issue 14: physgs batch (local) over the suite
-#   bash benchmarks/gpu/run_gpu.sh geometry  # issue 12: full chair run, geometry vs ground truth (geometry_diag.py)
-#   OBJECTS="table stool" bash benchmarks/gpu/run_gpu.sh gsuite  # issue 12: the same for other generated objects
-#   bash benchmarks/gpu/run_gpu.sh mprofile  # issue 13: profile of `physgs export --outputs mass` on the chair
 #   PHASE=scenes CPU_SEEDS="1313 1414" bash benchmarks/gpu/run_gpu.sh msuite  # issue 12: GPU suite scenes (+ CPU suite)
 #   PHASE=train OBJECTS="mug chair" bash benchmarks/gpu/run_gpu.sh msuite     # ... then train and score them
-#   PHASE=diag [RULES="expected median"] [ACCOUNT="top"] bash benchmarks/gpu/run_gpu.sh msuite  # ... carving rules vs the truth
-#   PHASE=seams OBJECTS="shoe hammer mug pan bottle lamp" bash benchmarks/gpu/run_gpu.sh msuite  # ... the seams vs the truth
 #   [BASE=DIR] bash benchmarks/gpu/run_gpu.sh after  # issue 13, after `export` on the same machine: mass_integration.py
 #                                            # (and BASE's beside it),
 #                                            # the run's ns-eval, physgs vs splatfacto-big
@@ -39,7 +31,7 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
-case "${1:-}" in perf|suite|mem|variants|export|batch|geometry|gsuite|mprofile|msuite) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
+case "${1:-}" in perf|suite|mem|export|batch|msuite) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -58,11 +50,6 @@ case "${1:-kernels}" in
     make_scene 2>&1 | tail -20 | tee "$OUT/scene.log"
     python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps 1500 --warmup 300 ${METHODS:+--methods $METHODS} \
       --rounds "${ROUNDS:-1}" --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -20
-    ;;
-  profile)  # [WARMUP=N] [METHODS="..."]: the profiled 40 steps start at step N
-    make_scene 2>&1 | tail -3
-    (cd benchmarks/gpu && python3 profile_training.py --data "$SCENE" --warmup "${WARMUP:-300}" ${METHODS:+--methods $METHODS}) 2>&1 | grep -v Warning \
-      > "$OUT/profile.txt"; tail -5 "$OUT/profile.txt"
     ;;
   perf)
     # issue 13 (about 9.5 minutes on an H100): a generated scene, a short `ns-train physgs`, then `physgs export`
@@ -111,33 +98,6 @@ case "${1:-kernels}" in
     tar czf "$OUT/gsplat_cuda.tgz" -C .gsplat_build gsplat_cuda/gsplat_cuda.so gsplat_cuda/physgs_build_stamp.json 2>/dev/null
     cat "$OUT/gsplat_build.txt" 2>/dev/null; echo "[$(elapsed) s] done"
     ;;
-  interleaved)
-    # issue 13: physgs vs splatfacto-big trained in one process, blocks of steps in turn (bench_interleaved.py);
-    # REPEAT processes of it, then (ROUNDS > 0) bench_training.py's isolated pairs for comparison
-    make_scene 2>&1 | tail -3 | tee "$OUT/scene.log"
-    for i in $(seq "${REPEAT:-2}"); do
-      python3 benchmarks/gpu/bench_interleaved.py --data "$SCENE" --warmup 300 --steps "${TRAIN_STEPS:-1500}" \
-        --methods ${METHODS:-splatfacto-big physgs physgs+device_sizes} --out "$OUT/interleaved_$i.json" 2>&1 \
-        | grep -v Warning | tee "$OUT/interleaved_$i.log" | tail -4
-      echo "[$(elapsed) s] interleaved $i"
-    done
-    if [ "${ROUNDS:-0}" -gt 0 ]; then
-      python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps 1500 --warmup 300 --rounds "$ROUNDS" \
-        --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -3
-    fi
-    echo "[$(elapsed) s] done"
-    ;;
-  variants)
-    # issue 13: where physgs's training step loses time against splatfacto-big (step_variants.py), on the chair scene
-    make_scene 2>&1 | tail -3 | tee "$OUT/scene.log"
-    wait  # the gsplat build (setup_env.sh with GSPLAT_BUILD_LATER=1), beside the scene
-    echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
-    tar czf "$OUT/gsplat_cuda.tgz" -C .gsplat_build gsplat_cuda/gsplat_cuda.so gsplat_cuda/physgs_build_stamp.json 2>/dev/null
-    python3 benchmarks/gpu/step_variants.py --data "$SCENE" --rounds "${ROUNDS:-2}" --warmup 300 \
-      --steps "${TRAIN_STEPS:-700}" ${VARIANTS:+--variants $VARIANTS} --out "$OUT/step_variants.json" 2>&1 \
-      | grep -v Warning | tee "$OUT/step_variants.log" | tail -8
-    echo "[$(elapsed) s] done"
-    ;;
   mem)
     # issue 13 (about 5-8 minutes on an H100 with a carried gsplat build): each method in its own process on the
     # chair scene; per method iteration time, peak memory per phase, static bytes, liftings, eval material accuracy
@@ -184,11 +144,6 @@ case "${1:-kernels}" in
       --cases ${CASES:-load mass all maps1 mapsN ply} $([ "${PROFILE:-1}" = 1 ] && echo --profile-load --breakdown) \
       --budget-s $((LIMIT - 60 - $(elapsed))) --out "$OUT/export.json" 2>&1 | grep -v Warning > "$OUT/export.log"
     tail -30 "$OUT/export.log"
-    for i in $(seq 1 "${TIMELINE:-0}"); do  # TIMELINE=N: N fresh mass exports, function by function (export_timeline.py)
-      TIMELINE_JSON="$OUT/mass_timeline_$i.json" python3 benchmarks/export_timeline.py --load-config "$CFG" \
-        --output-dir /tmp/physgs_tl --outputs mass --overwrite ${TIMELINE_ARGS:-} 2>&1 | grep -v Warning > "$OUT/mass_timeline_$i.txt"
-      grep -A200 "^import torch" "$OUT/mass_timeline_$i.txt" | head -70
-    done
     if [ $(elapsed) -lt $((LIMIT - 40)) ]; then
       python3 -m nerfstudio.scripts.eval --load-config "$CFG" --output-path "$OUT/full_eval.json" 2>&1 | tail -2
     fi
@@ -271,113 +226,16 @@ case "${1:-kernels}" in
       tail -22 "$OUT/export.log"; echo "[$(elapsed) s] exports done"
     fi
     ;;
-  geometry)
-    # issue 12 (about 6-7 minutes on an H100): the chair scene (60 views at 512 px), `ns-train physgs` (STEPS, 7000),
-    # with USER_EXPORT=1 the user's `physgs export --outputs mass`, then benchmarks/geometry_diag.py for this tree's
-    # geometry and the baseline's (DIAG_VARIANTS): selection, masks and carving vs the generator's ground truth,
-    # mass, and a compact copy of the splat (splat.npz; DUMP= for none); SUITE_SEEDS: the CPU suite beside it
-    STEPS=${STEPS:-7000}
-    # (the device returns 8 files: the logs go to stdout; the dump holds the dataparser transform)
-    make_scene 2>&1 | tail -3
-    wait  # the gsplat build
-    echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
-    if [ -n "${SUITE_SEEDS:-}" ]; then  # the CPU mass suite at these seeds on the spare cores, beside the training,
-      # then re-exported with the baseline geometry (no hull test, no mask completion) for a side-by-side comparison
-      (CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $SUITE_SEEDS --jobs "${JOBS:-12}" \
-        --out /tmp/mass_suite > "$OUT/mass_suite.log" 2>&1; cp /tmp/mass_suite/mass_suite.json "$OUT/" 2>/dev/null
-       CUDA_VISIBLE_DEVICES= python3 benchmarks/mass_suite.py --seeds $SUITE_SEEDS --jobs "${JOBS:-12}" --out \
-        /tmp/mass_suite --alt-name baseline --export-args="--mass.geometry.select.hull-vote-fraction 2 \
-        --mass.geometry.no-complete-masks" > "$OUT/mass_suite_baseline.log" 2>&1
-       cp /tmp/mass_suite/mass_suite_baseline.json "$OUT/" 2>/dev/null; echo "[$(elapsed) s] suite done") &
-      SUITE_PID=$!
-    fi
-    python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
-      --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
-      --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -4
-    CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml)
-    if [ -n "${USER_EXPORT:-}" ]; then  # USER_EXPORT=1: the user's `physgs export --outputs mass` as well
-      echo "[$(elapsed) s] trained; physgs export --outputs mass"
-      python3 -m physgs_nerfstudio.cli export --load-config "$CFG" --output-dir /tmp/physgs_export --outputs mass \
-        > "$OUT/full_export.log" 2>&1; tail -25 "$OUT/full_export.log"
-      cp /tmp/physgs_export/report.json "$OUT/full_report.json" 2>/dev/null
-    fi
-    for variant in ${DIAG_VARIANTS:-default baseline}; do  # this tree's geometry, and the baseline's
-      echo "[$(elapsed) s] geometry_diag $variant"
-      FLAGS=$([ "$variant" = baseline ] && echo "--baseline --tag _baseline" || echo "${DUMP-"--dump"}")
-      PYTHONUNBUFFERED=1 timeout $((${LIMIT:-575} - $(elapsed))) python3 benchmarks/geometry_diag.py --load-config \
-        "$CFG" --out "$OUT" $FLAGS 2>&1 | grep --line-buffered "^\[\|object:\|wrote\|summary\|Error\|error"
-    done
-    if [ -n "${SUITE_PID:-}" ]; then  # until the suite ends or the time is up (its log has every finished row)
-      while kill -0 "$SUITE_PID" 2>/dev/null && [ $(elapsed) -lt ${LIMIT:-575} ]; do sleep 5; done
-      tail -n 1 "$OUT/mass_suite.log" "$OUT/mass_suite_baseline.log" 2>/dev/null
-    fi
-    echo "[$(elapsed) s] done"
-    ;;
-  gsuite)
-    # issue 12 (about 4-5 minutes per object on an H100): generated OBJECTS at 60 views 512 px (scenes made in
-    # parallel on the CPUs), then per object `ns-train physgs` (STEPS, 7000) and geometry_diag.py (this tree's
-    # geometry; BASELINE=1: the baseline's as well) -> geometry_diag_<object>.json; stops before LIMIT
-    STEPS=${STEPS:-7000} LIMIT=${LIMIT:-575}
-    for o in ${OBJECTS:?OBJECTS="table stool"}; do
-      (python3 -m physgs_nerfstudio.cli synth --out /tmp/gs_$o --object $o --views 60 --resolution 512 --overwrite \
-         > /dev/null 2>&1 && python3 -m physgs_nerfstudio.cli perceive --data /tmp/gs_$o --vlm simulated \
-         --segmenter builtin --no-progress --max-concurrency 8 > /dev/null 2>&1; echo "[$(elapsed) s] scene $o") &
-    done
-    wait
-    for o in $OBJECTS; do
-      [ $(elapsed) -gt $((LIMIT - 200)) ] && { echo "[$(elapsed) s] no time left for $o"; break; }
-      python3 -m nerfstudio.scripts.train physgs --data /tmp/gs_$o --max-num-iterations "$STEPS" --vis tensorboard \
-        --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
-        --output-dir /tmp/gs_runs_$o --timestamp gpu 2>&1 | grep "train_iteration"
-      CFG=$(ls /tmp/gs_runs_$o/*/physgs/gpu/config.yml) || continue
-      for variant in default ${BASELINE:+baseline}; do
-        FLAGS=$([ "$variant" = baseline ] && echo "--baseline --tag _${o}_baseline" || echo "--tag _$o")
-        echo "[$(elapsed) s] geometry_diag $o $variant"
-        PYTHONUNBUFFERED=1 timeout $((LIMIT - $(elapsed))) python3 benchmarks/geometry_diag.py --load-config "$CFG" \
-          --out "$OUT" $FLAGS 2>&1 | grep --line-buffered "object:\|summary\|Error\|error"
-      done
-    done
-    echo "[$(elapsed) s] done"
-    ;;
-  mprofile)
-    # issue 13 (about 7 minutes on an H100): where `physgs export --outputs mass` spends its time. The chair scene,
-    # `ns-train physgs` (STEPS, default 7000), the export timed twice from outside, then once under cProfile with
-    # CUDA_LAUNCH_BLOCKING=1 (each kernel charged to the Python call that launched it); the stamped gsplat build
-    # is returned in $OUT/gsplat_cuda for later calls (carry it as .gsplat_build/gsplat_cuda)
-    STEPS=${STEPS:-7000}
-    make_scene 2>&1 | tail -3
-    wait  # the gsplat build
-    echo "[$(elapsed) s] scene; gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
-    mkdir -p "$OUT/gsplat_cuda"; cp .gsplat_build/gsplat_cuda/gsplat_cuda.so .gsplat_build/gsplat_cuda/physgs_build_stamp.json \
-      "$OUT/gsplat_cuda/" 2>/dev/null
-    python3 -m nerfstudio.scripts.train physgs --data "$SCENE" --max-num-iterations "$STEPS" --vis tensorboard \
-      --steps-per-eval-image 100000000 --steps-per-eval-all-images 100000000 --steps-per-save "$STEPS" \
-      --output-dir /tmp/physgs_runs --timestamp gpu 2>&1 | grep -v Warning | tail -3
-    CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml)
-    for i in 1 2; do
-      echo "[$(elapsed) s] physgs export --outputs mass ($i)"
-      /usr/bin/time -f "wall %e s" python3 -m physgs_nerfstudio.cli export --load-config "$CFG" --output-dir /tmp/pm \
-        --outputs mass --overwrite > "$OUT/mass_export_$i.log" 2>&1; tail -2 "$OUT/mass_export_$i.log"
-    done
-    cp /tmp/pm/report.json "$OUT/mass_report.json" 2>/dev/null
-    PHYSGS_NO_FAST_EXIT=1 CUDA_LAUNCH_BLOCKING=1 python3 -m cProfile -o /tmp/mass.prof -m physgs_nerfstudio.cli export --load-config "$CFG" \
-      --output-dir /tmp/pm --outputs mass --overwrite > /dev/null 2>&1
-    python3 -c "import pstats; p = pstats.Stats('/tmp/mass.prof'); p.sort_stats('cumulative').print_stats(90); \
-p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
-    grep -E "reconstruct|select_object|lift_masks|render_depth|carve|part_|voxel_mixture|fuse_structure|integrate|pi\)|load_run" \
-      "$OUT/mass_profile.txt" | head -40
-    echo "[$(elapsed) s] done"
-    ;;
   after)
     # issue 13, a second call on the machine that ran `export` (its scene, run and gsplat build are still there):
-    # benchmarks/mass_integration.py at 1M Gaussians, the run's ns-eval (material accuracy on held-out views), and
+    # benchmarks/gpu/mass_integration.py at 1M Gaussians, the run's ns-eval (material accuracy on held-out views), and
     # physgs vs splatfacto-big (bench_training.py, each in its own process) on the same scene
-    python3 benchmarks/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
+    python3 benchmarks/gpu/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
       --out "$OUT/mass_integration.json" 2>&1 | tee "$OUT/mass_integration.log" | tail -12
     if [ -n "${BASE:-}" ]; then  # BASE: the same benchmark of that tree, then this tree's again (side by side)
-      (cd "$BASE" && python3 benchmarks/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
+      (cd "$BASE" && python3 benchmarks/gpu/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
         --out "$OUT/mass_integration_base.json" 2>&1 | tail -9)
-      python3 benchmarks/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
+      python3 benchmarks/gpu/mass_integration.py --gaussians ${GAUSSIANS:-1000000} --views 54 --size 512 \
         --out "$OUT/mass_integration_again.json" 2>&1 | tail -9
     fi
     CFG=$(ls /tmp/physgs_runs/*/physgs/gpu/config.yml 2>/dev/null)
@@ -405,25 +263,16 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
     #     robin), then `mass_suite.py --trained` (`physgs export --outputs mass` with its defaults, EJOBS = 4 at a
     #     time) -> mass_suite_gpu.json, and with ALT_ARGS the same runs exported with those flags too ->
     #     mass_suite_gpu_ALT_NAME.json (ALT2_ARGS, ALT2_NAME and ALT3_ARGS, ALT3_NAME: more such exports). OBJECTS may
-    #     hold indoor_room: it is measured by indoor_room.py --run (-> indoor_room_gpu_sGSEED_V.json for each V in
-    #     ROOM_VARIANTS, default "default": the export's selection; "noband", "nosplit", "coarse": without the contact
-    #     band, without the split over the support plane, without both; "nohalf", "half8": the hidden space's open
-    #     half off, or at 8; "passes8": its rules run up to 8 times; "whole": whole voxels, no partial volume;
-    #     "splitband": the split over the floor linked through its contact band, as before session 39; "names1":
-    #     perception's object names drop what another object's name claims, SelectConfig.object_names = 1; "band0",
-    #     "band05": GeometryConfig.hidden_skin_band 0 or 0.5 voxel), not the
-    #     suite; ROOM_TRUTH=1: its export's counted volume against the truth too (voxel_truth.py --volume
-    #     --relative-to top -> voxel_truth_room_gpu_sGSEED.json) and its hidden-space stage (hidden_stage.py, left in
-    #     $MS/indoor_room_sGSEED/hidden_stage.npz). GPU0=k: the first training goes to GPU k (several invocations side by side).
+    #     hold indoor_room: it is measured by indoor_room.py --run (-> indoor_room_gpu_sGSEED.json), not the suite.
+    #     GPU0=k: the first training goes to GPU k (several invocations side by side).
     #     STABILITY="chair table": then mass_stability.py on those runs (SJOBS = 8 at a time) ->
-    #     stability_OBJECT_sGSEED.json; SEAMS="shoe ...": then seam_offset.py on those -> seam_offset_gpu_sGSEED.json
+    #     stability_OBJECT_sGSEED.json
     #   MS=DIR (default /tmp/ms): the folder of the scenes and runs (two variants side by side); SEG_ARGS: perception's
     #     segmenter flags in PHASE=scenes (default "segmenter:builtin", e.g. "segmenter:builtin --segmenter.thin-chroma 4")
     GSEED=${GSEED:-1515} STEPS=${STEPS:-7000} CONC=${CONC:-6} MS=${MS:-/tmp/ms}
     SEG_ARGS=${SEG_ARGS:-segmenter:builtin}
     OBJECTS=${OBJECTS:-"mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase"}
-    RUNS=$(for o in $OBJECTS; do [ -d $MS/${o}_s$GSEED/runs ] && echo $MS/${o}_s$GSEED; done)  # diag, seams
-    case "${PHASE:?PHASE=scenes|train|diag|seams}" in
+    case "${PHASE:?PHASE=scenes|train}" in
       scenes)
         for o in $OBJECTS; do
           (d=$MS/${o}_s$GSEED; OMP_NUM_THREADS=1 python3 -m physgs_nerfstudio.cli synth --out $d/scene --object $o \
@@ -444,7 +293,7 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         wait; echo "[$(elapsed) s] done"
         ;;
       train)
-        # the gsplat build first: six trainings started beside it each found no gsplat_cuda.so (seed 3939)
+        # the gsplat build first: trainings started beside it find no gsplat_cuda.so
         [ -n "${GSPLAT_BUILD_PID:-}" ] && wait "$GSPLAT_BUILD_PID"
         echo "[$(elapsed) s] gsplat: $(cat "$OUT/gsplat_build.txt" 2>/dev/null)"
         n=0 NGPU=$(nvidia-smi -L | wc -l)
@@ -459,29 +308,9 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         wait
         SUITE=$(for o in $OBJECTS; do [ "$o" = indoor_room ] || echo $o; done)
         if [[ " $OBJECTS " == *" indoor_room "* ]]; then  # beside the suite's exports
-          for v in ${ROOM_VARIANTS:-default}; do  # ROOM_VARIANTS="default noband nosplit coarse": the selection's options
-            r=$MS/room_s${GSEED}_$v
-            case $v in noband) args="--contact-band none" ;; nosplit) args="--no-split" ;;
-                       coarse) args="--contact-band none --no-split" ;; nohalf) args="--open-half none" ;;
-                       half8) args="--open-half 8" ;; passes8) args="--passes 8" ;;
-                       whole) args="--subsamples 1" ;; splitband) args="--split-in-band" ;;
-                       names1) args="--object-names 1" ;; band0) args="--skin-band 0" ;;
-                       band05) args="--skin-band 0.5" ;; *) args="" ;; esac
-            (python3 benchmarks/indoor_room.py --run $MS/indoor_room_s$GSEED --out $r $args > $r.log 2>&1
-             cp $r/indoor_room.json "$OUT/indoor_room_gpu_s${GSEED}_$v.json"
-             echo "[$(elapsed) s] indoor_room s$GSEED $v: $(grep -E '"volume_ratio"|"selected_on_ground"' $r/indoor_room.json | tr -d '\n ')") &
-          done
-          if [ -n "${ROOM_TRUTH:-}" ]; then  # the export's counted volume against the truth, voxel by voxel, about the top
-            (d=$MS/indoor_room_s$GSEED; cfg=$(ls $d/runs/*/*/*/config.yml | head -1)
-             python3 -m physgs_nerfstudio.cli export --load-config $cfg --outputs mass voxels --output-dir $d/export_truth \
-               > $d/export_truth.log 2>&1
-             python3 benchmarks/voxel_truth.py $d/export_truth --object indoor_room --seed $GSEED --volume --relative-to top \
-               --transforms $(dirname $cfg)/dataparser_transforms.json --out "$OUT/voxel_truth_room_gpu_s$GSEED.json" \
-               > $d/voxel_truth.txt 2>&1
-             echo "[$(elapsed) s] voxel_truth s$GSEED:"; grep -A14 "counted volume" $d/voxel_truth.txt | grep -v "true  *0.0\| chair\| crate\| lamp"
-             python3 benchmarks/hidden_stage.py --run $d --out $d/hidden_stage.npz > $d/hidden_stage.log 2>&1
-             echo "[$(elapsed) s] hidden stage s$GSEED: $(tail -1 $d/hidden_stage.log)") &
-          fi
+          (python3 benchmarks/indoor_room.py --run $MS/indoor_room_s$GSEED --out $MS/room_s$GSEED > $MS/room_s$GSEED.log 2>&1
+           cp $MS/room_s$GSEED/indoor_room.json "$OUT/indoor_room_gpu_s$GSEED.json"
+           echo "[$(elapsed) s] indoor_room s$GSEED:"; tail -3 $MS/room_s$GSEED.log) &
         fi
         if [ -n "$SUITE" ]; then
           python3 benchmarks/mass_suite.py --trained --objects $SUITE --seeds $GSEED --jobs "${EJOBS:-4}" --out $MS \
@@ -498,28 +327,10 @@ p.sort_stats('tottime').print_stats(40)" > "$OUT/mass_profile.txt" 2>&1
         done
         cp $MS/mass_suite_gpu*.json "$OUT/" 2>/dev/null
         for o in ${STABILITY:-}; do
-          python3 benchmarks/mass_stability.py $MS/${o}_s$GSEED --jobs "${SJOBS:-8}" 2>&1 | grep "largest change"
-          cp $MS/${o}_s$GSEED/mass_stability.json "$OUT/stability_${o}_s$GSEED.json" 2>/dev/null
+          python3 benchmarks/mass_stability.py $MS/${o}_s$GSEED --jobs "${SJOBS:-8}" --out "$OUT/stability_${o}_s$GSEED.json" \
+            2>/dev/null | tail -1
         done
-        if [ -n "${SEAMS:-}" ]; then
-          python3 benchmarks/seam_offset.py $(for o in $SEAMS; do echo $MS/${o}_s$GSEED; done) --trained \
-            --out "$OUT/seam_offset_gpu_s$GSEED.json" 2>&1 | grep -v -i warn | tail -3
-        fi
         wait  # indoor_room
-        echo "[$(elapsed) s] done"
-        ;;
-      seams)  # the trained runs of OBJECTS: where the export puts the seams between parts (benchmarks/seam_offset.py)
-        timeout $((${LIMIT:-570} - $(elapsed))) python3 benchmarks/seam_offset.py $RUNS --trained \
-          --out "$OUT/seam_offset_gpu_s$GSEED.json" 2>&1 | grep -v -i warn | tail -30
-        echo "[$(elapsed) s] done"
-        ;;
-      diag)  # the trained runs of OBJECTS against the truth: carving RULES side by side and the export's parts
-        # (benchmarks/carve_diag.py --parts; ACCOUNT="top leg_0": the per-view account of those true parts'
-        # lost voxels; "baseline" is the export's own rule) -> carve_diag_gpu_s$GSEED.json
-        PYTHONUNBUFFERED=1 timeout $((${LIMIT:-570} - $(elapsed))) python3 benchmarks/carve_diag.py $RUNS --parts \
-          ${NO_MEDIAN:+--no-median} ${ACCOUNT:+--account $ACCOUNT} \
-          --rules ${RULES:-baseline median median_extent1 nodepth} --out "$OUT/carve_diag_gpu_s$GSEED.json" 2>&1 \
-          | grep -v -i warn | cut -c1-400
         echo "[$(elapsed) s] done"
         ;;
     esac
