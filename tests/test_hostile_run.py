@@ -28,9 +28,9 @@ REPO = Path(__file__).resolve().parents[1]
 def run(tmp_path_factory) -> Path:
     """A physgs-lite run folder as ns-train leaves it, its manifest written by the pipeline's training set-up
     (get_training_callbacks with a trainer, as nerfstudio's Trainer.setup calls it), without training."""
+    from helpers.nerfstudio_scenes import write_synth_scene
     from nerfstudio.configs.method_configs import all_methods
     from nerfstudio.engine.callbacks import TrainingCallbackAttributes
-    from helpers.nerfstudio_scenes import write_synth_scene
 
     root = tmp_path_factory.mktemp("run")
     data = root / "scene"

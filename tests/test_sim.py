@@ -357,7 +357,7 @@ def test_meshes_are_closed_and_coacd_decomposes_a_step():
 
 
 
-def test_export_command_refuses_an_assumed_scale_before_the_geometry(saved_run, tmp_path):  # noqa: F811
+def test_export_command_refuses_an_assumed_scale_before_the_geometry(saved_run, tmp_path):
     """`physgs export --outputs sim` on a saved run whose dataset is not known to be metric: one line, nothing
     written (the check runs right after loading, before the object's geometry)."""
     from physgs_nerfstudio.export.command import ExportCommand
