@@ -87,7 +87,7 @@ def _part_maps_many(b: _Boundary, views: Sequence[CaptureView], sizes: Sequence[
     """long [h * w] part id maps (-1: none) of ``views[i]`` at ``sizes[i] = (w, h)``, on the boundary's device:
     :func:`part_maps` of many views in one z-buffer (their pixels laid end to end), the views batched up to
     ``chunk`` voxel-view pairs. One view at a time, the 54 views of a GPU run cost about 0.2 s in small kernels
-    and host round trips (benchmarks/export_timeline.py)."""
+    and host round trips."""
     dev, dt = b.x.device, b.x.dtype
     out: list[Tensor] = []
     step = max(1, chunk // max(len(b.pid), 1))

@@ -398,8 +398,7 @@ def _plate_like(solid: np.ndarray, at: tuple[np.ndarray, ...], half: int, min_pl
     plate: the second-largest eigenvalue of its voxels' covariance is at least ``min_plate`` x the largest), not in
     one (a rod, whose cross-section is as thin as a sheet is thick, but whose faces are its one outer side). Window
     sums of the voxel count and the coordinates' first and second moments come from summed-area tables, built
-    on ``device`` (the splat's: built on the host, the tables took 0.12-0.23 s per carving variant of the GPU chair,
-    ``benchmarks/export_timeline.py``). Every table entry is an integer far below 2^53, so the float64 sums are
+    on ``device`` (the splat's: built on the host, the tables took 0.12-0.23 s per carving variant of a 500k-Gaussian GPU run). Every table entry is an integer far below 2^53, so the float64 sums are
     exact in any order and the device changes no result."""
     X, Y, Z = solid.shape
     dev = torch.device(device)

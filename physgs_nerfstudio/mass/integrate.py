@@ -81,8 +81,7 @@ class MassConfig:
     seam_offset_voxels: Advanced[float] = 1.0
     """spread (one standard deviation) of each seam between two parts inside the object, in units of the carving's
     resolution, one draw per seam and sample (module doc, "Seams"). 1.0: the root mean square of the seams' offsets
-    against the truth, each seam weighted by its area (0.95 over 24 seams of CPU demo runs at five development seeds,
-    ``benchmarks/seam_offset.py``; benchmarks/README.md); 0: the seams stay where the geometry put them"""
+    against the truth, each seam weighted by its area (0.95 over the seams of CPU demo runs of the development objects); 0: the seams stay where the geometry put them"""
 
     def __post_init__(self) -> None:
         if not 0 < self.level < 1:
