@@ -5,7 +5,8 @@ turns it about z, rests it in a pose and puts a support under it:
 
 * poses: ``standing`` (as the family builds it, resting on z = 0), ``lying`` (turned a quarter about y onto its
   side), ``stand`` (on a small round stand, a part of its own); ``drawn`` picks one of the family's poses.
-* supports: ``floor`` (a wide slab of flooring), ``table`` (a table top, narrower, so its edge is in view), ``none``
+* supports: ``floor`` (a wide slab of flooring, part "floor"), ``table`` (a table top, part "tabletop", narrower,
+  so its edge is in view), ``none``
   (the object floats, as the presets always did); ``drawn`` picks floor or table. A support and a stand are parts
   with role ``ground`` and their own library material and texture: they are seen by the cameras and never part
   of the object's truth.
@@ -94,7 +95,8 @@ def suite_layout(name: str, seed: int, *, shape: str = "drawn", support: str = "
         mat = mats[int(rng.integers(len(mats)))]
         side = max(0.6, (6.0 if support == "floor" else 2.5) * foot)
         aspect = 1.0 if support == "floor" else float(rng.uniform(0.6, 1.0))
-        ground.append(_slab(support, side, side * aspect, float(rng.uniform(0.02, 0.04)), mat, 0.0))
+        name_ = "floor" if support == "floor" else "tabletop"
+        ground.append(_slab(name_, side, side * aspect, float(rng.uniform(0.02, 0.04)), mat, 0.0))
     framed = obj + [g for g in ground if g.object == "stand"]
     flo, fhi = _surface_bounds(framed, rng)
     center, radius = (flo + fhi) / 2, float(np.linalg.norm(fhi - flo) / 2)
