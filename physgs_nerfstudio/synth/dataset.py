@@ -291,10 +291,26 @@ def _prepare_out(cfg: SynthConfig) -> Path:
     return out
 
 
+def _renderer(cfg: SynthConfig, scene: Scene, looks: list):
+    """render(K, c2w, view_index) -> View with the configured renderer (module doc of render.py / pathtrace.py)."""
+    parts, seeds = scene.layout.parts, scene.part_seeds
+    if cfg.renderer == "project":
+        return lambda K, c2w, v: render_view(parts, looks, seeds, K, c2w, scene.env, cfg.seed, cfg.supersample)
+    if cfg.renderer != "mitsuba":
+        raise ValueError(f"renderer must be 'project' or 'mitsuba', got {cfg.renderer!r}")
+    from . import pathtrace
+
+    why = pathtrace.available()
+    if why is not None:
+        raise RuntimeError(f"renderer mitsuba: {why}")
+    tracer = pathtrace.PathTracer(parts, looks, seeds, scene.env, cfg.seed, max(0.002, scene.layout.radius / 60))
+    return lambda K, c2w, v: tracer.view(K, c2w, cfg.spp, seed=int(stable_seed(cfg.seed, v) % 2**31))
+
+
 def generate_scene(cfg: SynthConfig) -> Path:
     """Render `cfg` into a nerfstudio dataset directory and return its path."""
-    if cfg.views < 1 or cfg.resolution < 8 or cfg.supersample < 1:
-        raise ValueError("need views >= 1, resolution >= 8 and supersample >= 1")
+    if cfg.views < 1 or cfg.resolution < 8 or cfg.supersample < 1 or cfg.spp < 1:
+        raise ValueError("need views >= 1, resolution >= 8, supersample >= 1 and spp >= 1")
     t_start = time.perf_counter()
     scene = resolve_scene(cfg)
     layout = scene.layout
@@ -312,8 +328,9 @@ def generate_scene(cfg: SynthConfig) -> Path:
     looks = [_look(scene, i) for i in range(len(layout.parts))]
     part_to_material = np.array([0] + [m + 1 for m in scene.part_material], dtype=np.uint8)
     frames, gt_frames = [], []
+    render = _renderer(cfg, scene, looks)
     for v, c2w in enumerate(poses):
-        view = render_view(layout.parts, looks, scene.part_seeds, K, c2w, scene.env, cfg.seed, cfg.supersample)
+        view = render(K, c2w, v)
         stem = f"frame_{v:05d}"
         paths = {
             "file_path": f"images/{stem}.png",
