@@ -35,10 +35,11 @@ from .render import Intrinsics, View, camera_rays
 # loads here but its JIT aborts the process on the principled BSDF (an LLVM instruction-selection error), so it is
 # not tried.
 VARIANTS: tuple[str, ...] = ("scalar_rgb",)
-# light levels chosen so that a white diffuse surface facing the sun comes out near the project's shading
-# (ambient 0.28-0.42 plus 0.72 of the key light): environment 0.55 x the project's background, sun 1.6 W/m^2
-ENV_SCALE = 0.55
-SUN_IRRADIANCE = 1.6
+# light levels: a white diffuse floor in the sun comes out near the project's shading (ambient 0.28-0.42 plus 0.72
+# of the key light: about 0.3 from the environment plus 0.64 x cos from the sun), and in the object's shadow at about
+# a third of that, as under a window
+ENV_SCALE = 0.4
+SUN_IRRADIANCE = 2.0
 EXPOSURE = 1.0
 NEAR_CLIP_M = 1e-3  # the sensor's near plane: Mitsuba's rays start on it, so a depth AOV counts from it
 
