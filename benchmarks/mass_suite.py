@@ -5,6 +5,7 @@
     python benchmarks/mass_suite.py --families mug kettle --seeds 70001 --renderers mitsuba   # a subset, path traced
     python benchmarks/mass_suite.py --objects mug chair --seeds 101                           # today's fixed presets
     python benchmarks/mass_suite.py --seeds 70001 --export-args "--mass.geometry.resolution 128" --alt-name r128
+    python benchmarks/mass_suite.py --merge A/mass_suite.json B/mass_suite_rows_baseline.jsonl merged.json  # one table
 
 **The suite.** Every family of `physgs_nerfstudio.synth.families` (today's twelve presets as parametric families and
 eleven new ones), each drawn from the seed (dimensions, part counts, walls, hollow or solid, each part's material and
@@ -284,7 +285,33 @@ def _args(argv: list[str] | None = None) -> argparse.Namespace:
     return ap.parse_args(argv)
 
 
+def merge(files: list[Path], out: Path) -> None:
+    """One summary and table of the rows of several saved suite JSONs, or of the rows files (.jsonl) that runs write
+    as they go (runs split over processes or machines, or stopped early); a (family, seed, renderer) seen twice
+    keeps its last row."""
+    runs = []
+    for f in files:
+        if str(f).endswith(".jsonl"):
+            lines = [json.loads(x) for x in Path(f).read_text().splitlines() if x.strip()]
+            for m in sorted({x["method"] for x in lines}):
+                runs.append({"method": m, "rows": list({(x["family"], x["seed"], x["renderer"]): x for x in lines
+                                                        if x["method"] == m}.values())})  # fmt: skip
+        else:
+            runs.append(json.loads(Path(f).read_text()))
+    methods = sorted({r["method"] for r in runs})
+    merged = {"merged_from": [str(f) for f in files], "summary": {}, "rows": {}}
+    for method in methods:
+        rows = [row for r in runs if r["method"] == method for row in r["rows"]]
+        merged["summary"][method] = summarize(rows)
+        merged["rows"][method] = rows
+        print(table(merged["summary"][method], method))
+    out.write_text(json.dumps(merged, indent=2))
+
+
 def main(argv: list[str] | None = None) -> None:
+    if argv is None and sys.argv[1:2] == ["--merge"]:
+        files = sys.argv[2:]
+        return merge([Path(f) for f in files[:-1]], Path(files[-1]))
     a = _args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     if a.objects is not None:
@@ -293,16 +320,20 @@ def main(argv: list[str] | None = None) -> None:
         todo = [{"family": f, "seed": s, "renderer": r, "preset": False}
                 for r in a.renderers for s in a.seeds for f in a.families]  # fmt: skip
 
+    method = "baseline" if a.export_args is None else a.alt_name
+    partial = a.out / f"mass_suite_rows_{method}.jsonl"  # every finished row at once: a run stopped early keeps them
+
     def one(item: dict) -> dict:
         row = run_one(item, a)
         keep = ("family", "seed", "renderer", "truth_kg", "pred_kg", "interval_kg", "covered", "ape", "support_kg",
                 "failed", "wall_s", "scene_s")  # fmt: skip
         print(json.dumps({k: row[k] for k in keep if k in row}), flush=True)
+        with partial.open("a") as f:
+            f.write(json.dumps({"method": method, **row}) + "\n")
         return row
 
     with ThreadPoolExecutor(max(1, a.jobs)) as pool:
         rows = list(pool.map(one, todo))
-    method = "baseline" if a.export_args is None else a.alt_name
     summary = summarize(rows)
     print(table(summary, method))
     name = "mass_suite.json" if a.export_args is None and not a.trained else f"mass_suite_{a.alt_name}.json"
