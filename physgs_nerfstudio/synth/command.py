@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Literal
 
 from .dataset import SynthConfig, generate_scene, load_ground_truth, scene_names
 from .objects import DEFAULT_MESH_DIR, SUITE
@@ -42,13 +43,13 @@ class SynthCommand:
     """RGB supersampling per axis (anti-aliasing)."""
     mesh_dir: Path = DEFAULT_MESH_DIR
     """Directory of optional meshes (bunny.obj, armadillo.obj)."""
-    shape: str = "canonical"
+    shape: Literal["canonical", "drawn"] = "canonical"
     """canonical (the fixed preset) or drawn (a family member drawn from the seed; families only)."""
-    support: str = "none"
+    support: Literal["none", "floor", "table", "drawn"] = "none"
     """none (floating), floor, table or drawn: a support under the object (families only)."""
-    pose: str = "standing"
+    pose: Literal["standing", "lying", "stand", "drawn"] = "standing"
     """standing, lying, stand (on a small stand) or drawn (families only)."""
-    renderer: str = "project"
+    renderer: Literal["project", "mitsuba"] = "project"
     """project (built-in ray caster) or mitsuba (path traced, needs the pathtrace extra)."""
     spp: int = 64
     """Samples per pixel of the mitsuba renderer."""

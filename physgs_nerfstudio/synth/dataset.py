@@ -25,6 +25,7 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from PIL import Image
@@ -72,15 +73,15 @@ class SynthConfig:
     """RGB supersampling factor per axis (ground-truth maps are always sampled at pixel centres)."""
     mesh_dir: Path = DEFAULT_MESH_DIR
     """Where optional meshes (bunny.obj) are read from."""
-    shape: str = "canonical"
+    shape: Literal["canonical", "drawn"] = "canonical"
     """canonical: the object's fixed preset; drawn: a family member whose dimensions, parts, walls, materials and
     densities the seed draws (synth/families.py; families only)."""
-    support: str = "none"
+    support: Literal["none", "floor", "table", "drawn"] = "none"
     """none (the object floats), floor, table, or drawn (floor or table from the seed): a support seen by the
     cameras (synth/support.py; families only)."""
-    pose: str = "standing"
+    pose: Literal["standing", "lying", "stand", "drawn"] = "standing"
     """standing, lying (on its side), stand (on a small stand) or drawn (one of the family's poses)."""
-    renderer: str = "project"
+    renderer: Literal["project", "mitsuba"] = "project"
     """project (the built-in ray caster) or mitsuba (path traced; needs the pathtrace extra, synth/pathtrace.py)."""
     spp: int = 64
     """Samples per pixel of the mitsuba renderer."""
