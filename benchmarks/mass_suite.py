@@ -29,9 +29,9 @@ shapes; only measured): every summary shows both side by side, per renderer.
   thickness, weighted by the hollow probability) over the true share (true material volume / true envelope);
 * ``density``: the predicted mass per predicted material volume over the true mass per true material volume.
 
-``support_kg``: the predicted mass in voxels whose centres lie inside the support or the stand (the export's
-voxels.npz mapped to the world by nerfstudio's dataparser transform); the support is *counted* when that is more
-than 5% of the object's true mass.
+``support_kg``: the predicted mass inside the support or the stand: each export part's mass times the share of its
+voxels' fill whose centres lie inside them (the export's voxels.npz mapped to the world by nerfstudio's dataparser
+transform); the support is *counted* when that is more than 5% of the object's true mass.
 
 **Per split** (and renderer, and method row): objects scored, median APE, coverage of the 90% interval, median
 interval half-width relative to the mean, objects off by more than 2x, share of objects whose support was counted,
@@ -93,8 +93,11 @@ def _to_world(x_scene: np.ndarray, transform: np.ndarray, scale: float) -> np.nd
     return (x_scene / scale - t) @ R
 
 
-def support_mass(run_dir: Path, export: Path, layout_parts: list) -> float | None:
-    """Predicted kg in voxels (fill x voxel volume x density mean) whose world centres lie inside a ground part."""
+def support_mass(run_dir: Path, export: Path, layout_parts: list, rep_parts: list[dict]) -> float | None:
+    """Predicted kg inside the support: each export part's mass (report.json) times the share of its voxels' fill
+    (voxels.npz) whose world centres lie inside a ground part; a hollow part's mass lies in its wall, so its voxels
+    share it by their fill, not by fill x density. Voxels of no part (the thin partial layer just outside the carving)
+    are left out. None without the export's voxel grid or the run's dataparser transform."""
     from physgs_nerfstudio.export.voxel import load_voxel_grid
 
     vox, tf = export / "voxels.npz", next(iter((run_dir / "runs").glob("**/dataparser_transforms.json")), None)
@@ -112,8 +115,13 @@ def support_mass(run_dir: Path, export: Path, layout_parts: list) -> float | Non
     for part in layout_parts:
         if part.role == "ground":
             ground |= part.primitive.contains(part.to_local(world))
-    rho = np.nan_to_num(np.asarray(vx["density_mean"], float)[tuple(idx.T)], nan=0.0)
-    return float((fill[tuple(idx.T)] * rho)[ground].sum() * float(vx["voxel_size_m"]) ** 3)
+    pid, w = np.asarray(vx["part_id"])[tuple(idx.T)], fill[tuple(idx.T)]
+    kg = 0.0
+    for p, part in enumerate(rep_parts):
+        mine = pid == p
+        if w[mine].sum() > 0:
+            kg += float(part["mass_mean_kg"]) * float(w[mine & ground].sum() / w[mine].sum())
+    return kg
 
 
 def error_split(gt: dict, rep: dict) -> dict:
@@ -154,7 +162,7 @@ def score(family: str, seed: int, renderer: str, run_dir: Path, export: Path, su
         parts = suite_layout(family, seed, shape="drawn", support=support, pose="drawn").parts
     else:
         parts = build_layout(family, seed).parts
-    sup = support_mass(run_dir, export, parts)
+    sup = support_mass(run_dir, export, parts, rep["parts"])
     return {
         "family": family, "split": split_of(family), "seed": seed, "renderer": renderer, "layout": gt.get("layout"),
         "truth_kg": truth, "pred_kg": pred, "interval_kg": [lo, hi], "covered": lo <= truth <= hi,

@@ -54,19 +54,24 @@ def test_support_mass_counts_the_voxels_inside_the_floor(tmp_path):
     assert np.allclose(ms._to_world(s * (world @ R.T + t), np.c_[R, t], s), world)  # the inverse of p_s = s (R p + t)
     # the grid itself, axis-aligned in scene units (R = identity in its dataparser transform)
     fill = np.ones((n, n, n), np.float32) * 0.5
-    rho = np.full((n, n, n), 2000.0, np.float32)
+    part_id = np.where(np.indices((n, n, n))[0] < n // 2, 0, 1).astype(np.int32)  # two parts: x below / above 0
+    part_id[0, 0, 0] = -1  # a voxel of no part is left out
     run = tmp_path / "run"
     (run / "runs" / "x").mkdir(parents=True)
     (run / "runs" / "x" / "dataparser_transforms.json").write_text(json.dumps(
         {"transform": np.c_[np.eye(3), t].tolist(), "scale": s}))  # fmt: skip
     export = tmp_path / "export"
     export.mkdir()
-    np.savez(export / "voxels.npz", fill=fill, density_mean=rho, origin_scene=s * (origin_world + t),
+    np.savez(export / "voxels.npz", fill=fill, part_id=part_id, origin_scene=s * (origin_world + t),
              voxel_size_scene=np.float64(s * h_m), voxel_size_m=np.float64(h_m), meta=np.array("{}"))
-    kg = ms.support_mass(run, export, layout.parts)
+    rep_parts = [{"mass_mean_kg": 3.0}, {"mass_mean_kg": 0.2}]  # e.g. a solid part and a hollow one
+    kg = ms.support_mass(run, export, layout.parts, rep_parts)
     below = (world[:, 2] < 0) & (world[:, 2] > -floor.primitive.size[2])  # voxel centres inside the slab
+    pid = part_id.reshape(-1)
     assert below.sum() > 0
-    assert kg == pytest.approx(below.sum() * 0.5 * 2000.0 * h_m**3, rel=1e-6)
+    share = [(below & (pid == p)).sum() / (pid == p).sum() for p in (0, 1)]
+    assert kg == pytest.approx(3.0 * share[0] + 0.2 * share[1], rel=1e-9)
+    assert ms.support_mass(run, tmp_path / "none", layout.parts, rep_parts) is None
 
 
 def test_summary_per_split_and_renderer():
