@@ -5,9 +5,10 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Literal
 
-from .dataset import SynthConfig, generate_scene, load_ground_truth
-from .objects import DEFAULT_MESH_DIR, SUITE, all_names
+from .dataset import SynthConfig, generate_scene, load_ground_truth, scene_names
+from .objects import DEFAULT_MESH_DIR, SUITE
 
 
 @dataclass
@@ -17,8 +18,9 @@ class SynthCommand:
     out: Path
     """Output directory (with --suite: one sub-directory per object)."""
     object: str = "mug"
-    """Object preset or scene layout; list: mug chair hammer bottle shoe table pan lamp crate stool dumbbell vase
-    bunny armadillo (need their meshes in --mesh-dir) indoor_room outdoor_patch."""
+    """Object preset, family or scene layout; list: mug chair hammer bottle shoe table pan lamp crate stool dumbbell
+    vase bowl bucket book plank kettle lidded_box pipe bin toy_car jar figurine, bunny armadillo (figurine, bunny and
+    armadillo need their meshes in --mesh-dir) indoor_room outdoor_patch."""
     views: int = 24
     """Number of camera views."""
     seed: int = 0
@@ -41,6 +43,16 @@ class SynthCommand:
     """RGB supersampling per axis (anti-aliasing)."""
     mesh_dir: Path = DEFAULT_MESH_DIR
     """Directory of optional meshes (bunny.obj, armadillo.obj)."""
+    shape: Literal["canonical", "drawn"] = "canonical"
+    """canonical (the fixed preset) or drawn (a family member drawn from the seed; families only)."""
+    support: Literal["none", "floor", "table", "drawn"] = "none"
+    """none (floating), floor, table or drawn: a support under the object (families only)."""
+    pose: Literal["standing", "lying", "stand", "drawn"] = "standing"
+    """standing, lying, stand (on a small stand) or drawn (families only)."""
+    renderer: Literal["project", "mitsuba"] = "project"
+    """project (built-in ray caster) or mitsuba (path traced, needs the pathtrace extra)."""
+    spp: int = 64
+    """Samples per pixel of the mitsuba renderer."""
     suite: bool = False
     """Write every object of the named suite (SUITE) into out/<object>/ instead of one scene."""
     overwrite: bool = False
@@ -55,8 +67,8 @@ class SynthCommand:
         if self.suite:
             jobs = [(name, Path(self.out) / name) for name in SUITE]
         else:
-            if self.object not in all_names():
-                raise SystemExit(f"unknown object {self.object!r}; choose from: {', '.join(all_names())}")
+            if self.object not in scene_names():
+                raise SystemExit(f"unknown object {self.object!r}; choose from: {', '.join(scene_names())}")
             jobs = [(self.object, Path(self.out))]
         rows = []
         for name, out in jobs:

@@ -25,13 +25,14 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from PIL import Image
 
 from ..materials import PROPERTY_KEYS, Material, load_library
 from .appearance import albedo, background, part_look, shade, stable_seed
-from .objects import DEFAULT_MESH_DIR, Layout, all_names, build_layout
+from .objects import DEFAULT_MESH_DIR, Layout, Part, all_names, build_layout
 from .render import Intrinsics, orbit_poses, render_view
 
 GENERATOR_VERSION = "1"
@@ -72,6 +73,18 @@ class SynthConfig:
     """RGB supersampling factor per axis (ground-truth maps are always sampled at pixel centres)."""
     mesh_dir: Path = DEFAULT_MESH_DIR
     """Where optional meshes (bunny.obj) are read from."""
+    shape: Literal["canonical", "drawn"] = "canonical"
+    """canonical: the object's fixed preset; drawn: a family member whose dimensions, parts, walls, materials and
+    densities the seed draws (synth/families.py; families only)."""
+    support: Literal["none", "floor", "table", "drawn"] = "none"
+    """none (the object floats), floor, table, or drawn (floor or table from the seed): a support seen by the
+    cameras (synth/support.py; families only)."""
+    pose: Literal["standing", "lying", "stand", "drawn"] = "standing"
+    """standing, lying (on its side), stand (on a small stand) or drawn (one of the family's poses)."""
+    renderer: Literal["project", "mitsuba"] = "project"
+    """project (the built-in ray caster) or mitsuba (path traced; needs the pathtrace extra, synth/pathtrace.py)."""
+    spp: int = 64
+    """Samples per pixel of the mitsuba renderer."""
     overwrite: bool = False
     """Replace an existing dataset in `out`."""
 
@@ -143,11 +156,41 @@ class Scene:
     part_seeds: list[int] = field(default_factory=list)
 
 
+def scene_names() -> tuple[str, ...]:
+    """Presets, scenes and object families (synth/families.py)."""
+    from .families import FAMILIES
+
+    return tuple(dict.fromkeys(all_names() + tuple(FAMILIES)))
+
+
+def scene_layout(cfg: SynthConfig) -> Layout:
+    """The preset or scene as it always was, or (shape, support or pose set) a family member on a support."""
+    from .families import FAMILIES
+    from .support import suite_layout
+
+    if (cfg.shape, cfg.support, cfg.pose) == ("canonical", "none", "standing") and cfg.object in all_names():
+        return build_layout(cfg.object, cfg.seed, cfg.mesh_dir)
+    if cfg.object not in FAMILIES:
+        raise KeyError(f"shape/support/pose apply to object families only, not {cfg.object!r}; families: "
+                       f"{', '.join(FAMILIES)}")  # fmt: skip
+    return suite_layout(cfg.object, cfg.seed, shape=cfg.shape, support=cfg.support, pose=cfg.pose,
+                        mesh_dir=cfg.mesh_dir)  # fmt: skip
+
+
+def part_density(part: Part, mat: Material, default: float) -> float:
+    """A part's true density: log-uniform in its material's library range at ``part.density_u`` (a drawn family
+    member, draw.py), else `default` (the material's, typical unless jittered)."""
+    if part.density_u is None:
+        return default
+    pr = mat.properties["density"]
+    return float(pr.low * (pr.high / pr.low) ** part.density_u)
+
+
 def resolve_scene(cfg: SynthConfig) -> Scene:
     """Build the layout and bind each part to its library material (KeyError if a material is missing)."""
-    if cfg.object not in all_names():
-        raise KeyError(f"unknown object or scene {cfg.object!r}; choose from: {', '.join(all_names())}")
-    layout = build_layout(cfg.object, cfg.seed, cfg.mesh_dir)
+    if cfg.object not in scene_names():
+        raise KeyError(f"unknown object or scene {cfg.object!r}; choose from: {', '.join(scene_names())}")
+    layout = scene_layout(cfg)
     env = cfg.env or layout.env
     lib = load_library(env)
     materials: list[Material] = []
@@ -184,7 +227,8 @@ def part_records(scene: Scene) -> list[dict]:
         m = scene.part_material[i]
         mat = scene.materials[m]
         volume = part.material_volume()
-        density = scene.properties[m]["density"]
+        density = part_density(part, mat, scene.properties[m]["density"])
+        props = {**scene.properties[m], "density": density}
         rec = {"id": i + 1, **part.describe(), "material": mat.name, "material_id": m + 1}
         rec.update(
             volume_m3=_r(volume),
@@ -192,7 +236,7 @@ def part_records(scene: Scene) -> list[dict]:
             surface_area_m2=_r(part.primitive.surface_area()),
             density_kg_m3=_r(density),
             mass_kg=_r(density * volume),
-            properties={k: _r(v) for k, v in scene.properties[m].items()},
+            properties={k: _r(v) for k, v in props.items()},
         )
         records.append(rec)
     return records
@@ -248,10 +292,26 @@ def _prepare_out(cfg: SynthConfig) -> Path:
     return out
 
 
+def _renderer(cfg: SynthConfig, scene: Scene, looks: list):
+    """render(K, c2w, view_index) -> View with the configured renderer (module doc of render.py / pathtrace.py)."""
+    parts, seeds = scene.layout.parts, scene.part_seeds
+    if cfg.renderer == "project":
+        return lambda K, c2w, v: render_view(parts, looks, seeds, K, c2w, scene.env, cfg.seed, cfg.supersample)
+    if cfg.renderer != "mitsuba":
+        raise ValueError(f"renderer must be 'project' or 'mitsuba', got {cfg.renderer!r}")
+    from . import pathtrace
+
+    why = pathtrace.available()
+    if why is not None:
+        raise RuntimeError(f"renderer mitsuba: {why}")
+    tracer = pathtrace.PathTracer(parts, looks, seeds, scene.env, cfg.seed, max(0.002, scene.layout.radius / 60))
+    return lambda K, c2w, v: tracer.view(K, c2w, cfg.spp, seed=int(stable_seed(cfg.seed, v) % 2**31))
+
+
 def generate_scene(cfg: SynthConfig) -> Path:
     """Render `cfg` into a nerfstudio dataset directory and return its path."""
-    if cfg.views < 1 or cfg.resolution < 8 or cfg.supersample < 1:
-        raise ValueError("need views >= 1, resolution >= 8 and supersample >= 1")
+    if cfg.views < 1 or cfg.resolution < 8 or cfg.supersample < 1 or cfg.spp < 1:
+        raise ValueError("need views >= 1, resolution >= 8, supersample >= 1 and spp >= 1")
     t_start = time.perf_counter()
     scene = resolve_scene(cfg)
     layout = scene.layout
@@ -269,8 +329,9 @@ def generate_scene(cfg: SynthConfig) -> Path:
     looks = [_look(scene, i) for i in range(len(layout.parts))]
     part_to_material = np.array([0] + [m + 1 for m in scene.part_material], dtype=np.uint8)
     frames, gt_frames = [], []
+    render = _renderer(cfg, scene, looks)
     for v, c2w in enumerate(poses):
-        view = render_view(layout.parts, looks, scene.part_seeds, K, c2w, scene.env, cfg.seed, cfg.supersample)
+        view = render(K, c2w, v)
         stem = f"frame_{v:05d}"
         paths = {
             "file_path": f"images/{stem}.png",

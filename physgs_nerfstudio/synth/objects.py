@@ -22,6 +22,7 @@ from typing import Literal
 
 import numpy as np
 
+from .draw import CANONICAL, Draw, MaterialDraw
 from .geometry import (
     Box,
     Capsule,
@@ -73,6 +74,7 @@ class Part:
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
     role: Role = "object"
     object: str = ""
+    density_u: float | None = None  # where the true density lies in the material's range (None: typical)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rotation", np.asarray(self.rotation, dtype=float).reshape(3, 3))
@@ -87,6 +89,8 @@ class Part:
                 raise ValueError(f"{self.name}: {self.primitive.kind} wall {wall} != thickness_m {self.thickness_m}")
         elif self.open_ends:
             raise ValueError(f"{self.name}: open_ends only apply to shell parts")
+        if self.density_u is not None and not 0.0 <= self.density_u <= 1.0:
+            raise ValueError(f"{self.name}: density_u must lie in [0, 1], got {self.density_u}")
 
     # -- volumes -------------------------------------------------------------------------------
     def material_volume(self) -> float:
@@ -131,10 +135,11 @@ class Part:
         return Part(
             self.name, self.primitive, self.material, self.volume_model, self.thickness_m, self.open_ends,
             rot @ self.rotation, rot @ self.translation + np.asarray(trans, dtype=float), self.role,
-            self.object if obj is None else obj,
+            self.object if obj is None else obj, self.density_u,
         )
 
     def describe(self) -> dict:
+        drawn = {} if self.density_u is None else {"density_u": round(self.density_u, 12)}
         return {
             "name": self.name,
             "object": self.object,
@@ -145,123 +150,221 @@ class Part:
             "volume_model": self.volume_model,
             "thickness_m": self.thickness_m,
             "open_ends": list(self.open_ends),
+            **drawn,
         }
 
 
-def _p(name: str, prim: Primitive, material: str, z: float = 0.0, *, x: float = 0.0, y: float = 0.0,
-       rot: np.ndarray | None = None, shell: float | None = None, open_ends: Sequence[str] = ()) -> Part:
+def _p(name: str, prim: Primitive, material: str | MaterialDraw, z: float = 0.0, *, x: float = 0.0,
+       y: float = 0.0, rot: np.ndarray | None = None, shell: float | None = None, open_ends: Sequence[str] = ()
+       ) -> Part:  # fmt: skip
+    mat, u = (material.name, material.density_u) if isinstance(material, MaterialDraw) else (material, None)
     return Part(
-        name, prim, material, "shell" if shell else "solid", shell, tuple(open_ends),
-        np.eye(3) if rot is None else rot, np.array([x, y, z]),
+        name, prim, mat, "shell" if shell else "solid", shell, tuple(open_ends),
+        np.eye(3) if rot is None else rot, np.array([x, y, z]), density_u=u,
     )
 
 
+def _tube(d: Draw, r_out: float, height: float, wall: tuple[float, float], canonical: tuple[float, float]
+          ) -> tuple[Tube, float]:  # fmt: skip
+    """A tube of outer radius `r_out` and a wall drawn in `wall`; canonical: (inner radius, wall) as stated."""
+    if d.canonical:
+        r_in, t = canonical
+    else:
+        t = d.uniform(*wall, 0.0)
+        r_in = r_out - t
+    return Tube(r_out, r_in, height), t
+
+
 # ---------------------------------------------------------------------------------------- objects
+# Each preset is a parametric family: `d` draws its dimensions, counts, walls and materials (draw.py); the
+# canonical draw (the default) is the fixed object that `physgs demo` and the tests use.
+
+WOODS = ("oak", "pine", "maple", "walnut", "bamboo", "wood")
+STEELS = ("steel", "stainless_steel", "aluminium", "chrome_plated")
 
 
-def mug() -> list[Part]:
-    r, h = 0.042, 0.10
+def mug(d: Draw = CANONICAL) -> list[Part]:
+    r, h = d.uniform(0.032, 0.052, 0.042), d.uniform(0.075, 0.125, 0.10)
+    wall, bottom = d.uniform(0.003, 0.007, 0.005), d.uniform(0.005, 0.012, 0.008)
+    minor = d.uniform(0.004, 0.008, 0.006)
+    major = min(d.uniform(0.022, 0.034, 0.030), h / 2 - minor - 0.002)
     return [
-        _p("body", Cup(r, h, 0.005, 0.008), "ceramic", h / 2, shell=0.005),
+        _p("body", Cup(r, h, wall, bottom), d.material(("ceramic", "porcelain", "terracotta"), "ceramic"), h / 2,
+           shell=wall),
         # half ring in the xz plane, cut flush with the body's tangent plane x = r
-        _p("handle", Half(Torus(0.030, 0.006), axis=0), "steel", h / 2, x=r, rot=rotation("x", 90)),
+        _p("handle", Half(Torus(major, minor), axis=0), d.material(("steel", "ceramic", "porcelain", "abs"), "steel"),
+           h / 2, x=r, rot=rotation("x", 90)),
     ]
 
 
-def chair() -> list[Part]:
-    leg_h, seat_t = 0.44, 0.025
+def chair(d: Draw = CANONICAL) -> list[Part]:
+    leg_h, seat_t = d.uniform(0.38, 0.50, 0.44), d.uniform(0.018, 0.035, 0.025)
+    sw, sd = d.uniform(0.36, 0.50, 0.44), d.uniform(0.36, 0.48, 0.42)
+    back_h, back_t = d.uniform(0.25, 0.50, 0.40), d.uniform(0.015, 0.03, 0.02)
+    wood = d.material(("oak", "pine", "plywood", "walnut", "mdf", "polypropylene"), "oak")
     parts = [
-        _p("seat", Box((0.44, 0.42, seat_t)), "oak", leg_h + seat_t / 2),
-        _p("back", Box((0.44, 0.02, 0.40)), "oak", leg_h + seat_t + 0.20, y=-0.20),
+        _p("seat", Box((sw, sd, seat_t)), wood, leg_h + seat_t / 2),
+        _p("back", Box((sw, back_t, back_h)), wood, d.derived(leg_h + seat_t + back_h / 2, leg_h + seat_t + 0.20),
+           y=d.derived(-(sd - back_t) / 2, -0.20)),
     ]
+    hollow = d.coin(0.5, True)
+    r = d.uniform(0.010, 0.020, 0.012)
+    lx, ly = d.uniform(0.7 * sw / 2, sw / 2 - r, 0.19), d.uniform(0.7 * sd / 2, sd / 2 - r, 0.18)
+    leg_mat = d.material(STEELS[:3], "aluminium") if hollow else d.material(WOODS, "oak")
     for i, (sx, sy) in enumerate(((1, 1), (1, -1), (-1, 1), (-1, -1))):
-        parts.append(_p(f"leg_{i}", Tube(0.012, 0.010, leg_h), "aluminium", leg_h / 2, x=0.19 * sx, y=0.18 * sy,
-                        shell=0.002))
+        if hollow:
+            tube, t = _tube(d, r, leg_h, (0.0015, 0.003), (0.010, 0.002))
+            parts.append(_p(f"leg_{i}", tube, leg_mat, leg_h / 2, x=lx * sx, y=ly * sy, shell=t))
+        else:
+            parts.append(_p(f"leg_{i}", Cylinder(r, leg_h), leg_mat, leg_h / 2, x=lx * sx, y=ly * sy))
     return parts
 
 
-def hammer() -> list[Part]:
+def hammer(d: Draw = CANONICAL) -> list[Part]:
+    length, hr = d.uniform(0.24, 0.38, 0.30), d.uniform(0.011, 0.017, 0.014)
+    hl, hw = d.uniform(0.09, 0.16, 0.13), d.uniform(0.022, 0.036, 0.03)
+    parts = [_p("handle", Cylinder(hr, length), d.material(WOODS[:5] + ("abs",), "oak"), length / 2)]
+    if d.coin(0.7, True):
+        gl = d.uniform(0.08, 0.14, 0.12)
+        grip = Tube(d.derived(hr + d.uniform(0.002, 0.005, 0.0), 0.018), hr, gl)
+        parts.append(_p("grip", grip, d.material(("natural_rubber", "rubber", "neoprene", "leather"), "natural_rubber"),
+                        gl / 2))
+    head_mat = d.material(("steel", "stainless_steel", "cast_iron", "brass", "natural_rubber"), "steel")
+    parts.append(_p("head", Box((hl, hw, hw)), head_mat, d.derived(length + hw / 2, 0.315)))
+    return parts
+
+
+def bottle(d: Draw = CANONICAL) -> list[Part]:
+    r, body_h, t = d.uniform(0.025, 0.045, 0.035), d.uniform(0.12, 0.24, 0.18), d.uniform(0.0015, 0.004, 0.003)
+    sh, nr, nl = d.uniform(0.025, 0.05, 0.04), d.uniform(0.010, 0.016, 0.013), d.uniform(0.03, 0.07, 0.05)
+    cr, ch = d.derived(nr + 0.002, 0.015), d.uniform(0.012, 0.025, 0.02)
+    glass = d.material(("glass", "pet", "hdpe"), "glass")
     return [
-        _p("handle", Cylinder(0.014, 0.30), "oak", 0.15),
-        _p("grip", Tube(0.018, 0.014, 0.12), "natural_rubber", 0.06),
-        _p("head", Box((0.13, 0.03, 0.03)), "steel", 0.315),
+        _p("body", Cylinder(r, body_h), glass, body_h / 2, shell=t, open_ends=("top",)),
+        _p("shoulder", Frustum(r, nr, sh), glass, d.derived(body_h + sh / 2, 0.20), shell=t,
+           open_ends=("top", "bottom")),
+        _p("neck", Cylinder(nr, nl), glass, d.derived(body_h + sh + nl / 2, 0.245), shell=t,
+           open_ends=("top", "bottom")),
+        _p("cap", Cylinder(cr, ch), d.material(("polypropylene", "hdpe", "aluminium", "cork"), "polypropylene"),
+           d.derived(body_h + sh + nl + ch / 2, 0.28)),
     ]
 
 
-def bottle() -> list[Part]:
-    t = 0.003
+def shoe(d: Draw = CANONICAL) -> list[Part]:
+    length, width, sole = d.uniform(0.22, 0.32, 0.28), d.uniform(0.08, 0.12, 0.10), d.uniform(0.015, 0.035, 0.025)
+    ur = d.uniform(0.035, width / 2, 0.05)
+    ul = d.derived(length - 2 * ur - d.uniform(0.0, 0.02, 0.0), 0.17)
+    upper = d.material(("leather", "faux_leather", "polyester", "cotton", "nylon_fabric"), "leather")
     return [
-        _p("body", Cylinder(0.035, 0.18), "glass", 0.09, shell=t, open_ends=("top",)),
-        _p("shoulder", Frustum(0.035, 0.013, 0.04), "glass", 0.20, shell=t, open_ends=("top", "bottom")),
-        _p("neck", Cylinder(0.013, 0.05), "glass", 0.245, shell=t, open_ends=("top", "bottom")),
-        _p("cap", Cylinder(0.015, 0.02), "polypropylene", 0.28),
-    ]
-
-
-def shoe() -> list[Part]:
-    sole = 0.025
-    return [
-        _p("sole", Box((0.28, 0.10, sole)), "natural_rubber", sole / 2),
+        _p("sole", Box((length, width, sole)), d.material(("natural_rubber", "rubber", "eva"), "natural_rubber"),
+           sole / 2),
         # half capsule along x, flat side down on the sole; the cut face is the open side of the shell
-        _p("upper", Half(Capsule(0.05, 0.17), axis=0, sign=-1.0), "leather", sole, rot=rotation("y", 90),
-           shell=0.002),
+        _p("upper", Half(Capsule(ur, ul), axis=0, sign=-1.0), upper, sole, rot=rotation("y", 90),
+           shell=d.uniform(0.0015, 0.004, 0.002)),
     ]
 
 
-def table() -> list[Part]:
-    leg_h, top_t = 0.72, 0.025
-    parts = [_p("top", Box((1.0, 0.6, top_t)), "oak", leg_h + top_t / 2)]
+def table(d: Draw = CANONICAL) -> list[Part]:
+    leg_h, top_t = d.uniform(0.65, 0.78, 0.72), d.uniform(0.018, 0.04, 0.025)
+    tw, td = d.uniform(0.7, 1.4, 1.0), d.uniform(0.5, 0.9, 0.6)
+    top = d.material(("oak", "pine", "walnut", "mdf", "plywood", "particleboard", "glass", "marble"), "oak")
+    parts = [_p("top", Box((tw, td, top_t)), top, leg_h + top_t / 2)]
+    hollow = d.coin(0.6, True)
+    r = d.uniform(0.015, 0.03, 0.02)
+    lx, ly = d.uniform(0.35 * tw, tw / 2 - r - 0.01, 0.45), d.uniform(0.3 * td, td / 2 - r - 0.01, 0.25)
+    leg_mat = d.material(STEELS[:3], "steel") if hollow else d.material(WOODS, "oak")
     for i, (sx, sy) in enumerate(((1, 1), (1, -1), (-1, 1), (-1, -1))):
-        parts.append(_p(f"leg_{i}", Tube(0.02, 0.018, leg_h), "steel", leg_h / 2, x=0.45 * sx, y=0.25 * sy,
-                        shell=0.002))
+        if hollow:
+            tube, t = _tube(d, r, leg_h, (0.0015, 0.003), (0.018, 0.002))
+            parts.append(_p(f"leg_{i}", tube, leg_mat, leg_h / 2, x=lx * sx, y=ly * sy, shell=t))
+        else:
+            parts.append(_p(f"leg_{i}", Cylinder(r, leg_h), leg_mat, leg_h / 2, x=lx * sx, y=ly * sy))
     return parts
 
 
-def pan() -> list[Part]:
-    r, h = 0.13, 0.05
+def pan(d: Draw = CANONICAL) -> list[Part]:
+    r, h = d.uniform(0.09, 0.16, 0.13), d.uniform(0.035, 0.07, 0.05)
+    wall, bottom = d.uniform(0.002, 0.006, 0.004), d.uniform(0.003, 0.008, 0.005)
+    hl, hw, ht = d.uniform(0.12, 0.22, 0.18), d.uniform(0.02, 0.035, 0.03), d.uniform(0.015, 0.025, 0.022)
+    metal = d.material(("cast_iron", "stainless_steel", "aluminium", "copper", "steel"), "cast_iron")
     return [
-        _p("pan", Cup(r, h, 0.004, 0.005), "cast_iron", h / 2, shell=0.004),
-        _p("handle", Box((0.18, 0.03, 0.022)), "oak", 0.035, x=r + 0.09),
+        _p("pan", Cup(r, h, wall, bottom), metal, h / 2, shell=wall),
+        _p("handle", Box((hl, hw, ht)), d.material(("oak", "walnut", "abs", "stainless_steel", "silicone"), "oak"),
+           d.derived(h - ht / 2 - 0.004, 0.035), x=r + hl / 2),
     ]
 
 
-def lamp() -> list[Part]:
+def lamp(d: Draw = CANONICAL) -> list[Part]:
+    br, bh = d.uniform(0.06, 0.12, 0.09), d.uniform(0.012, 0.03, 0.02)
+    pr, pl = d.uniform(0.007, 0.014, 0.01), d.uniform(0.30, 0.55, 0.40)
+    pole, pt = _tube(d, pr, pl, (0.001, 0.003), (0.008, 0.002))
+    bulb_r = d.uniform(0.022, 0.035, 0.03)
+    bulb_z = d.derived(bh + pl + bulb_r, 0.45)
+    rb = d.uniform(0.11, 0.19, 0.16)
+    rt, sh = d.uniform(0.5 * rb, 0.8 * rb, 0.09), d.uniform(0.14, 0.24, 0.20)
+    sw = d.uniform(0.001, 0.003, 0.002)
+    base = d.material(("steel", "cast_iron", "marble", "oak", "brass"), "steel")
     return [
-        _p("base", Cylinder(0.09, 0.02), "steel", 0.01),
-        _p("pole", Tube(0.01, 0.008, 0.40), "brass", 0.22, shell=0.002),
-        _p("bulb", Sphere(0.03), "glass", 0.45, shell=0.0008),
-        _p("shade", Shade(0.16, 0.09, 0.20, 0.002), "cotton", 0.40, shell=0.002),
+        _p("base", Cylinder(br, bh), base, bh / 2),
+        _p("pole", pole, d.material(("brass", "steel", "aluminium", "chrome_plated"), "brass"),
+           d.derived(bh + pl / 2, 0.22), shell=pt),
+        _p("bulb", Sphere(bulb_r), "glass", bulb_z, shell=0.0008),
+        _p("shade", Shade(rb, rt, sh, sw), d.material(("cotton", "polyester", "paper", "pvc"), "cotton"),
+           d.derived(bulb_z - 0.05, 0.40), shell=sw),
     ]
 
 
-def crate() -> list[Part]:
-    return [_p("box", Box((0.40, 0.30, 0.25)), "cardboard", 0.125, shell=0.004)]
+def crate(d: Draw = CANONICAL) -> list[Part]:
+    w, dp, h = d.uniform(0.25, 0.60, 0.40), d.uniform(0.20, 0.45, 0.30), d.uniform(0.15, 0.40, 0.25)
+    mat = d.material(("cardboard", "plywood", "pine", "polypropylene", "hdpe"), "cardboard")
+    return [_p("box", Box((w, dp, h)), mat, h / 2, shell=d.uniform(0.002, 0.012, 0.004),
+               open_ends=d.choice(((), ("top",)), ()))]
 
 
-def stool() -> list[Part]:
-    leg_h = 0.45
-    parts = [_p("seat", Cylinder(0.17, 0.03), "pine", leg_h + 0.015)]
-    for i in range(3):
-        a = 2 * math.pi * i / 3
-        parts.append(_p(f"leg_{i}", Cylinder(0.015, leg_h), "pine", leg_h / 2, x=0.12 * math.cos(a),
-                        y=0.12 * math.sin(a)))
-    parts.append(_p("footrest", Torus(0.145, 0.007), "steel", 0.18))
+def stool(d: Draw = CANONICAL) -> list[Part]:
+    leg_h = d.uniform(0.35, 0.65, 0.45)
+    sr, st = d.uniform(0.13, 0.21, 0.17), d.uniform(0.02, 0.045, 0.03)
+    seat = d.material(("pine", "oak", "walnut", "polypropylene", "bamboo"), "pine")
+    parts = [_p("seat", Cylinder(sr, st), seat, leg_h + st / 2)]
+    lr = d.uniform(0.012, 0.022, 0.015)
+    ring = d.uniform(0.55 * sr, sr - lr - 0.01, 0.12)
+    legs = d.material(("pine", "oak", "steel", "aluminium"), "pine")
+    n = d.integer(3, 4, 3)
+    for i in range(n):
+        a = 2 * math.pi * i / n
+        parts.append(_p(f"leg_{i}", Cylinder(lr, leg_h), legs, leg_h / 2, x=ring * math.cos(a), y=ring * math.sin(a)))
+    if d.coin(0.6, True):
+        ft = d.uniform(0.005, 0.01, 0.007)
+        parts.append(_p("footrest", Torus(d.derived(ring + lr + ft + 0.001, 0.145), ft),
+                        d.material(("steel", "aluminium", "brass"), "steel"), d.derived(d.uniform(0.25, 0.5, 0.0) * leg_h, 0.18)))
     return parts
 
 
-def dumbbell() -> list[Part]:
-    r_plate, bar_r = 0.09, 0.014
+def dumbbell(d: Draw = CANONICAL) -> list[Part]:
+    r_plate, bar_r = d.uniform(0.05, 0.12, 0.09), d.uniform(0.011, 0.016, 0.014)
+    bar_l, grip_l = d.uniform(0.28, 0.42, 0.36), d.uniform(0.09, 0.13, 0.12)
+    pt, per_side = d.uniform(0.02, 0.04, 0.03), d.integer(1, 2, 1)
     along_x = rotation("y", 90)
-    return [
-        _p("bar", Cylinder(bar_r, 0.36), "steel", r_plate, rot=along_x),
-        _p("grip", Tube(0.018, bar_r, 0.12), "natural_rubber", r_plate, rot=along_x),
-        _p("plate_0", Tube(r_plate, bar_r, 0.03), "cast_iron", r_plate, x=0.13, rot=along_x),
-        _p("plate_1", Tube(r_plate, bar_r, 0.03), "cast_iron", r_plate, x=-0.13, rot=along_x),
+    parts = [
+        _p("bar", Cylinder(bar_r, bar_l), d.material(("steel", "chrome_plated", "stainless_steel"), "steel"), r_plate,
+           rot=along_x),
+        _p("grip", Tube(d.derived(bar_r + d.uniform(0.003, 0.006, 0.0), 0.018), bar_r, grip_l),
+           d.material(("natural_rubber", "neoprene", "rubber"), "natural_rubber"), r_plate, rot=along_x),
     ]
+    plate = d.material(("cast_iron", "steel", "concrete"), "cast_iron")
+    x0 = d.derived(grip_l / 2 + d.uniform(0.0, 0.02, 0.0) + pt / 2, 0.13)
+    x0 = min(x0, bar_l / 2 - (per_side - 0.5) * pt)
+    for k in range(2 * per_side):
+        x = (x0 + (k // 2) * pt) * (1 if k % 2 == 0 else -1)
+        parts.append(_p(f"plate_{k}", Tube(r_plate, bar_r, pt), plate, r_plate, x=x, rot=along_x))
+    return parts
 
 
-def vase() -> list[Part]:
-    return [_p("vase", Cup(0.06, 0.25, 0.004, 0.008), "porcelain", 0.125, shell=0.004)]
+def vase(d: Draw = CANONICAL) -> list[Part]:
+    r, h = d.uniform(0.04, 0.09, 0.06), d.uniform(0.15, 0.35, 0.25)
+    wall, bottom = d.uniform(0.0025, 0.007, 0.004), d.uniform(0.005, 0.012, 0.008)
+    mat = d.material(("porcelain", "ceramic", "glass", "terracotta"), "porcelain")
+    return [_p("vase", Cup(r, h, wall, bottom), mat, h / 2, shell=wall)]
 
 
 def _figurine(file: str, material: str, scale: float, mesh_dir: Path) -> list[Part]:
