@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from bench_modules import load_benchmark
+from helpers.benchmarks import load_benchmark
 
 from physgs_nerfstudio.synth.support import suite_layout
 
