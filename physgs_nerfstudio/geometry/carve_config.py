@@ -55,10 +55,9 @@ class CarveConfig:
     "first" depths, which already lie in front of the centres (:meth:`extent_multiple`)"""
     min_direct_fraction: float = 2.0
     """... or at least this fraction of the views that see it directly see past it by depth (module doc);
-    > 1 (the default) switches the direct rule off: over the generated suite at seed 101 it carved the space
-    under objects but also thin bottoms that only a few poorly reconstructed low views see (median APE 0.307
-    with 0.5 against 0.273 without; benchmarks/README.md). 0.5 is the setting to try for a capture with views
-    from below"""
+    > 1 (the default) switches the direct rule off: over the generated suite it carved the space under objects
+    but also thin bottoms that only a few poorly reconstructed low views see (a higher median APE with 0.5 than
+    without). 0.5 is the setting to try for a capture with views from below"""
     depth_consensus: float = 0.5
     """a voxel that the silhouette votes alone do not carve is carved only when its depth votes are at least this
     fraction of the views that see it near or in front of their rendered surface (within ``near_band_voxels``

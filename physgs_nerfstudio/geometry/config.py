@@ -59,9 +59,8 @@ class GeometryConfig:
     extent_outlier_fraction: float = 0.001
     """the polytope of all but this fraction of the object's Gaussians along each of its directions (the outermost
     ones, :func:`.extent.support_heights`): a few strays under an object's unseen bottom face otherwise set where its
-    solid ends (the GPU lamp at seed 5757: the lowest of 21,535 Gaussians near it 10 mm under its base, the 20th 4.4
-    mm, the 50th 2.5 mm, and its steel base carved 1.3x its volume). 0 = every Gaussian counts; documented range
-    0-0.003 (benchmarks/README.md)"""
+    solid ends (on a GPU splat of a lamp the lowest of some 20,000 Gaussians near it lay 10 mm under its base, the
+    20th 4.4 mm, the 50th 2.5 mm). 0 = every Gaussian counts; documented range 0-0.003"""
     extent_variant_voxels: float | None = 1.0
     """the mass interval also samples the nominal carving cut to the polytope grown by this many more voxels: where
     the polytope ends the solid (an underside no view sees past), the surface is placed by the scatter of a few
@@ -70,11 +69,9 @@ class GeometryConfig:
     """the mass interval also samples the nominal carving without the voxels that lie within this many voxels inside
     the polytope where the polytope ends the solid (next to carved space more than a voxel past the polytope: no view
     saw past it): the other side of ``extent_variant_voxels``, since the few Gaussians' scatter places such a face
-    either way (the GPU lamp at seed 10404: a voxel layer of false solid under its steel base). Seen faces, where the
-    views end the solid, keep their voxels. None (default) = no such variant: at 1.0 it widened the intervals (a
-    first version: median width 0.28 -> 0.31 of the prediction on the GPU at seed 10707, the lamp's 0.33 -> 0.50;
-    this one: the CPU lamps' lower ends down by up to a quarter) and covered no more objects at one GPU and three CPU
-    seeds (benchmarks/README.md)"""
+    either way (a voxel layer of false solid under a flat unseen base). Seen faces, where the
+    views end the solid, keep their voxels. None (default) = no such variant: at 1.0 it widened the suite's
+    intervals and covered no more objects"""
     hidden_skin_voxels: int | None = 2
     """the solid loses its *hidden open space* (:mod:`.hidden`): voxels that no view could carve (under a table top
     shot from above, under a chair's seat) and that, in most directions, no seen surface encloses. The seen surface
@@ -178,10 +175,10 @@ class GeometryConfig:
     the selected Gaussians alone. A number: from those plus the others in the selection's box whose object probability
     (:mod:`.select`, step 1) is at least this (opacity at least ``select.min_opacity``, not on the support plane).
     Why: an object's boundary Gaussians carry labels mixed with the background's and fall below the selection's 0.5;
-    rendered without them the boundary is see-through, and the depth carves it although the masks keep it (the CPU
-    table at seed 8383 lost a 3-5 cm rim of its top). A Gaussian rendered but not selected only withholds depth
-    votes. Measured at 0.2 on six CPU seeds (benchmarks/README.md): the tables' tops are kept and
-    coverage rises, but the median volume error rises at every seed (more false solid, and the tables' missing legs
+    rendered without them the boundary is see-through, and the depth carves it although the masks keep it (a
+    table can lose a rim of a few centimetres of its top). A Gaussian rendered but not selected only withholds depth
+    votes. Measured at 0.2 over the CPU suite: the tables' tops are kept and
+    coverage rises, but the median volume error rises (more false solid, and the tables' missing legs
     are then made up by excess top), so it is off until measured on the GPU"""
     object_mask_dilate_px: int = 2
     """the object's own silhouette (its Gaussians rendered alone) is dilated by this before it cuts the

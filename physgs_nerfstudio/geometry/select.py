@@ -111,24 +111,23 @@ class SelectConfig:
     their contact shadows, clutter and the floor's reflections bridge them: on the GPU's `indoor_room` the chair, the
     crate and the lamp joined the table's cluster through Gaussians a few centimetres up. At the clusters' own
     resolution whatever lies within one reach of the plane touches it, so it is no evidence that two objects touch.
-    None: every candidate above the plane's tolerance is clustered (before session 28)"""
+    None: every candidate above the plane's tolerance is clustered"""
     split_on_plane: bool = True
     """where a support plane is found: the chosen cluster is split again at its own resolution (:func:`.clusters.split_close`:
     its Gaussians linked within the clusters' reach, two cells of ``cluster_cells`` along the longest side of its
     5-95% core or of 1.5 x the 90th percentile of their spacing, by exact distance), keeping the part nearest the
     centre, until it stops shrinking. The clusters' cells
     are a share of the floor's size, not of the object's, and objects on a floor stand close: on the GPU's
-    `indoor_room` the chair stands 15 cm from the table and stayed in its cluster (2.5-2.8x the table's volume at three
-    seeds, session 28). With ``contact_band`` the split links its parts only above the band, at its own reach
-    (session 39: floaters near the floor linked a chair and a lamp to the table). False: the coarse clusters
-    alone"""
+    `indoor_room` the chair stands 15 cm from the table and stayed in its cluster (2.5-2.8x the table's volume).
+    With ``contact_band`` the split links its parts only above the band, at its own reach (floaters near the floor
+    otherwise link neighbouring objects). False: the coarse clusters alone"""
     split_in_band: bool = False
-    """True: ``split_on_plane`` links the chosen cluster's parts through the contact band too (before session 39)"""
+    """True: ``split_on_plane`` links the chosen cluster's parts through the contact band too"""
     object_names: float | None = None
     """the chosen cluster's Gaussians that one other object's name claims by more than this many views' evidence
     are dropped (module doc, step 3b; :mod:`.names`: a mug standing on the table; 1 is the tested value); None,
     the default: the names are not used (with the built-in segmenter's masks the rule dropped the table's own
-    Gaussians, not the mug's: benchmarks/README.md, session 41)"""
+    Gaussians, not the mug's)"""
     support: SupportConfig = field(default_factory=SupportConfig)
     """the floor or table the object stands on, dropped before the clusters (module doc, step 2;
     :mod:`.support`)"""

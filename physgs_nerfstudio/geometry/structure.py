@@ -77,8 +77,7 @@ class StructureConfig:
     """90% of the prior's thickness mass within [t / spread, t x spread]"""
     evidence: Literal["mask", "material"] = "mask"
     """how much of an answer's hollow-or-solid call concerns a part (module doc, "Evidence"): "mask", the mask's one
-    judgment, as far as the part fills the mask or is of a material the mask named; "material" (session 33 and
-    before), each candidate by its confidence times the part's mixture weight of its material"""
+    judgment, as far as the part fills the mask or is of a material the mask named; "material", each candidate by its confidence times the part's mixture weight of its material"""
 
     def __post_init__(self) -> None:
         if self.prior_strength <= 0:

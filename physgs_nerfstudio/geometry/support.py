@@ -110,10 +110,10 @@ class SupportConfig:
     wider_quantile: float | None = 0.05
     """"wider than what stands on it" compares the plane's footprint with the q to 1 - q quantiles of *everything*
     above it in its neighbourhood, beside the footprint too: a lamp's base is no floor, for the shade standing on it
-    overhangs it (the CPU lamp at seed 9696 took its base's top for a support plane, and the export failed). The
+    overhangs it (otherwise a lamp's base top can be taken for a support plane). The
     quantiles, not the extremes, so that a few floaters beside a floor (0.4-3% of what stands on the GPU
     `indoor_room`'s floor) do not reject it. None: the 1-99% quantiles of the points over the footprint only
-    (``over_footprint``, session 27)"""
+    (``over_footprint``)"""
     footprint_cells: int = 64
     """cells along the longer side of the plane's footprint grid (:func:`seen_under_plane`)"""
 
