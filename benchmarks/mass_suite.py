@@ -87,6 +87,39 @@ def write_scene(family: str, seed: int, renderer: str, support: str, scene_dir: 
     return time.perf_counter() - t0
 
 
+def _tag(item: dict, support: str) -> str:
+    """A run's folder name: FAMILY_sSEED_RENDERER (_float without a support; FAMILY_sSEED for a preset)."""
+    fam, seed = item["family"], item["seed"]
+    if item["preset"]:
+        return f"{fam}_s{seed}"
+    return f"{fam}_s{seed}_{item['renderer']}" + ("_float" if support == "none" else "")
+
+
+def _scene_task(args: tuple) -> str:
+    family, seed, renderer, support, scene_dir, spp = args
+    os.environ.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+        s = write_scene(family, seed, renderer, support, Path(scene_dir), spp)
+        return f"{Path(scene_dir).parent.name}: {s:.1f} s"
+    except Exception as err:  # noqa: BLE001 - a failed scene is reported; its run then fails with the same reason
+        return f"{Path(scene_dir).parent.name}: failed: {type(err).__name__}: {err}"
+
+
+def write_scenes(todo: list[dict], a: argparse.Namespace) -> None:
+    """Every scene of the grid, ``--jobs`` processes at once (one thread each); one line per scene as it ends."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    tasks = [(t["family"], t["seed"], t["renderer"], a.support,
+              str(a.out / _tag(t, a.support) / "scene"), a.spp) for t in todo if not t["preset"]]  # fmt: skip
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max(1, a.jobs)) as pool:
+        for i, line in enumerate(pool.map(_scene_task, tasks), 1):
+            print(f"[{i}/{len(tasks)} {time.perf_counter() - t0:.0f} s] {line}", flush=True)
+
+
 def _to_world(x_scene: np.ndarray, transform: np.ndarray, scale: float) -> np.ndarray:
     """Dataset (world) coordinates of scene points: the inverse of nerfstudio's p_s = scale (R p + t)."""
     R, t = transform[:, :3], transform[:, 3]
@@ -194,7 +227,7 @@ def _run(cmd: list[str], env: dict, log: Path) -> str | None:
 def run_one(item: dict, a: argparse.Namespace) -> dict:
     """Scene, demo and (with --export-args) the re-export of one (family, seed, renderer); its scored row."""
     fam, seed, renderer = item["family"], item["seed"], item["renderer"]
-    tag = f"{fam}_s{seed}" if item["preset"] else f"{fam}_s{seed}_{renderer}" + ("_float" if a.support == "none" else "")
+    tag = _tag(item, a.support)
     d = a.out / tag
     env = dict(os.environ, **({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"} if a.jobs > 1 else {}))
     row = {"family": fam, "seed": seed, "renderer": renderer}
@@ -281,7 +314,11 @@ def _args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--support", default="drawn", choices=["drawn", "floor", "table", "none"])
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel of the mitsuba renderer")
     ap.add_argument("--out", type=Path, default=Path("/tmp/physgs_mass_suite"))
-    ap.add_argument("--demo-args", nargs="*", default=[])
+    ap.add_argument("--demo-args", type=shlex.split, default=[],
+                    help='extra `physgs demo` flags (one quoted string), e.g. "--device cuda": train on a GPU')
+    ap.add_argument("--scenes-only", action="store_true",
+                    help="write the scenes (--jobs processes at once) and stop: a GPU machine renders them on its CPUs "
+                         "before the runs")
     ap.add_argument("--export-args", type=shlex.split, default=None,
                     help="re-export every finished demo with these extra `physgs export` flags (one quoted string) into "
                          "export_NAME/ and score that: a method row beside the baseline")  # fmt: skip
@@ -328,6 +365,8 @@ def main(argv: list[str] | None = None) -> None:
         todo = [{"family": f, "seed": s, "renderer": r, "preset": False}
                 for r in a.renderers for s in a.seeds for f in a.families]  # fmt: skip
 
+    if a.scenes_only:
+        return write_scenes(todo, a)
     method = "baseline" if a.export_args is None else a.alt_name
     partial = a.out / f"mass_suite_rows_{method}.jsonl"  # every finished row at once: a run stopped early keeps them
 
