@@ -2,8 +2,8 @@
 # Work longer than one 10-minute device call, run detached (setsid) on a machine kept warm by back-to-back calls:
 #   bash benchmarks/gpu/detached.sh start "JOB" ["JOB" ...]  # each JOB a shell command, run one after another
 #   bash benchmarks/gpu/detached.sh wait [SECONDS]            # follows the log until all ended or SECONDS passed
-# The jobs run with OUT=/tmp/detached/out; `wait` copies its files (the *.json and *.log, then stability folders'
-# reports gathered into stability_partial_RUN.json) to the call's $OUT. The calls must follow each other within
+# The jobs run in a copy of the checkout (/tmp/detached/repo) with OUT=/tmp/detached/out; `wait` copies its files
+# (the *.json and *.log, then stability folders' reports gathered into stability_partial_RUN.json) to the call's $OUT. The calls must follow each other within
 # the machine's idle release (30 s), or it is given back and the jobs end with it.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -12,7 +12,11 @@ case "${1:?start|wait}" in
   start)
     shift; mkdir -p $D/out; rm -f $D/done
     printf '%s\n' "$@" > $D/jobs
-    setsid nohup bash -c "export OUT=$D/out; while IFS= read -r job; do echo \"[\$(date +%T)] \$job\"; bash -c \"\$job\";
+    # The jobs run in a copy of the checkout: every device call syncs the checkout again, which removes what a job
+    # built or wrote inside it (a gsplat build in .gsplat_build/ vanished under twelve running trainings) and
+    # leaves a running process in a deleted working directory.
+    rm -rf $D/repo; mkdir -p $D/repo; cp -a . $D/repo/
+    setsid nohup bash -c "cd $D/repo; export OUT=$D/out; while IFS= read -r job; do echo \"[\$(date +%T)] \$job\"; bash -c \"\$job\";
       echo \"[\$(date +%T)] rc \$?\"; done < $D/jobs; touch $D/done" > $D/log 2>&1 < /dev/null &
     echo "started: $(wc -l < $D/jobs) jobs, log $D/log"
     ;;

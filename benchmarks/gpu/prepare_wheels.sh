@@ -18,3 +18,21 @@ python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --im
   --platform manylinux_2_31_x86_64 --platform manylinux_2_34_x86_64 \
   -d .whl "${PKGS[@]}"
 du -sh .whl
+
+# `prepare_wheels.sh pathtrace`: also the Mitsuba 3 wheels for the GPU machine's CPUs (the suite's path-traced
+# scenes) in .whlpt/, carried on their own call (`PHASE=scenes run_gpu.sh grid`): a call carries at most 64 MiB,
+# so the wheel keeps only the scalar_rgb variant the suite renders with and drops plugins it never loads.
+if [ "${1:-}" = pathtrace ]; then
+  V=$(python3 -c "import mitsuba; print(mitsuba.__version__)") DV=$(python3 -c "import drjit; print(drjit.__version__)")
+  T=$(mktemp -d) R=$PWD; mkdir -p .whlpt; rm -f .whlpt/*.whl
+  python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+    --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 -d "$T" "mitsuba==$V" "drjit==$DV"
+  mv "$T"/drjit-*.whl .whlpt/
+  (cd "$T" && mkdir x && cd x && unzip -q ../mitsuba-*.whl \
+    && rm -f mitsuba/cuda_ad_* mitsuba/llvm_ad_* mitsuba/scalar_spectral* && rm -rf mitsuba/data/sunsky \
+    && for p in ellipsoids ellipsoidsmesh volpath volpathmis sdfgrid sunsky timed_sunsky bsplinecurve linearcurve \
+         ptracer prbvolpath; do rm -f mitsuba/plugins/$p.so; done \
+    && python3 -c "import glob, os; r = glob.glob('*.dist-info/RECORD')[0]; ls = [l for l in open(r) if os.path.exists(l.split(',')[0])]; open(r, 'w').writelines(ls)" \
+    && zip -q -r -9 "$R/.whlpt/$(basename ../mitsuba-*.whl)" .)
+  rm -rf "$T"; du -sh .whlpt
+fi

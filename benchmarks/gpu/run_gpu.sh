@@ -12,6 +12,8 @@
 #   OBJECTS=5 STEPS=3000 bash benchmarks/gpu/run_gpu.sh batch     # issue 14: physgs batch (local) over the suite
 #   PHASE=scenes CPU_SEEDS="1313 1414" bash benchmarks/gpu/run_gpu.sh msuite  # issue 12: GPU suite scenes (+ CPU suite)
 #   PHASE=train OBJECTS="mug chair" bash benchmarks/gpu/run_gpu.sh msuite     # ... then train and score them
+#   PHASE=scenes SEEDS="70001 70002 70003" bash benchmarks/gpu/run_gpu.sh grid  # the mass suite's grid: scenes (.whlpt)
+#   PHASE=runs SEEDS="70001 70002 70003" bash benchmarks/gpu/run_gpu.sh grid    # ... then its runs, detached (.whl)
 #   [BASE=DIR] bash benchmarks/gpu/run_gpu.sh after  # issue 13, after `export` on the same machine: mass_integration.py
 #                                            # (and BASE's beside it),
 #                                            # the run's ns-eval, physgs vs splatfacto-big
@@ -31,7 +33,17 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
-case "${1:-}" in perf|suite|mem|export|batch|msuite) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
+if [ "${1:-}" = grid ] && [ "${PHASE:-runs}" = scenes ]; then
+  # the mass suite's grid, step 1 (carry .whlpt/, the Mitsuba wheels: prepare_wheels.sh pathtrace): every scene of
+  # SEEDS, both renderers, rendered on the machine's CPUs, detached; step 2 is `PHASE=runs ... grid` (carry .whl/)
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/msite .whlpt/*.whl || exit 1
+  mkdir -p /tmp/suite; cp -a . /tmp/suite_repo
+  (cd /tmp/suite_repo && PYTHONPATH=/tmp/msite:/tmp/suite_repo OMP_NUM_THREADS=1 setsid nohup python3 \
+    benchmarks/mass_suite.py --scenes-only --seeds ${SEEDS:?SEEDS=...} --renderers mitsuba project --jobs 16 \
+    --out /tmp/suite > /tmp/scenes.log 2>&1 < /dev/null &)
+  sleep 30; tail -2 /tmp/scenes.log; exit 0
+fi
+case "${1:-}" in perf|suite|mem|export|batch|msuite|grid) export GSPLAT_BUILD_LATER=1 ;; esac  # compiled beside CPU work
 if ! python3 -c "import nerfstudio" 2>/dev/null; then source benchmarks/gpu/setup_env.sh; fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 SCENE=/tmp/physgs_gpu_scene
@@ -252,6 +264,15 @@ case "${1:-kernels}" in
     python3 benchmarks/gpu/bench_training.py --data "$SCENE" --steps ${TRAIN_STEPS:-1500} --warmup 300 \
       --methods ${METHODS:-splatfacto-big physgs} --out "$OUT/training.json" 2>&1 | grep -v Warning | tee "$OUT/training.log" | tail -8
     echo "[$(elapsed) s] done"
+    ;;
+  grid)
+    # the mass suite's grid, step 2 (after PHASE=scenes; carry .whl/): `physgs demo` at its CPU settings but trained on
+    # the GPU (--device cuda) for every scene, JOBS at a time, detached in a copy of the checkout (detached.sh); then
+    # `bash benchmarks/gpu/detached.sh wait` in back-to-back calls; the rows: /tmp/suite/mass_suite_rows_baseline.jsonl
+    wait  # the gsplat build
+    bash benchmarks/gpu/detached.sh start "export PYTHONPATH=/tmp/site:/tmp/msite:\$PWD TORCH_EXTENSIONS_DIR=\$PWD/.gsplat_build; while pgrep -f scenes-only >/dev/null; \
+      do sleep 5; done; python3 benchmarks/mass_suite.py --seeds $SEEDS --renderers mitsuba project --jobs ${JOBS:-12} \
+      --demo-args '--device cuda' --out /tmp/suite > \$OUT/suite.log 2>&1; cp /tmp/suite/mass_suite*.json* \$OUT/"
     ;;
   msuite)
     # issue 12, the mass suite at 60 views 512 px on the GPU, in phases that each fit a 10-minute command on one
