@@ -120,6 +120,8 @@ def test_the_flag_itself(tmp_path, capsys):
         split_flag(["--settings", "a.yaml", "--settings=b.yaml"])
     assert fails(capsys, ["materials", "--settings"]) == "physgs materials: error: --settings needs a file: " \
                                                           "--settings FILE.yaml"
+    assert fails(capsys, ["--settings", "a.yaml", "export"]) == "physgs: error: give --settings after the " \
+                                                                 "command: physgs COMMAND --settings FILE.yaml"
     missing = tmp_path / "none.yaml"
     assert f"{missing}: no such settings file" in fails(capsys, ["materials", "--settings", str(missing)])
 
