@@ -211,7 +211,7 @@ def coerce(tp: Any, value: Any) -> Any:
     raise Mismatch
 
 
-def _subcommands(tp: Any) -> dict[str, type] | None:
+def subcommand_choices(tp: Any) -> dict[str, type] | None:
     """name -> config class of a union of subcommand configs (``vlm:openai | vlm:replay | ...``), else None."""
     tp = _strip(tp)
     if not _is_union(tp):
@@ -266,7 +266,7 @@ class _Reader:
         cls = _strip(tp)
         if _is_dataclass(cls):
             return self.instance(cls, raw, current, key + ".")
-        choices = _subcommands(tp)
+        choices = subcommand_choices(tp)
         if choices is not None:
             if not (isinstance(raw, dict) and len(raw) == 1 and next(iter(raw)) in choices):
                 raise self.fail(f"'{key}' is a choice: give one of {', '.join(choices)} with its settings, "
