@@ -239,13 +239,16 @@ class _Reader:
         import tyro
 
         if not isinstance(settings, dict):
-            raise self.fail(f"'{prefix.rstrip('.')}' holds settings: give a mapping of them, not "
-                                    f"{_show(settings)}")
+            raise self.fail(f"'{prefix.rstrip('.')}' holds settings: give a mapping of them, not {_show(settings)}")
         fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
         for name in settings:
             if name not in fields:
                 raise self.fail(f"unknown setting '{prefix}{name}' ({_known(str(name), list(fields), prefix)})")
-        hints = typing.get_type_hints(cls, include_extras=True)
+        try:
+            hints = typing.get_type_hints(cls, include_extras=True)
+        except (NameError, TypeError) as err:  # an annotation only a type checker resolves
+            raise self.fail(f"the settings of '{prefix.rstrip('.') or cls.__name__}' cannot be read from a file "
+                            f"({err}); give them as flags") from None
         obj = object.__new__(cls)
         for name, f in fields.items():
             if isinstance(base, cls):
@@ -270,7 +273,7 @@ class _Reader:
         if choices is not None:
             if not (isinstance(raw, dict) and len(raw) == 1 and next(iter(raw)) in choices):
                 raise self.fail(f"'{key}' is a choice: give one of {', '.join(choices)} with its settings, "
-                                     f"such as '{key.rsplit('.', 1)[-1]}: {{{next(iter(choices))}: {{}}}}'")
+                                f"such as '{key.rsplit('.', 1)[-1]}: {{{next(iter(choices))}: {{}}}}'")
             (name, sub), = raw.items()
             return self.instance(choices[name], {} if sub is None else sub, current, f"{key}.{name}.")
         try:
