@@ -868,7 +868,7 @@ def parse_args(argv: Sequence[str] | None):
     ap.add_argument("--results-dir", type=Path, default=None, help="default: <work-dir>/results")
     ap.add_argument("--quick", action="store_true", help="smoke run: 3 objects, 8 views, 64 px, 1000 draws")
     act = ap.add_argument_group("active querying (--active)")
-    act.add_argument("--active", action="store_true", help="add the active-querying section (slow: about 6x the rest)")
+    act.add_argument("--active", action="store_true", help="add the active-querying section (about 4x the time of the rest)")
     act.add_argument("--step", type=int, default=4, help="evaluate the mass after every STEP queries")
     act.add_argument("--random-repeats", type=int, default=5)
     act.add_argument("--active-samples", type=int, default=64, help="Monte Carlo draws per estimate (only the mean is used)")
