@@ -38,7 +38,25 @@ Masks: ``--segmenter oracle`` (default) cuts masks from the ground-truth part ma
 silhouette, spanning several materials; part = each visible part; subpart = halves of larger parts) so the
 benchmark measures fusion, not segmentation; ``--segmenter builtin`` uses the weight-free segmenter.
 
-Run:  OMP_NUM_THREADS=1 python benchmarks/accuracy.py [--quick] [--work-dir DIR] [--results-dir DIR]
+``--active`` adds a second section, active querying vs asking every mask of every view, on the same scenes and
+exhaustive perception (the ``active_querying`` key of accuracy.json and a second part of the printed table). The
+simulated VLM answers a (view, mask) request deterministically (seeded by the request), so a query order can be
+replayed from the exhaustive observations: every policy sees exactly the answers a live run would get (checked
+once per run against a live ``run_active_perception`` on a copy of the first object, from the response cache).
+Policies (one query = one mask of one view):
+
+* ``active``: ``physgs_nerfstudio.perception.active.ActiveSelector`` (default ``ActiveConfig``);
+* ``active (no transfer)``: the same without the cross-view appearance transfer (within-view Dirichlet
+  entropy, NIG epistemic and exploration only);
+* ``dataset order``: every mask of view 0, then view 1, ... (what a capped exhaustive run does);
+* ``random``: uniformly random order (mean over ``--random-repeats`` seeds).
+
+After every ``--step`` queries the object's mass is estimated with (c) (and (c')) from the answers so far
+(``--active-samples`` draws, only the mean is used). Reported per object and in aggregate: the queries needed
+until the mass APE is within 5% of the exhaustive estimator's APE (absolute: APE <= APE_all + 0.05; relative:
+APE <= 1.05 APE_all), and the APE at 25% of the queries.
+
+Run:  OMP_NUM_THREADS=1 python benchmarks/accuracy.py [--quick] [--active] [--work-dir DIR] [--results-dir DIR]
 """
 
 from __future__ import annotations
@@ -47,6 +65,7 @@ import argparse
 import hashlib
 import json
 import math
+import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -654,10 +673,189 @@ def describe_noise(sim) -> str:
     )
 
 
-def main(argv: Sequence[str] | None = None) -> dict:
-    from physgs_nerfstudio.perception.simulated import SimulatedConfig
-    from physgs_nerfstudio.synth import SUITE
+# =========================================================================================================
+# --active: active querying vs asking every mask (replayed from the exhaustive observations)
+# =========================================================================================================
 
+ACTIVE_ESTIMATORS = {"c": False, "c_map": True}
+"""estimator key -> map_material: (c) PhysGS mixture mean, (c') its MAP-material variant"""
+POLICIES = ("active", "active (no transfer)", "dataset order", "random")
+
+
+@dataclass
+class ActiveBench:
+    """The settings of the --active section."""
+
+    step: int = 4
+    """evaluate the mass after every ``step`` queries"""
+    random_repeats: int = 5
+    """random orders per object (their mean is reported)"""
+    samples: int = 64
+    """Monte Carlo draws per estimate (only the mean is used)"""
+    live_check: bool = True
+    """replay check against a live ``run_active_perception`` on the first object"""
+
+
+def selector_inputs(root: Path, scene: SceneData):
+    """Per view of ``scene``: its mask stack, mask levels and mask features, as ``ActiveSelector`` takes them."""
+    from PIL import Image
+
+    from physgs_nerfstudio.perception.active import mask_features
+    from physgs_nerfstudio.perception.pipeline import mask_path
+    from physgs_nerfstudio.perception.segment import load_masks
+
+    stacks, levels, feats = {}, {}, {}
+    for view in scene.views:
+        ms = load_masks(mask_path(root, view)) or []
+        img = np.asarray(Image.open(root / view).convert("RGB"), dtype=np.uint8)
+        stacks[view] = np.stack([m.segmentation for m in ms]) if ms else np.zeros((0,) + img.shape[:2], bool)
+        levels[view] = [m.level for m in ms]
+        feats[view] = mask_features(img, [m.segmentation for m in ms])
+    return stacks, levels, feats
+
+
+def active_order(root: Path, scene: SceneData, library, cfg) -> list[tuple[str, int]]:
+    """The (view, mask) order in which ``ActiveSelector`` with ``cfg`` asks, fed the replayed answers."""
+    from physgs_nerfstudio.perception.active import ActiveSelector
+
+    stacks, levels, feats = selector_inputs(root, scene)
+    sel = ActiveSelector(scene.views, stacks, levels, feats, library, cfg)
+    by_mask = scene.by_mask()
+    order = []
+    while sel.remaining():
+        batch = sel.select(cfg.batch_size)
+        if not batch:
+            break
+        for view, mid in batch:
+            sel.observe(view, mid, by_mask.get((view, mid), []))
+            order.append((view, mid))
+    return order
+
+
+def dataset_order(scene: SceneData) -> list[tuple[str, int]]:
+    rank = {v: i for i, v in enumerate(scene.views)}
+    return sorted(scene.masks, key=lambda k: (rank[k[0]], k[1]))
+
+
+def curve(scene: SceneData, library, order: Sequence[tuple[str, int]], ks: Sequence[int], map_material: bool,
+          samples: int) -> np.ndarray:
+    """Mass APE after the first k queries of ``order`` for each k."""
+    by_mask = scene.by_mask()
+    cfg = PhysGSConfig(n_samples=samples, map_material=map_material)
+    out = []
+    for k in ks:
+        obs = [o for key in order[:k] for o in by_mask.get(key, [])]
+        sub = replace(scene, observations=obs)
+        est = estimate_physgs(sub, library, cfg)
+        out.append(abs(est.mass_kg - scene.mass_kg) / scene.mass_kg)
+    return np.asarray(out)
+
+
+def first_within(ks: Sequence[int], apes: np.ndarray, target: float) -> int | None:
+    for k, a in zip(ks, apes):
+        if a <= target + 1e-12:
+            return int(k)
+    return None
+
+
+def live_check(root: Path, scene: SceneData, library, cfg, budget: int, bench: BenchConfig) -> dict:
+    """Run run_active_perception for real on a copy of ``root`` (answers come from the response cache) and
+    compare its query order with the replayed one."""
+    from physgs_nerfstudio.perception.active import run_active_perception
+
+    dst = bench.work_dir / f"live_{root.name}"
+    if dst.exists():
+        shutil.rmtree(dst)
+    shutil.copytree(root, dst, ignore=shutil.ignore_patterns("observations.jsonl*", "progress.jsonl*", "run.json", "active.json"))
+    seg = OracleSegmenter(dst) if bench.segmenter == "oracle" else None
+    res = run_active_perception(perception_config(dst, bench), replace(cfg, budget=budget), segmenter=seg)
+    replayed = active_order(root, scene, library, cfg)[:budget]
+    same = [tuple(q) for q in res.queried] == [tuple(q) for q in replayed]
+    return {"object": scene.name, "budget": budget, "answered": res.answered, "uncached_calls": res.calls,
+            "cache_hits": res.cache_hits, "stop_reason": res.stop_reason, "same_order_as_replay": same}
+
+
+def policy_orders(root: Path, scene: SceneData, library, acfg, repeats: int, seed: int) -> dict[str, list]:
+    """Policy -> its query orders (one, or ``repeats`` for random)."""
+    keys = dataset_order(scene)
+    rng = np.random.default_rng(seed)
+    return {
+        "active": [active_order(root, scene, library, acfg)],
+        "active (no transfer)": [active_order(root, scene, library, replace(acfg, transfer=0.0))],
+        "dataset order": [keys],
+        "random": [[keys[i] for i in rng.permutation(len(keys))] for _ in range(repeats)],
+    }
+
+
+def active_rows(root: Path, scene: SceneData, library, acfg, ab: ActiveBench, seed: int) -> list[dict]:
+    """One row per (estimator, policy) of one object: its APE curve and the queries it needed."""
+    N = len(scene.masks)
+    k25 = math.ceil(0.25 * N)
+    ks = sorted(set(list(range(ab.step, N, ab.step)) + [N, k25]))
+    orders = policy_orders(root, scene, library, acfg, ab.random_repeats, seed)
+    rows = []
+    for est, use_map in ACTIVE_ESTIMATORS.items():
+        full = curve(scene, library, dataset_order(scene), [N], use_map, ab.samples)[0]
+        for pol, ords in orders.items():
+            cs = np.stack([curve(scene, library, o, ks, use_map, ab.samples) for o in ords])
+            at25 = cs[:, ks.index(k25)]
+            need_abs = [first_within(ks, c, full + 0.05) for c in cs]
+            need_rel = [first_within(ks, c, 1.05 * full) for c in cs]
+            rows.append({
+                "object": scene.name, "estimator": est, "policy": pol, "queries_all": N, "ape_all": float(full),
+                "ape_at_25pct": float(at25.mean()),
+                "queries_to_abs5": float(np.mean([n if n is not None else N for n in need_abs])),
+                "queries_to_rel5": float(np.mean([n if n is not None else N for n in need_rel])),
+                "within_abs5_at_25pct": float(np.mean(at25 <= full + 0.05 + 1e-12)),
+                "within_rel5_at_25pct": float(np.mean(at25 <= 1.05 * full + 1e-12)),
+                "curve_k": ks, "curve_ape": cs.mean(0).tolist(),
+            })
+    return rows
+
+
+def active_table(rows: Sequence[dict]) -> str:
+    """The --active section's table: per estimator and policy, means over the objects."""
+    lines = [("| estimator | policy | mean APE, all queries | mean APE at 25% | objects within 5 pts at 25% "
+              "| within 5% rel. at 25% | mean fraction of queries to within 5 pts | ... to within 5% rel. |"),
+             "|---|---|---|---|---|---|---|---|"]
+    for est in ACTIVE_ESTIMATORS:
+        label = "(c) mixture mean" if est == "c" else "(c') MAP material"
+        for pol in POLICIES:
+            rs = [r for r in rows if r["estimator"] == est and r["policy"] == pol]
+            if not rs:
+                continue
+
+            def mean(key: str, rs=rs) -> float:
+                return float(np.mean([r[key] for r in rs]))
+
+            frac_abs = np.mean([r["queries_to_abs5"] / r["queries_all"] for r in rs])
+            frac_rel = np.mean([r["queries_to_rel5"] / r["queries_all"] for r in rs])
+            lines.append(f"| {label} | {pol} | {mean('ape_all'):.4f} | {mean('ape_at_25pct'):.4f} | "
+                         f"{mean('within_abs5_at_25pct'):.0%} | {mean('within_rel5_at_25pct'):.0%} | "
+                         f"{frac_abs:.2f} | {frac_rel:.2f} |")
+    return "\n".join(lines)
+
+
+def active_section(roots: Sequence[Path], scenes: Sequence[SceneData], library, bench: BenchConfig,
+                   ab: ActiveBench) -> dict:
+    """The --active section of accuracy.json: the replay check, one row per object, estimator and policy."""
+    from physgs_nerfstudio.perception.active import ActiveConfig
+
+    acfg = ActiveConfig()
+    print(f"active querying: ActiveConfig {asdict(acfg)}")
+    t0 = time.time()
+    rows, live = [], None
+    for oi, (root, scene) in enumerate(zip(roots, scenes)):
+        if oi == 0 and ab.live_check:
+            live = live_check(root, scene, library, acfg, math.ceil(0.25 * len(scene.masks)), bench)
+            print(f"  live check ({scene.name}): {live}")
+        rows += active_rows(root, scene, library, acfg, ab, bench.seed)
+        print(f"  {scene.name:10s} {len(scene.masks)} masks ({time.time() - t0:.0f}s)", flush=True)
+    return {"benchmark": "active querying vs exhaustive (SIMULATED VLM)", "active_config": asdict(acfg),
+            "settings": asdict(ab), "live_check": live, "rows": rows, "seconds": time.time() - t0}
+
+
+def parse_args(argv: Sequence[str] | None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--objects", nargs="*", default=None, help="objects (default: the whole synth SUITE)")
     ap.add_argument("--views", type=int, default=16)
@@ -669,12 +867,26 @@ def main(argv: Sequence[str] | None = None) -> dict:
     ap.add_argument("--work-dir", type=Path, default=Path("/tmp/physgs_bench/accuracy"))
     ap.add_argument("--results-dir", type=Path, default=None, help="default: <work-dir>/results")
     ap.add_argument("--quick", action="store_true", help="smoke run: 3 objects, 8 views, 64 px, 1000 draws")
+    act = ap.add_argument_group("active querying (--active)")
+    act.add_argument("--active", action="store_true", help="add the active-querying section (about 4x the time of the rest)")
+    act.add_argument("--step", type=int, default=4, help="evaluate the mass after every STEP queries")
+    act.add_argument("--random-repeats", type=int, default=5)
+    act.add_argument("--active-samples", type=int, default=64, help="Monte Carlo draws per estimate (only the mean is used)")
+    act.add_argument("--no-live-check", action="store_true", help="skip the replay check against a live active run")
     args = ap.parse_args(argv)
     if args.quick:
-        objects = tuple(args.objects or ("mug", "hammer", "bottle"))
+        args.objects = args.objects or ["mug", "hammer", "bottle"]
         args.views, args.resolution, args.samples = min(args.views, 8), min(args.resolution, 64), min(args.samples, 1000)
-    else:
-        objects = tuple(args.objects or SUITE)
+        args.random_repeats = min(args.random_repeats, 2)
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    from physgs_nerfstudio.perception.simulated import SimulatedConfig
+    from physgs_nerfstudio.synth import SUITE
+
+    args = parse_args(argv)
+    objects = tuple(args.objects or SUITE)
     cfg = BenchConfig(objects, args.views, args.resolution, args.jitter, args.seed, args.segmenter, args.work_dir)
     sim = SimulatedConfig(seed=args.seed)
     library = load_library("indoor")
@@ -684,18 +896,23 @@ def main(argv: Sequence[str] | None = None) -> dict:
     print("Mass uses the GROUND-TRUTH part volumes (material volume, shells at their true wall thickness) for every "
           "estimator, so the comparison isolates property inference from geometry.")
     t0 = time.time()
-    scenes = []
+    roots, scenes = [], []
     for obj in objects:
         t = time.time()
-        root = prepare_scene(cfg, obj)
-        run_scene_perception(root, cfg, sim)
-        scenes.append(load_scene(root, obj))
+        roots.append(prepare_scene(cfg, obj))
+        run_scene_perception(roots[-1], cfg, sim)
+        scenes.append(load_scene(roots[-1], obj))
         print(f"  {obj:10s} {len(scenes[-1].parts)} parts, {len(scenes[-1].masks)} masks, "
               f"{len(scenes[-1].observations)} observations ({time.time() - t:.1f}s)", flush=True)
     pcfg = PhysGSConfig(n_samples=args.samples, seed=args.seed)
     draws = ("posterior", "predictive")
     res = evaluate_scenes(scenes, library, pcfg, draws)
     table = markdown_table(res, draws)
+    if args.active:
+        ab = ActiveBench(args.step, args.random_repeats, args.active_samples, not args.no_live_check)
+        res["active_querying"] = active_section(roots, scenes, library, cfg, ab)
+        table += ("\nActive querying: mass APE from the answers so far, (c) and (c'); 5 pts / 5% rel.: within that of "
+                  "the APE with every query.\n\n" + active_table(res["active_querying"]["rows"]) + "\n")
     print()
     print(table)
     out_dir = args.results_dir or (cfg.work_dir / "results")

@@ -2,7 +2,8 @@
 
 A config field annotated ``Advanced[T]`` is parsed from the command line, read from Python and stored exactly
 as a plain ``T`` field; only the help of a ``physgs`` command hides it (and, on a nested config, every field
-inside it). ``--help-all`` shows every setting. tyro's own ``tyro.conf.Suppress`` would also remove the flag
+inside it). ``--help-all`` shows every setting; ``--settings FILE.yaml`` sets any of them from a file
+(``settings_file``). tyro's own ``tyro.conf.Suppress`` would also remove the flag
 from the parser, so a hidden setting could no longer be given at all.
 """
 
@@ -19,6 +20,8 @@ T = TypeVar("T")
 
 HELP_ALL = "--help-all"
 HIDDEN_NOTE = f"Advanced settings are hidden here; {HELP_ALL} lists every setting."
+SETTINGS_NOTE = ("--settings FILE.yaml sets any setting, advanced ones too, from a YAML mapping nested as the flags "
+                 "are (--a.b-c 1 is a: {b_c: 1}); flags given here override the file.")
 
 
 class _AdvancedMarker:
@@ -83,13 +86,26 @@ def _hiding_registry():
 
 
 def cli(cls: type, *, prog: str, args: Sequence[str]) -> Any:
-    """``tyro.cli(cls)`` on ``args``, with a help that hides the advanced settings (``--help-all``: all of them)."""
+    """``tyro.cli(cls)`` on ``args``, with a help that hides the advanced settings (``--help-all``: all of them).
+    ``--settings FILE.yaml`` among ``args`` sets the defaults from that file (``settings_file``); the other
+    flags override them."""
     import tyro
 
-    args = list(args)
+    from .settings_file import command_defaults, read_settings, split_flag
+
+    path, args = split_flag(args)
+    kw: dict[str, Any] = {"prog": prog}
+    if path is not None:
+        kw["default"] = command_defaults(cls, read_settings(path), path, prog)
     if HELP_ALL in args:
-        return tyro.cli(cls, prog=prog, args=["--help" if a == HELP_ALL else a for a in args])
-    if not {"-h", "--help"} & set(args) or not has_advanced(cls):
-        return tyro.cli(cls, prog=prog, args=args)
-    description = f"{inspect.cleandoc(cls.__doc__ or '')}\n\n{HIDDEN_NOTE}"
-    return tyro.cli(cls, prog=prog, args=args, description=description, registry=_hiding_registry())
+        return tyro.cli(cls, args=["--help" if a == HELP_ALL else a for a in args], description=_help(cls, False), **kw)
+    if not {"-h", "--help"} & set(args):
+        return tyro.cli(cls, args=args, **kw)
+    if not has_advanced(cls):
+        return tyro.cli(cls, args=args, description=_help(cls, False), **kw)
+    return tyro.cli(cls, args=args, description=_help(cls, True), registry=_hiding_registry(), **kw)
+
+
+def _help(cls: type, hidden: bool) -> str:
+    """The command's description in its help: its doc, what --help leaves out, and the settings file."""
+    return "\n\n".join([inspect.cleandoc(cls.__doc__ or ""), *([HIDDEN_NOTE] if hidden else []), SETTINGS_NOTE])

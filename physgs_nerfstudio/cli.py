@@ -43,6 +43,8 @@ def entrypoint(argv: list[str] | None = None) -> object:
     with one_line_errors(f"physgs {args[0]}" if args and args[0] in COMMANDS else "physgs"):
         if args and args[0] in COMMANDS:  # one subcommand: import only its module (an export pays for no other)
             config = cli(_load(args[0]), prog=f"physgs {args[0]}", args=args[1:])
+        elif any(a == "--settings" or a.startswith("--settings=") for a in args):
+            raise SystemExit("give --settings after the command: physgs COMMAND --settings FILE.yaml")
         else:
             options = tuple(Annotated[_load(name), tyro.conf.subcommand(name)] for name in COMMANDS)
             config = tyro.cli(

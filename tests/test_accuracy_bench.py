@@ -185,3 +185,22 @@ def test_dominant_weights_recover_the_material_predictive_weights_blend(acc, lib
     assert res["physgs_predictive_weights"]["posterior"]["APE"] > 0.3
     table = acc.markdown_table(res, res["draws"])
     assert "(c-pred)" in table and "90% cov. (mean-density draws) | 90% cov. (full-predictive draws)" in table
+
+
+def test_active_first_within_and_table(acc):
+    """The --active section's bookkeeping on hand-made curves: the first k within the target, and the table's
+    means over the objects."""
+    ks = [4, 8, 12]
+    assert acc.first_within(ks, np.array([0.30, 0.10, 0.05]), 0.10) == 8
+    assert acc.first_within(ks, np.array([0.30, 0.20, 0.15]), 0.10) is None
+
+    def row(obj, n, ape25, q_abs, within):
+        return {"object": obj, "estimator": "c", "policy": "random", "queries_all": n, "ape_all": 0.01,
+                "ape_at_25pct": ape25, "queries_to_abs5": q_abs, "queries_to_rel5": n,
+                "within_abs5_at_25pct": within, "within_rel5_at_25pct": 0.0}
+
+    table = acc.active_table([row("mug", 40, 0.02, 4.0, 1.0), row("pan", 20, 0.04, 10.0, 0.5)])
+    lines = table.splitlines()
+    assert len(lines) == 3  # header, rule, the one (estimator, policy) present
+    # mean APE at 25% (0.02 + 0.04) / 2; within 5 pts (1 + 0.5) / 2; fraction of queries (4/40 + 10/20) / 2
+    assert lines[2] == "| (c) mixture mean | random | 0.0100 | 0.0300 | 75% | 0% | 0.30 | 1.00 |"

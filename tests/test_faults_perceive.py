@@ -10,7 +10,7 @@ import os
 import subprocess
 import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 from pathlib import Path
 
 import numpy as np
@@ -81,14 +81,17 @@ def _request():
 
 
 # ------------------------------------------------------------------------------------------------ 1. hang
-class DripServer:
+class DripServer(FakeServer):
     """A server that answers 200 and then sends one byte per second: of the body (``mode="body"``), of the
     header block (``"headers"``), or sends 64 KiB chunks without end (``"endless"``)."""
 
     def __init__(self, mode: str):
+        self.mode = mode
         self.stop = threading.Event()
-        self.requests = 0
-        server = self
+        super().__init__()
+
+    def handler(self) -> type[BaseHTTPRequestHandler]:
+        server, mode = self, self.mode
 
         class Handler(BaseHTTPRequestHandler):
             def log_message(self, *args):
@@ -96,7 +99,8 @@ class DripServer:
 
             def do_POST(self):
                 self.rfile.read(int(self.headers.get("Content-Length", 0)))
-                server.requests += 1
+                with server.lock:
+                    server.requests.append({})
                 head = b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\n"
                 try:
                     if mode == "headers":
@@ -121,23 +125,11 @@ class DripServer:
                 if pause:
                     server.stop.wait(pause)
 
-        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.httpd.daemon_threads = True
-        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
-
-    @property
-    def base_url(self) -> str:
-        host, port = self.httpd.server_address[:2]
-        return f"http://{host}:{port}/v1"
-
-    def __enter__(self):
-        self.thread.start()
-        return self
+        return Handler
 
     def __exit__(self, *exc):
         self.stop.set()
-        self.httpd.shutdown()
-        self.httpd.server_close()
+        super().__exit__(*exc)
 
 
 @pytest.mark.parametrize("mode", ["body", "headers"])
@@ -161,7 +153,7 @@ def test_1_drip_server_perceive_run_finishes_within_deadline(tmp_path):
             )
         elapsed = time.monotonic() - t0
     assert elapsed <= 3.0 + 2.0, elapsed
-    assert srv.requests == 1 and not (root / "materials.json").exists()
+    assert len(srv.requests) == 1 and not (root / "materials.json").exists()
 
 
 def test_1_endless_reply_is_cut_at_the_size_cap():
@@ -170,7 +162,7 @@ def test_1_endless_reply_is_cut_at_the_size_cap():
         t0 = time.monotonic()
         with pytest.raises(VLMError, match="max-reply-bytes"):
             be.query(_request())
-    assert time.monotonic() - t0 < 10 and srv.requests == 1  # refused at once, not retried
+    assert time.monotonic() - t0 < 10 and len(srv.requests) == 1  # refused at once, not retried
 
 
 # ------------------------------------------------------------------------------------------------ 2. lock

@@ -11,6 +11,10 @@ import threading
 import time
 from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from typing_extensions import Self
 
 ANSWER = {
     "caption": "a red ceramic body",
@@ -60,11 +64,19 @@ def ok(text: str | None = None, usage=(100, 20)) -> tuple[int, dict, dict, float
 
 
 class FakeServer:
+    """The server; a subclass changes what it answers by overriding :meth:`handler`."""
+
     def __init__(self, behaviour: Callable[[int, dict], tuple[int, dict, dict, float]] | None = None):
         self.behaviour = behaviour or (lambda i, body: ok())
         self.requests: list[dict] = []
         self.auth: list[str] = []
         self.lock = threading.Lock()
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), self.handler())
+        self.httpd.daemon_threads = True
+        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+
+    def handler(self) -> type[BaseHTTPRequestHandler]:
+        """The request handler class: answers every POST with ``behaviour``."""
         server = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -97,16 +109,14 @@ class FakeServer:
                 except (BrokenPipeError, ConnectionResetError):
                     pass
 
-        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.httpd.daemon_threads = True
-        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+        return Handler
 
     @property
     def base_url(self) -> str:
         host, port = self.httpd.server_address[:2]
         return f"http://{host}:{port}/v1"
 
-    def __enter__(self) -> FakeServer:
+    def __enter__(self) -> Self:
         self.thread.start()
         return self
 
