@@ -137,12 +137,12 @@ class DemoCommand:
 
         from .export.command import ExportCommand
         from .export.report import print_mass_table
-        from .mass import MassConfig, MassReport
+        from .mass import MassConfig
 
         report_path = self.export_dir / "report.json"
         if report_path.exists() and not self._forced("export"):
             console.log(f"[4/4] export: {report_path} exists, skipped")
-            report = MassReport.from_dict(json.loads(report_path.read_text())["mass"])
+            report = self.saved_mass(report_path, config)
             print_mass_table(report, title=f"Mass of the generated {self.object}", truth_kg=truth_kg, console=console)
             return report
         console.log("[4/4] export: PLY, voxel grid, property maps, mass")
@@ -152,6 +152,24 @@ class DemoCommand:
         cmd = ExportCommand(load_config=config, output_dir=self.export_dir, mass=mass, truth_kg=truth_kg, views=(0,),
                             device="cpu")  # fmt: skip
         return cmd.main().mass
+
+    def saved_mass(self, report_path: Path, config: Path) -> Any:
+        """The :class:`~.mass.MassReport` of an earlier export's ``report.json``. An export whose object geometry
+        failed wrote ``"mass": null`` and why (``mass_error``): then a :class:`~.errors.PhysGSError` says so and
+        how to export the run again; the scene, the run and the rest of that export stay as they are."""
+        from .errors import PhysGSError
+        from .mass import MassReport
+
+        data = json.loads(report_path.read_text())
+        if data.get("mass") is None:
+            why = " ".join(str(data.get("mass_error") or "no reason recorded").rstrip(".").split())
+            raise PhysGSError(
+                f"{report_path}: the earlier export has no mass ({why}); the scene, the run and the rest of the "
+                f"export are kept. Export the run again with other --mass.geometry settings (`physgs export "
+                f"--load-config {config} --output-dir {report_path.parent} --mass.geometry.resolution "
+                f"{self.export_resolution} --mass.n-samples {self.n_samples} --mass.seed {self.seed} ...`), then "
+                "rerun `physgs demo` to compare its mass with the truth.")  # fmt: skip
+        return MassReport.from_dict(data["mass"])
 
     def main(self) -> None:
         from rich.console import Console
