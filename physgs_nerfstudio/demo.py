@@ -187,7 +187,7 @@ class DemoCommand:
         truth = float(gt["total_mass_kg"])
         report = self.stage_export(console, config, truth)
         metrics = {k: float(v[0]) for k, v in point_metrics([truth], [report.mean_kg]).items()}
-        pct = int(round(report.level * 100))
+        pct = round(report.level * 100)
         table = Table(title=f"Predicted vs ground-truth mass {SIM}")
         for col in ("object", "truth kg", "predicted kg", f"{pct}% interval kg", "covers", "ADE kg", "ALDE",
                     "APE", "MnRE"):  # fmt: skip
