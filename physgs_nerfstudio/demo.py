@@ -56,6 +56,8 @@ class DemoCommand:
     """Stages to redo even if their outputs exist: scene, perceive, train, export (a stage redone redoes the later ones)."""
     train_args: tuple[str, ...] = field(default_factory=tuple)
     """Extra arguments appended to ns-train."""
+    mesh_dir: Path | None = None
+    """Folder of bunny.obj and armadillo.obj for the objects made of them (default: `physgs synth`'s)."""
 
     # ---------------------------------------------------------------- paths
     @property
@@ -79,8 +81,9 @@ class DemoCommand:
             console.log(f"[1/4] scene: {self.scene_dir} exists, skipped")
         else:
             console.log(f"[1/4] scene: generating {self.object!r} ({self.views} views, {self.resolution}px)")
+            meshes = {"mesh_dir": self.mesh_dir} if self.mesh_dir is not None else {}
             generate_scene(SynthConfig(out=self.scene_dir, object=self.object, views=self.views, seed=self.seed,
-                                       resolution=self.resolution, overwrite=True))  # fmt: skip
+                                       resolution=self.resolution, overwrite=True, **meshes))  # fmt: skip
         return load_ground_truth(self.scene_dir)
 
     def stage_perceive(self, console: Any, env: str | None) -> None:
