@@ -57,7 +57,7 @@ class DemoCommand:
     train_args: tuple[str, ...] = field(default_factory=tuple)
     """Extra arguments appended to ns-train."""
     mesh_dir: Path | None = None
-    """Folder of bunny.obj and armadillo.obj for the objects made of them (default: `physgs synth`'s)."""
+    """Folder of bunny.obj and armadillo.obj for the objects made of them (None: ../shared/data beside the project)."""
 
     # ---------------------------------------------------------------- paths
     @property
