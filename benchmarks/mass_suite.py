@@ -72,8 +72,10 @@ def _demo_export_args(seed: int) -> list[str]:
             "--mass.seed", str(seed)]  # fmt: skip
 
 
-def write_scene(family: str, seed: int, renderer: str, support: str, scene_dir: Path, spp: int) -> float:
-    """Generate the suite's scene (module doc) with the demo's views and resolution; seconds taken (0: it existed)."""
+def write_scene(family: str, seed: int, renderer: str, support: str, scene_dir: Path, spp: int,
+                mesh_dir: Path | None = None) -> float:  # fmt: skip
+    """Generate the suite's scene (module doc) with the demo's views and resolution; seconds taken (0: it existed).
+    ``mesh_dir``: the folder of bunny.obj and armadillo.obj (None: `physgs synth`'s default)."""
     from physgs_nerfstudio.demo import DemoCommand
     from physgs_nerfstudio.synth import SynthConfig, generate_scene
 
@@ -81,9 +83,10 @@ def write_scene(family: str, seed: int, renderer: str, support: str, scene_dir: 
         return 0.0
     d = DemoCommand()
     t0 = time.perf_counter()
+    meshes = {"mesh_dir": mesh_dir} if mesh_dir is not None else {}
     generate_scene(SynthConfig(out=scene_dir, object=family, seed=seed, views=d.views, resolution=d.resolution,
                                shape="drawn", support=support, pose="drawn", renderer=renderer, spp=spp,
-                               overwrite=True))  # fmt: skip
+                               overwrite=True, **meshes))  # fmt: skip
     return time.perf_counter() - t0
 
 
@@ -96,13 +99,13 @@ def _tag(item: dict, support: str) -> str:
 
 
 def _scene_task(args: tuple) -> str:
-    family, seed, renderer, support, scene_dir, spp = args
+    family, seed, renderer, support, scene_dir, spp, mesh_dir = args
     os.environ.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     try:
         import torch
 
         torch.set_num_threads(1)
-        s = write_scene(family, seed, renderer, support, Path(scene_dir), spp)
+        s = write_scene(family, seed, renderer, support, Path(scene_dir), spp, mesh_dir)
         return f"{Path(scene_dir).parent.name}: {s:.1f} s"
     except Exception as err:  # noqa: BLE001 - a failed scene is reported; its run then fails with the same reason
         return f"{Path(scene_dir).parent.name}: failed: {type(err).__name__}: {err}"
@@ -113,7 +116,8 @@ def write_scenes(todo: list[dict], a: argparse.Namespace) -> None:
     from concurrent.futures import ProcessPoolExecutor
 
     tasks = [(t["family"], t["seed"], t["renderer"], a.support,
-              str(a.out / _tag(t, a.support) / "scene"), a.spp) for t in todo if not t["preset"]]  # fmt: skip
+              str(a.out / _tag(t, a.support) / "scene"), a.spp, a.mesh_dir)
+             for t in todo if not t["preset"]]  # fmt: skip
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max(1, a.jobs)) as pool:
         for i, line in enumerate(pool.map(_scene_task, tasks), 1):
@@ -233,11 +237,12 @@ def run_one(item: dict, a: argparse.Namespace) -> dict:
     row = {"family": fam, "seed": seed, "renderer": renderer}
     t0 = time.perf_counter()
     try:
-        scene_s = 0.0 if item["preset"] else write_scene(fam, seed, renderer, a.support, d / "scene", a.spp)
+        scene_s = 0.0 if item["preset"] else write_scene(fam, seed, renderer, a.support, d / "scene", a.spp,
+                                                         a.mesh_dir)  # fmt: skip
     except Exception as err:  # noqa: BLE001 - a failed scene is a failed row, reported with its reason
         return {**row, "failed": f"scene: {type(err).__name__}: {err}"}
     demo = [sys.executable, "-m", "physgs_nerfstudio.cli", "demo", "--object", fam, "--seed", str(seed),
-            "--output-dir", str(d), *a.demo_args]  # fmt: skip
+            "--output-dir", str(d), *(["--mesh-dir", str(a.mesh_dir)] if a.mesh_dir else []), *a.demo_args]  # fmt: skip
     finished = a.trained or (d / "demo_summary.json").is_file()
     if not finished and (err := _run(demo, env, a.out / f"{tag}.log")):
         return {**row, "failed": f"demo: {err}"}
@@ -313,6 +318,8 @@ def _args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--renderers", nargs="*", default=["project"], choices=["project", "mitsuba"])
     ap.add_argument("--support", default="drawn", choices=["drawn", "floor", "table", "none"])
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel of the mitsuba renderer")
+    ap.add_argument("--mesh-dir", type=Path, default=None,
+                    help="folder of bunny.obj and armadillo.obj for the figurine family (default: physgs synth's)")
     ap.add_argument("--out", type=Path, default=Path("/tmp/physgs_mass_suite"))
     ap.add_argument("--demo-args", type=shlex.split, default=[],
                     help='extra `physgs demo` flags (one quoted string), e.g. "--device cuda": train on a GPU')

@@ -56,6 +56,8 @@ class DemoCommand:
     """Stages to redo even if their outputs exist: scene, perceive, train, export (a stage redone redoes the later ones)."""
     train_args: tuple[str, ...] = field(default_factory=tuple)
     """Extra arguments appended to ns-train."""
+    mesh_dir: Path | None = None
+    """Folder of bunny.obj and armadillo.obj for the objects made of them (None: ../shared/data beside the project)."""
 
     # ---------------------------------------------------------------- paths
     @property
@@ -79,8 +81,9 @@ class DemoCommand:
             console.log(f"[1/4] scene: {self.scene_dir} exists, skipped")
         else:
             console.log(f"[1/4] scene: generating {self.object!r} ({self.views} views, {self.resolution}px)")
+            meshes = {"mesh_dir": self.mesh_dir} if self.mesh_dir is not None else {}
             generate_scene(SynthConfig(out=self.scene_dir, object=self.object, views=self.views, seed=self.seed,
-                                       resolution=self.resolution, overwrite=True))  # fmt: skip
+                                       resolution=self.resolution, overwrite=True, **meshes))  # fmt: skip
         return load_ground_truth(self.scene_dir)
 
     def stage_perceive(self, console: Any, env: str | None) -> None:
@@ -137,12 +140,12 @@ class DemoCommand:
 
         from .export.command import ExportCommand
         from .export.report import print_mass_table
-        from .mass import MassConfig, MassReport
+        from .mass import MassConfig
 
         report_path = self.export_dir / "report.json"
         if report_path.exists() and not self._forced("export"):
             console.log(f"[4/4] export: {report_path} exists, skipped")
-            report = MassReport.from_dict(json.loads(report_path.read_text())["mass"])
+            report = self.saved_mass(report_path, config)
             print_mass_table(report, title=f"Mass of the generated {self.object}", truth_kg=truth_kg, console=console)
             return report
         console.log("[4/4] export: PLY, voxel grid, property maps, mass")
@@ -152,6 +155,24 @@ class DemoCommand:
         cmd = ExportCommand(load_config=config, output_dir=self.export_dir, mass=mass, truth_kg=truth_kg, views=(0,),
                             device="cpu")  # fmt: skip
         return cmd.main().mass
+
+    def saved_mass(self, report_path: Path, config: Path) -> Any:
+        """The :class:`~.mass.MassReport` of an earlier export's ``report.json``. An export whose object geometry
+        failed wrote ``"mass": null`` and why (``mass_error``): then a :class:`~.errors.PhysGSError` says so and
+        how to export the run again; the scene, the run and the rest of that export stay as they are."""
+        from .errors import PhysGSError
+        from .mass import MassReport
+
+        data = json.loads(report_path.read_text())
+        if data.get("mass") is None:
+            why = " ".join(str(data.get("mass_error") or "no reason recorded").rstrip(".").split())
+            raise PhysGSError(
+                f"{report_path}: the earlier export has no mass ({why}); the scene, the run and the rest of the "
+                f"export are kept. Export the run again with other --mass.geometry settings (`physgs export "
+                f"--load-config {config} --output-dir {report_path.parent} --mass.geometry.resolution "
+                f"{self.export_resolution} --mass.n-samples {self.n_samples} --mass.seed {self.seed} ...`), then "
+                "rerun `physgs demo` to compare its mass with the truth.")  # fmt: skip
+        return MassReport.from_dict(data["mass"])
 
     def main(self) -> None:
         from rich.console import Console
@@ -169,7 +190,7 @@ class DemoCommand:
         truth = float(gt["total_mass_kg"])
         report = self.stage_export(console, config, truth)
         metrics = {k: float(v[0]) for k, v in point_metrics([truth], [report.mean_kg]).items()}
-        pct = int(round(report.level * 100))
+        pct = round(report.level * 100)
         table = Table(title=f"Predicted vs ground-truth mass {SIM}")
         for col in ("object", "truth kg", "predicted kg", f"{pct}% interval kg", "covers", "ADE kg", "ALDE",
                     "APE", "MnRE"):  # fmt: skip

@@ -121,3 +121,43 @@ def test_the_one_method_entry_says_what_is_wrong():
         main([])
     with pytest.raises(SystemExit, match="unknown method 'splatfacto'"):
         main(["splatfacto", "--data", "x"])
+
+
+def _written_report(path, mass_kg: float | None, mass_error: str | None = None):
+    """report.json as the export writes it (export/report.py): a mass, or mass null with the reason."""
+    from physgs_nerfstudio.export.report import write_report
+    from physgs_nerfstudio.mass import MassReport
+    from physgs_nerfstudio.mass.integrate import MaterialMass
+
+    report = None
+    if mass_kg is not None:
+        mat = MaterialMass("oak", "solid", None, 0.002, 1.0, 0.1, 700.0, (600.0, 800.0), mass_kg, (1.0, 1.6), 1.0)
+        report = MassReport(mass_kg, mass_kg, (1.0, 1.6), 0.9, 100, 3, 0.002, 0.1, [mat], 1.0, "dataset", True, {})
+    return write_report(report, path, {"mass_error": mass_error} if mass_error else {"ground_truth_kg": 1.2})
+
+
+def test_demo_resumes_from_an_export_without_a_mass(tmp_path):
+    """A demo resumed after an export whose geometry failed (report.json: mass null, mass_error) ends with one
+    line naming the file, the export's reason and the `physgs export` that redoes it, not a TypeError; a report
+    with a mass is read back as written."""
+    from rich.console import Console
+
+    from physgs_nerfstudio.errors import PhysGSError
+
+    cmd = DemoCommand(output_dir=tmp_path, seed=70001, export_resolution=64, n_samples=900)
+    console = Console(record=True, width=200)
+    config = tmp_path / "runs" / "config.yml"
+    why = "carving left no solid voxel: the object masks and the views disagree (check poses and masks)."
+    path = _written_report(tmp_path / "export" / "report.json", None, why)
+    with pytest.raises(PhysGSError) as err:
+        cmd.stage_export(console, config, truth_kg=1.2)
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith(f"{path}: ") and why.rstrip(".") in msg
+    assert f"physgs export --load-config {config} --output-dir {path.parent}" in msg
+    assert "--mass.geometry.resolution 64 --mass.n-samples 900 --mass.seed 70001" in msg
+    assert path.is_file()  # the earlier export is kept
+    path = _written_report(tmp_path / "export" / "report.json", 1.3)
+    report = cmd.stage_export(console, config, truth_kg=1.2)
+    assert report.mean_kg == 1.3 and report.interval_kg == (1.0, 1.6) and report.materials[0].name == "oak"
+    shown = console.export_text()
+    assert "report.json exists, skipped" in shown and "1.3" in shown

@@ -180,3 +180,26 @@ def test_figurine_is_scaled_to_its_drawn_height():
 def test_canonical_family_without_preset_builds(tmp_path):
     layout = synth_dataset.scene_layout(SynthConfig(object="bowl"))
     assert [p.object for p in layout.parts] == ["bowl"] and Path(DEFAULT_MESH_DIR).name == "data"
+
+
+@pytest.mark.parametrize("name", ["figurine", "bunny"])
+def test_a_missing_mesh_says_which_flag_names_its_folder(name, tmp_path, capsys):
+    """Without bunny.obj / armadillo.obj the family and the preset end with one line: the missing file, and the
+    --mesh-dir flag of the commands that build them (not a Python argument name, not the file system's advice)."""
+    from physgs_nerfstudio.cli import one_line_errors
+    from physgs_nerfstudio.errors import PhysGSError
+    from physgs_nerfstudio.synth.objects import MissingMeshError, build_layout
+
+    empty = tmp_path / "meshes"
+    empty.mkdir()
+    with pytest.raises(MissingMeshError) as err:
+        family_parts(name, 70001, empty) if name == "figurine" else build_layout(name, 0, empty)
+    assert isinstance(err.value, FileNotFoundError) and isinstance(err.value, PhysGSError)
+    msg = str(err.value)
+    missing = msg.split(" not found")[0]
+    assert Path(missing).parent == empty and Path(missing).name in ("bunny.obj", "armadillo.obj")
+    assert "\n" not in msg and "--mesh-dir DIR (physgs synth, physgs demo, benchmarks/mass_suite.py)" in msg
+    assert "pass mesh_dir" not in msg
+    with pytest.raises(SystemExit), one_line_errors("physgs synth"):
+        raise err.value
+    assert capsys.readouterr().err == f"physgs synth: error: {msg}\n"  # printed as it is, nothing appended

@@ -93,3 +93,20 @@ def test_summary_per_split_and_renderer():
     assert summary[("mitsuba", "held_out")]["support_counted_share"] == 1.0
     text = ms.table(ms.summarize(rows), "baseline")
     assert len(text.splitlines()) == 2 + 3 and "held_out" in text  # header, rule, three groups
+
+
+def test_the_suite_and_the_demo_pass_their_mesh_dir_to_the_scene(tmp_path):
+    """--mesh-dir of the suite and of `physgs demo` is the folder the figurine and bunny scenes read their mesh from
+    (an empty folder: the missing mesh is named inside it, before anything is rendered)."""
+    from rich.console import Console
+
+    from physgs_nerfstudio.demo import DemoCommand
+    from physgs_nerfstudio.synth.objects import MissingMeshError
+
+    empty = tmp_path / "meshes"
+    empty.mkdir()
+    with pytest.raises(MissingMeshError, match=f"^{empty}/(bunny|armadillo).obj not found"):
+        ms.write_scene("figurine", 70001, "project", "none", tmp_path / "scene", 1, mesh_dir=empty)
+    assert ms._args(["--mesh-dir", str(empty)]).mesh_dir == empty and ms._args([]).mesh_dir is None
+    with pytest.raises(MissingMeshError, match=f"^{empty}/bunny.obj not found"):
+        DemoCommand(output_dir=tmp_path / "demo", object="bunny", mesh_dir=empty).stage_scene(Console(quiet=True))

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from .draw import CANONICAL, Draw
 from .geometry import Box, Cylinder, Frustum, Half, Mesh, Torus, Tube
-from .objects import DEFAULT_MESH_DIR, OBJECTS, WOODS, Part, _p, rotation
+from .objects import DEFAULT_MESH_DIR, OBJECTS, WOODS, Part, _p, mesh_file, rotation
 
 Pose = str  # "standing" (as built) | "lying" (turned onto its side) | "stand" (on a small stand)
 
@@ -156,9 +156,7 @@ FIGURINE_MESHES: tuple[tuple[str, float], ...] = (("bunny.obj", 0.155), ("armadi
 def figurine(d: Draw = CANONICAL, mesh_dir: Path = DEFAULT_MESH_DIR) -> list[Part]:
     """A solid figurine of one of the shared meshes (bunny, armadillo), scaled to a drawn size."""
     file, _ = d.choice(FIGURINE_MESHES, FIGURINE_MESHES[0])
-    path = Path(mesh_dir) / file
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} not found: the figurine family needs the shared meshes (pass mesh_dir)")
+    path = mesh_file(mesh_dir, file, "the figurine family")
     unit = Mesh(str(path), 1.0)
     height = d.uniform(0.08, 0.30, 0.15)
     mesh = Mesh(str(path), height / (2 * float(unit.half_extents()[1])))  # the shared meshes are y-up

@@ -22,6 +22,7 @@ from typing import Literal
 
 import numpy as np
 
+from ..errors import PhysGSError
 from .draw import CANONICAL, Draw, MaterialDraw
 from .geometry import (
     Box,
@@ -43,6 +44,21 @@ VolumeModel = Literal["solid", "shell"]
 Role = Literal["object", "ground"]
 
 DEFAULT_MESH_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+
+
+class MissingMeshError(PhysGSError, FileNotFoundError):
+    """A mesh the object needs (bunny.obj, armadillo.obj) is not in the mesh folder; the message names the flag."""
+
+
+def mesh_file(mesh_dir: Path, file: str, needed_by: str) -> Path:
+    """``mesh_dir/file``, or :class:`MissingMeshError` saying what needs it and which flag names its folder."""
+    path = Path(mesh_dir) / file
+    if not path.is_file():
+        raise MissingMeshError(
+            f"{path} not found: {needed_by} needs {file} (one of the Stanford meshes bunny.obj, armadillo.obj: "
+            "data/sdf/ of NVlabs/instant-ngp); pass the folder that holds them with --mesh-dir DIR (physgs synth, "
+            "physgs demo, benchmarks/mass_suite.py).")  # fmt: skip
+    return path
 
 
 def rotation(axis: str, degrees: float) -> np.ndarray:
@@ -368,9 +384,7 @@ def vase(d: Draw = CANONICAL) -> list[Part]:
 
 
 def _figurine(file: str, material: str, scale: float, mesh_dir: Path) -> list[Part]:
-    path = Path(mesh_dir) / file
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} not found: this preset needs the shared mesh data")
+    path = mesh_file(mesh_dir, file, f"the {Path(file).stem} preset")
     mesh = Mesh(str(path), scale)
     h = mesh.half_extents()  # the shared meshes are y-up: stand them up in a z-up world
     return [_p(Path(file).stem, mesh, material, h[1], rot=rotation("x", 90))]
