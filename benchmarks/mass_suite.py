@@ -185,8 +185,10 @@ def error_split(gt: dict, rep: dict) -> dict:
     }
 
 
-def score(family: str, seed: int, renderer: str, run_dir: Path, export: Path, support: str) -> dict:
-    """One object's row (module doc) from its ground_truth.json and its export's report.json (and voxels.npz)."""
+def score(family: str, seed: int, renderer: str, run_dir: Path, export: Path, support: str,
+          mesh_dir: Path | None = None) -> dict:  # fmt: skip
+    """One object's row (module doc) from its ground_truth.json and its export's report.json (and voxels.npz);
+    ``mesh_dir``: the figurine family's meshes (None: `physgs synth`'s default folder)."""
     from physgs_nerfstudio.synth.families import split_of
     from physgs_nerfstudio.synth.objects import build_layout
     from physgs_nerfstudio.synth.support import suite_layout
@@ -196,9 +198,10 @@ def score(family: str, seed: int, renderer: str, run_dir: Path, export: Path, su
     truth, pred = float(gt["total_mass_kg"]), float(rep["mean_kg"])
     lo, hi = rep["interval_kg"]
     if gt["parameters"].get("shape", "canonical") == "drawn":
-        parts = suite_layout(family, seed, shape="drawn", support=support, pose="drawn").parts
+        meshes = {"mesh_dir": mesh_dir} if mesh_dir is not None else {}
+        parts = suite_layout(family, seed, shape="drawn", support=support, pose="drawn", **meshes).parts
     else:
-        parts = build_layout(family, seed).parts
+        parts = build_layout(family, seed, *([mesh_dir] if mesh_dir is not None else [])).parts
     sup = support_mass(run_dir, export, parts, rep["parts"])
     return {
         "family": family, "split": split_of(family), "seed": seed, "renderer": renderer, "layout": gt.get("layout"),
@@ -256,7 +259,7 @@ def run_one(item: dict, a: argparse.Namespace) -> dict:
         if err := _run(cmd, env, a.out / f"{tag}_{a.alt_name}.log"):
             return {**row, "failed": f"export: {err}"}
     try:
-        out = score(fam, seed, renderer, d, export, a.support)
+        out = score(fam, seed, renderer, d, export, a.support, a.mesh_dir)
     except Exception as err:  # noqa: BLE001 - e.g. an export without a mass (its report says why)
         return {**row, "failed": f"score: {type(err).__name__}: {err}"}
     return {**out, "scene_s": scene_s, "wall_s": time.perf_counter() - t0}
@@ -386,6 +389,12 @@ def main(argv: list[str] | None = None) -> None:
             f.write(json.dumps({"method": method, **row}) + "\n")
         return row
 
+    # the scenes first, in processes: a renderer's module (Mitsuba's) imported by several threads at once comes
+    # out half-initialised in some of them
+    missing = [t for t in todo if not t["preset"] and not (a.out / _tag(t, a.support) / "scene" /
+                                                            "ground_truth.json").is_file()]  # fmt: skip
+    if missing:
+        write_scenes(missing, a)
     with ThreadPoolExecutor(max(1, a.jobs)) as pool:
         rows = list(pool.map(one, todo))
     summary = summarize(rows)

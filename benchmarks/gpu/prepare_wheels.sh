@@ -10,7 +10,7 @@ PKGS=(
   viser==0.2.7 msgspec websockets yourdfpy trimesh nodeenv plyfile
   splines pytorch-msssim tensorly rawpy pyquaternion fpsample
   pathos multiprocess ppft dill pox defusedxml appdirs pysocks
-  pydantic pydantic-core typing-inspection annotated-types mediapy
+  pydantic pydantic-core typing-inspection annotated-types mediapy rtree
 )
 python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
   --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 \

@@ -14,6 +14,8 @@
 #   PHASE=train OBJECTS="mug chair" bash benchmarks/gpu/run_gpu.sh msuite     # ... then train and score them
 #   PHASE=scenes SEEDS="70001 70002 70003" bash benchmarks/gpu/run_gpu.sh grid  # the mass suite's grid: scenes (.whlpt)
 #   PHASE=runs SEEDS="70001 70002 70003" bash benchmarks/gpu/run_gpu.sh grid    # ... then its runs, detached (.whl)
+#                                            # (RENDERERS="mitsuba project", FAMILIES: all; carry .meshes/, a copy of
+#                                            # ../shared/data's bunny.obj and armadillo.obj, for the figurine family)
 #   [BASE=DIR] bash benchmarks/gpu/run_gpu.sh after  # issue 13, after `export` on the same machine: mass_integration.py
 #                                            # (and BASE's beside it),
 #                                            # the run's ns-eval, physgs vs splatfacto-big
@@ -33,13 +35,15 @@ perf_scene() {  # the issue's second scene: a generated stool, 40 views at 384 p
   python3 -m physgs_nerfstudio.cli perceive --data "$PERF_SCENE" --no-progress --max-concurrency 16 vlm:simulated \
     2>&1 | tail -1
 }
+MESHES() { [ -f .meshes/bunny.obj ] && echo "--mesh-dir .meshes"; }  # the figurine's meshes (in the copy the job runs in)
 if [ "${1:-}" = grid ] && [ "${PHASE:-runs}" = scenes ]; then
   # the mass suite's grid, step 1 (carry .whlpt/, the Mitsuba wheels: prepare_wheels.sh pathtrace): every scene of
   # SEEDS, both renderers, rendered on the machine's CPUs, detached; step 2 is `PHASE=runs ... grid` (carry .whl/)
   python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/msite .whlpt/*.whl || exit 1
   mkdir -p /tmp/suite; cp -a . /tmp/suite_repo
   (cd /tmp/suite_repo && PYTHONPATH=/tmp/msite:/tmp/suite_repo OMP_NUM_THREADS=1 setsid nohup python3 \
-    benchmarks/mass_suite.py --scenes-only --seeds ${SEEDS:?SEEDS=...} --renderers mitsuba project --jobs 16 \
+    benchmarks/mass_suite.py --scenes-only --seeds ${SEEDS:?SEEDS=...} --renderers ${RENDERERS:-mitsuba project} \
+    ${FAMILIES:+--families $FAMILIES} $(MESHES) --jobs 16 \
     --out /tmp/suite > /tmp/scenes.log 2>&1 < /dev/null &)
   sleep 30; tail -2 /tmp/scenes.log; exit 0
 fi
@@ -271,7 +275,8 @@ case "${1:-kernels}" in
     # `bash benchmarks/gpu/detached.sh wait` in back-to-back calls; the rows: /tmp/suite/mass_suite_rows_baseline.jsonl
     wait  # the gsplat build
     bash benchmarks/gpu/detached.sh start "export PYTHONPATH=/tmp/site:/tmp/msite:\$PWD TORCH_EXTENSIONS_DIR=\$PWD/.gsplat_build; while pgrep -f scenes-only >/dev/null; \
-      do sleep 5; done; python3 benchmarks/mass_suite.py --seeds $SEEDS --renderers mitsuba project --jobs ${JOBS:-12} \
+      do sleep 5; done; python3 benchmarks/mass_suite.py --seeds $SEEDS --renderers ${RENDERERS:-mitsuba project} \
+      ${FAMILIES:+--families $FAMILIES} $(MESHES) --jobs ${JOBS:-12} \
       --demo-args '--device cuda' --out /tmp/suite > \$OUT/suite.log 2>&1; cp /tmp/suite/mass_suite*.json* \$OUT/"
     ;;
   msuite)
