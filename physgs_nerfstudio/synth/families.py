@@ -123,6 +123,7 @@ def toy_car(d: Draw = CANONICAL) -> list[Part]:
     """A toy car: a body, a cabin on top, four wheels against the body's sides."""
     bl, bw, bh = d.uniform(0.08, 0.20, 0.14), d.uniform(0.04, 0.08, 0.06), d.uniform(0.02, 0.04, 0.03)
     wr, ww = d.uniform(0.012, 0.025, 0.018), d.uniform(0.008, 0.016, 0.012)
+    wr = min(wr, (bl / 2 - 0.006) / 2)  # a front and a rear wheel 2 mm apart at least: parts never overlap
     clear = d.uniform(0.3 * wr, 0.8 * wr, 0.5 * 0.018)
     cl, ch = d.uniform(0.4, 0.7, 0.55) * bl, d.uniform(0.5, 1.0, 0.8) * bh
     body = d.material(("abs", "oak", "aluminium", "steel", "polystyrene"), "abs")
