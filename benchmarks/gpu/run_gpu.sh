@@ -274,7 +274,7 @@ case "${1:-kernels}" in
     # the GPU (--device cuda) for every scene, JOBS at a time, detached in a copy of the checkout (detached.sh); then
     # `bash benchmarks/gpu/detached.sh wait` in back-to-back calls; the rows: /tmp/suite/mass_suite_rows_baseline.jsonl
     wait  # the gsplat build
-    bash benchmarks/gpu/detached.sh start "export PYTHONPATH=/tmp/site:/tmp/msite:\$PWD TORCH_EXTENSIONS_DIR=\$PWD/.gsplat_build; while pgrep -f scenes-only >/dev/null; \
+    bash benchmarks/gpu/detached.sh start "export PYTHONPATH=/tmp/site:/tmp/msite:\$PWD TORCH_EXTENSIONS_DIR=\$PWD/.gsplat_build; while pgrep -f 'mass_suite.py --scenes[-]only' >/dev/null; \
       do sleep 5; done; python3 benchmarks/mass_suite.py --seeds $SEEDS --renderers ${RENDERERS:-mitsuba project} \
       ${FAMILIES:+--families $FAMILIES} $(MESHES) --jobs ${JOBS:-12} \
       --demo-args '--device cuda' --out /tmp/suite > \$OUT/suite.log 2>&1; cp /tmp/suite/mass_suite*.json* \$OUT/"
