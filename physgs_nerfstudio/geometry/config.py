@@ -5,7 +5,6 @@ docs/architecture.md, "Mass geometry"."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -45,17 +44,6 @@ class GeometryConfig:
     (:mod:`physgs_nerfstudio.geometry.extent`: the space under an object that no view sees past is not the
     object); None = no cut. 0: the outermost Gaussian means already lie on or, by their scatter, beyond the surface
     (the lamp's lowest of 13,686 was 3 mm below its base), and a voxel counts when its centre is inside"""
-    extent_of: Literal["ellipsoids", "means"] = "ellipsoids"
-    """the polytope supports the Gaussians' one-sigma ellipsoids (each Gaussian's mean plus its standard deviation
-    along each direction: a flat Gaussian on a face adds nothing across it, and on a curved surface sampled by a
-    few Gaussians their extent spans the gaps between them) or only their means (inscribed in a curved surface
-    between the means: a 4 cm rod at 8 mm voxels kept 0.81 of its volume)"""
-    extent_seen: bool = True
-    """the polytope supports only the object's Gaussians that some view sees on its rendered surface
-    (:func:`.gaussians.surface_excess`, within a voxel behind it; all of them where fewer than 50 are):
-    Gaussians under an unseen underside, which no view sees, do not place where the solid ends there; the seen
-    faces around it do. False: every selected Gaussian (the GPU lamp's steel base kept a layer of false solid
-    under its bottom, and the lamp came out 1.14-1.17x at 3 of 5 seeds; benchmarks/README.md)"""
     extent_outlier_fraction: float = 0.001
     """the polytope of all but this fraction of the object's Gaussians along each of its directions (the outermost
     ones, :func:`.extent.support_heights`): a few strays under an object's unseen bottom face otherwise set where its
@@ -65,26 +53,14 @@ class GeometryConfig:
     """the mass interval also samples the nominal carving cut to the polytope grown by this many more voxels: where
     the polytope ends the solid (an underside no view sees past), the surface is placed by the scatter of a few
     Gaussians, to about a voxel; None = no such variant"""
-    extent_shrink_voxels: float | None = None
-    """the mass interval also samples the nominal carving without the voxels that lie within this many voxels inside
-    the polytope where the polytope ends the solid (next to carved space more than a voxel past the polytope: no view
-    saw past it): the other side of ``extent_variant_voxels``, since the few Gaussians' scatter places such a face
-    either way (a voxel layer of false solid under a flat unseen base). Seen faces, where the
-    views end the solid, keep their voxels. None (default) = no such variant: at 1.0 it widened the suite's
-    intervals and covered no more objects"""
     hidden_skin_voxels: int | None = 2
     """the solid loses its *hidden open space* (:mod:`.hidden`): voxels that no view could carve (under a table top
     shot from above, under a chair's seat) and that, in most directions, no seen surface encloses. The seen surface
     (the *skin*) is sampled by the Gaussians that some view sees on its rendered surface; this is how far, in voxels,
-    the skin closes the gaps between their samples (``hidden_skin``). None = keep all the space no view sees past
+    the skin closes the gaps between their samples (:func:`.hidden.skin_centred`'s window). None = keep all the space no view sees past
     (the carving alone); documented range 2-3"""
-    hidden_skin: Literal["centred", "grown"] = "centred"
-    """how the skin closes its gaps (:mod:`.hidden`, "The skin"): "centred", a voxel is skin when the samples within
-    ``hidden_skin_voxels`` of it each way are centred on it, to ``hidden_skin_tolerance`` (gaps close, edges and faces
-    do not grow); "grown", the samples' voxels grown by ``hidden_skin_voxels`` 6-connected steps (faces
-    grow too, and the skin under a seen top encloses that many layers of hidden space)"""
     hidden_skin_tolerance: float = 1.5
-    """"centred" skin: the largest distance, in voxels, between a voxel's centre and the centroid of the samples
+    """the skin: the largest distance, in voxels, between a voxel's centre and the centroid of the samples
     around it (half the skin's thickness across a surface); documented range 1.25-2"""
     hidden_skin_sigmas: float = 1.0
     """the skin's samples are the surface Gaussians' means and the ends of their axes at this many standard
@@ -109,18 +85,6 @@ class GeometryConfig:
     (those with a positive, or a negative, step along one of the grid's axes) and in one across it (:mod:`.hidden`,
     "The open half"): the layer under a seen top that the Gaussians of its partly seen underside enclose sideways;
     None = the majority alone; documented range 8-9"""
-    hidden_passes: int = 8
-    """the rules run again on what they leave, at most this many times in all, until a pass removes nothing: the
-    space a pass removed is open to the rays of the next (:mod:`.hidden`, "Passes"); 1 = one pass;
-    documented range 1-8"""
-    hidden_boundary: Literal["half", "whole"] = "half"
-    """how a kept voxel on the boundary with the hidden open space counts in the volume (:mod:`.hidden`, "The
-    boundary with hidden open space"): "half", half a voxel, and the mass's Monte Carlo draws its occupancy in
-    [0, 1] (the object's unseen surface lies somewhere in it); "whole", a whole voxel"""
-    boundary_subsamples: int = 2
-    """partial volume (:mod:`.partial`): a voxel on the solid's boundary counts the share of its n x n x n
-    sub-points that the vote keeps at the rendered surface (the depth margin a tolerance, not volume); 1 = whole
-    voxels by their centres; documented range 2-3"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
     None = the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall,
@@ -148,10 +112,6 @@ class GeometryConfig:
     """``part_materials="observations"``: a part takes its material from the observations when their summed weight
     (level weight x confidence x share of the mask, over views and candidates) reaches this, about half a view's
     answer; else from its Gaussians (``"pooled"``)"""
-    absorb_unobserved: bool = True
-    """``part_materials="observations"``: a part below ``min_part_observation`` joins the observed part nearest each of
-    its voxels (:func:`physgs_nerfstudio.geometry.part_evidence.absorb_unobserved`); False: it keeps its own
-    material (pooled from its Gaussians) and structure (the prior)"""
     min_voxel_evidence: float = 0.5
     """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
     (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
@@ -170,24 +130,13 @@ class GeometryConfig:
     legs), and the boundary between two parts inside it continues the seam seen on its sides. 1: plain Euclidean
     distance. Used only where the views' up direction is within 25 degrees of the grid's z (a capture oriented by
     nerfstudio's dataparser is); elsewhere 1"""
-    occluder_min_prob: float | None = None
-    """None (the default): the depth and alpha that carve (and the silhouette that cuts the masks) are rendered from
-    the selected Gaussians alone. A number: from those plus the others in the selection's box whose object probability
-    (:mod:`.select`, step 1) is at least this (opacity at least ``select.min_opacity``, not on the support plane).
-    Why: an object's boundary Gaussians carry labels mixed with the background's and fall below the selection's 0.5;
-    rendered without them the boundary is see-through, and the depth carves it although the masks keep it (a
-    table can lose a rim of a few centimetres of its top). A Gaussian rendered but not selected only withholds depth
-    votes. Measured at 0.2 over the CPU suite: the tables' tops are kept and
-    coverage rises, but the median volume error rises (more false solid, and the tables' missing legs
-    are then made up by excess top), so it is off until measured on the GPU"""
     object_mask_dilate_px: int = 2
     """the object's own silhouette (its Gaussians rendered alone) is dilated by this before it cuts the
     foreground masks, so that other objects in the views do not count as this one"""
-    complete_masks: bool = True
-    """a view's mask gets back the pieces of the object's rendered silhouette that it misses: the silhouette is the
-    consensus of every view's masks, so a part that this view's segmentation dropped is not carved away by it"""
     complete_min_share: float = 0.02
-    """... a missed piece counts when its area is at least this share of the silhouette's (smaller ones are the
+    """a view's mask gets back the pieces of the object's rendered silhouette that it misses (the silhouette is the
+    consensus of every view's masks, so a part that this view's segmentation dropped is not carved away by it); a
+    missed piece counts when its area is at least this share of the silhouette's (smaller ones are the
     silhouette's blur at the boundary, or thin parts the consensus is no surer of than the mask); documented range
     0.01-0.05"""
     min_mask_agreement: float = 0.5
@@ -200,9 +149,6 @@ class GeometryConfig:
     def __post_init__(self) -> None:
         if self.resolution < 8:
             raise ValueError(f"GeometryConfig.resolution must be >= 8, got {self.resolution}.")
-        if not 1 <= self.boundary_subsamples <= 8:
-            raise ValueError("GeometryConfig.boundary_subsamples must be in 1-8 (1: whole voxels), got "
-                             f"{self.boundary_subsamples}.")
         if not 0.0 <= self.extent_outlier_fraction < 0.5:
             raise ValueError("GeometryConfig.extent_outlier_fraction must be in [0, 0.5), got "
                              f"{self.extent_outlier_fraction}.")
@@ -212,11 +158,6 @@ class GeometryConfig:
         if self.hidden_skin_voxels is not None and self.hidden_skin_voxels < 0:
             raise ValueError("GeometryConfig.hidden_skin_voxels must be >= 0 (or None: keep the hidden space), got "
                              f"{self.hidden_skin_voxels}.")
-        if self.occluder_min_prob is not None and not 0 < self.occluder_min_prob <= 1:
-            raise ValueError("GeometryConfig.occluder_min_prob must be in (0, 1] (or None: the selected Gaussians "
-                             f"alone), got {self.occluder_min_prob}.")
-        if self.hidden_skin not in ("centred", "grown"):
-            raise ValueError(f"GeometryConfig.hidden_skin must be 'centred' or 'grown', got {self.hidden_skin!r}.")
         if not self.hidden_skin_tolerance > 0 or not self.hidden_skin_sigmas >= 0:
             raise ValueError("GeometryConfig.hidden_skin_tolerance must be > 0 and hidden_skin_sigmas >= 0, got "
                              f"{self.hidden_skin_tolerance} and {self.hidden_skin_sigmas}.")
@@ -226,15 +167,6 @@ class GeometryConfig:
         if not 0.0 <= self.hidden_min_open_fraction < 1.0:
             raise ValueError("GeometryConfig.hidden_min_open_fraction must be in [0, 1), got "
                              f"{self.hidden_min_open_fraction}.")
-        if self.extent_shrink_voxels is not None and not (math.isfinite(self.extent_shrink_voxels)
-                                                          and self.extent_shrink_voxels > 0):  # fmt: skip
-            raise ValueError("GeometryConfig.extent_shrink_voxels must be finite and > 0 (or None: no such variant), "
-                             f"got {self.extent_shrink_voxels}.")
-        if self.hidden_boundary not in ("half", "whole"):
-            raise ValueError("GeometryConfig.hidden_boundary must be 'half' or 'whole', got "
-                             f"{self.hidden_boundary!r}.")
-        if self.hidden_passes < 1:
-            raise ValueError(f"GeometryConfig.hidden_passes must be >= 1, got {self.hidden_passes}.")
         if self.hidden_min_open_half is not None and not 1 <= self.hidden_min_open_half <= 9:
             raise ValueError("GeometryConfig.hidden_min_open_half must be in 1-9 (or None: the majority alone), got "
                              f"{self.hidden_min_open_half}.")

@@ -12,7 +12,7 @@ splat's only evidence of surface: the object ends at its outermost Gaussians. So
 capture is cut exactly. It does not cut concavities (the space under a table top between its legs): those are
 left to the views, which see them.
 
-Which Gaussians (``GeometryConfig.extent_seen``, on by default): those that some view sees on
+Which Gaussians: those that some view sees on
 its rendered surface (:func:`.gaussians.surface_views`). A Gaussian is evidence of surface only where a view
 sees it; under an unseen underside the splat keeps Gaussians that no view sees, and the outermost of them set
 where the solid would end, leaving a layer of false solid under a lamp base's bottom. With the seen Gaussians the
@@ -33,7 +33,7 @@ from torch import Tensor
 from ..render.projection import quat_to_rotmat
 from .grid import VoxelGrid
 
-__all__ = ["polytope_layer", "support_directions", "support_excess", "within_support"]
+__all__ = ["support_directions", "support_excess", "within_support"]
 
 
 def support_directions(n_fibonacci: int = 100) -> Float[Tensor, "D 3"]:
@@ -51,7 +51,7 @@ def support_directions(n_fibonacci: int = 100) -> Float[Tensor, "D 3"]:
 
 
 def support_heights(means: Float[Tensor, "N 3"], d: Float[Tensor, "D 3"], scales: Tensor | None = None,
-                    quats: Tensor | None = None, chunk: int = 1 << 16, skip: int = 0) -> Float[Tensor, "D"]:  # fmt: skip
+                    quats: Tensor | None = None, chunk: int = 1 << 16, skip: int = 0) -> Float[Tensor, D]:  # fmt: skip
     """h(u) = max_i u . mu_i (+ sigma_i(u), the Gaussian's standard deviation along u, when ``scales`` [N, 3] and
     ``quats`` [N, 4] are given: the support function of the Gaussians' one-sigma ellipsoids), float64. ``skip``: the
     (skip + 1)-th largest instead of the largest (the ``skip`` outermost Gaussians along u do not count; all but one
@@ -103,22 +103,3 @@ def within_support(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.
     k = support_excess(grid, means, candidates, n_fibonacci, scales, quats, skip) <= pad_voxels
     out[tuple(idx[k].T)] = True
     return out
-
-
-def polytope_layer(idx: tuple[np.ndarray, ...], excess: np.ndarray, beyond: np.ndarray, pad: float,
-                   depth: float) -> np.ndarray:  # fmt: skip
-    """bool [X, Y, Z]: the candidates (``idx``, with their ``excess`` beyond the polytope in voxels) within ``depth``
-    voxels inside the polytope grown by ``pad`` (``excess > pad - depth``) and within ``ceil(depth) + 2``
-    26-connected steps of the voxels of ``beyond`` (the carved solid's voxels that the polytope cut) more than a
-    voxel past it: the layer next to where the polytope, not the views, ends the solid (no view saw past the space
-    under it). A seen face loses nothing: the carving keeps at most about a voxel past it (its depth margin)."""
-    from scipy import ndimage  # lazily: the cut itself needs no SciPy
-    out = np.zeros_like(beyond)
-    deep = np.zeros_like(beyond)
-    deep[idx] = excess > pad + 1.0
-    deep &= beyond
-    if not deep.any() or depth <= 0:
-        return out
-    out[idx] = (excess > pad - depth) & (excess <= pad)
-    near = ndimage.binary_dilation(deep, np.ones((3, 3, 3), bool), iterations=math.ceil(depth) + 2)
-    return out & near

@@ -15,17 +15,16 @@ touching the *skin*, the seen surface: the Gaussians that some view sees on its 
 the Gaussians' support polytope (the cuts of :mod:`.extent` and :func:`.reconstruct._cut_below`: the object's
 unseen underside) counts as enclosed, as one that reaches the skin. Skin voxels are never removed.
 
-The skin (:func:`skin_centred`, the default). The samples are the surface Gaussians' means and the ends of their
+The skin (:func:`skin_centred`). The samples are the surface Gaussians' means and the ends of their
 axes at one standard deviation (:func:`gaussian_samples`): a few large Gaussians cover a surface their means alone
 leave gappy. They are a scattered sample, not a closed digital surface: left as they are, rays leave a solid through
 the gaps (a shoe at demo settings would lose a quarter of its inside). A voxel is skin when it holds a sample, or
 when the samples within ``window`` voxels of it each way (a cube of 5 at the default 2) have their centroid within
 ``tolerance`` (1.5) voxels of its centre. Around a gap in a surface the samples surround the voxel, so the gap
 closes; off a face, or past a surface's edge, they all lie on one side and their centroid is far. So the skin is
-about 1 + 2 x 1.5 voxels thick across a face and ends within a voxel of an edge. ``hidden_skin="grown"``
-(:func:`skin_from_points`) grows the samples' voxels by ``window`` 6-connected steps instead: that closes every gap
-but also grows each face by 2 voxels off itself and past its edges, so that the skin of a table top's side faces
-encloses two layers of hidden space under the top. The centred skin's gaps are not all closed: at a third of a
+about 1 + 2 x 1.5 voxels thick across a face and ends within a voxel of an edge (growing the samples' voxels by
+2 steps instead would close every gap but also grow each face by 2 voxels off itself and past its edges, enclosing
+two layers of hidden space under a table top). The skin's gaps are not all closed: at a third of a
 plane's voxels sampled, 2-3% of its columns keep a hole, which single rays pass but a majority of directions does
 not.
 
@@ -66,13 +65,12 @@ open too. The second condition keeps a thick top whose upper face's skin does no
 seen whole, close every ray across, as they close the majority's (tests/test_hidden_space.py). None = the majority
 alone.
 
-Passes (``passes``, :func:`without_hidden_space`; ``GeometryConfig.hidden_passes``, default 8). What one pass
+Passes (``passes``, :func:`without_hidden_space`; :data:`HIDDEN_PASSES`). What one pass
 removes is not the object, so it is open space to the rays of the next: from the voxels between the stray skin and
 the top, the rays that ran down through the removed layer now leave the solid there. Run until a pass removes
 nothing (at most ``passes``), the rules reach a fixed point: a closed object whose first pass removes nothing is
 unchanged. The cost falls on a cup's unseen inside, which later passes carve more of: its hollow body's carved
 volume comes down to about its wall's (area x thickness), and the mass takes the smaller of the two in each sample.
-1 = one pass.
 
 Limits: the space within the skin's reach under a seen edge stays (the skin of a top's side faces encloses the
 layer under the top sideways), so a thin top shot only from above keeps about a voxel of hidden space under it.
@@ -80,15 +78,14 @@ Where a top is sampled by Gaussians about a voxel wide (demo settings), its own 
 voxel or two under it. The 26 lattice directions are coarse: from the middle of a square table aligned with the
 grid, the horizontal diagonals run into its legs, which enclose.
 
-The boundary with hidden open space (:func:`hidden_boundary`; ``GeometryConfig.hidden_boundary``, default "half").
+The boundary with hidden open space (:func:`hidden_boundary`).
 The rules keep a voxel that the skin reaches or encloses, and the skin reaches a voxel or more past the samples; so
 at the boundary with the space they removed (a top's unseen underside) the last kept voxel holds the object's
 surface somewhere inside it, or just outside it, and where is not observed. Its expected occupancy is about 1/2 (on
 recorded GPU rooms, 0.53-0.63 against the truth), so the volume counts it as half a voxel, and the mass's Monte
 Carlo draws its occupancy uniformly in [0, 1], one draw per sample shared by every such voxel
 (:mod:`physgs_nerfstudio.mass.integrate`, "Unseen boundary"). A seen face needs no such count: the carving keeps a
-voxel there when its centre lies behind the rendered surface, which is unbiased. "whole" = every kept voxel counts
-whole.
+voxel there when its centre lies behind the rendered surface, which is unbiased.
 
 Cost: for each direction a pointer-doubling scan (each voxel looks 1, 2, 4, ... steps ahead), about
 ``26 x (log2 n + 4)`` tensor operations on the solid's bounding box per pass; a round reads and writes only the
@@ -110,13 +107,18 @@ from torch import Tensor
 
 from ..render.projection import quat_to_rotmat
 
-__all__ = ["LATTICE_DIRECTIONS", "gaussian_samples", "hidden_boundary", "hidden_open_rules", "hidden_open_space",
-           "open_counts", "open_fraction", "skin_centred", "skin_from_points", "without_hidden_space",
+__all__ = ["HIDDEN_PASSES", "LATTICE_DIRECTIONS", "gaussian_samples", "hidden_boundary", "hidden_open_rules",
+           "hidden_open_space", "open_counts", "open_fraction", "skin_centred", "without_hidden_space",
            "without_hidden_space_many"]
 
 LATTICE_DIRECTIONS: tuple[tuple[int, int, int], ...] = tuple(
     d for d in itertools.product((-1, 0, 1), repeat=3) if any(d))  # fmt: skip
 """The 26 directions of the 3x3x3 lattice (faces, edges and corners)."""
+
+HIDDEN_PASSES = 8
+"""the most passes of the rules ("Passes"): they stop earlier, at the first pass that removes nothing, so this only
+bounds the cost; a single pass left the CPU demo table and chair 2-3% heavier
+(benchmarks/results/mass_stability_cpu.json)"""
 
 _UNRESOLVED, _OPEN, _CLOSED = 0, 1, 2
 
@@ -141,23 +143,6 @@ def _in_grid(points: Float[Tensor, "N 3"], origin: Tensor | np.ndarray, voxel_si
     ij = torch.floor(p).long()
     ok = ((ij >= 0) & (ij < torch.as_tensor(shape, device=points.device))).all(1)
     return p[ok], ij[ok]
-
-
-def skin_from_points(points: Float[Tensor, "N 3"], origin: Tensor | np.ndarray, voxel_size: float,
-                     shape: tuple[int, int, int], skin_voxels: int) -> Bool[Tensor, "X Y Z"]:  # fmt: skip
-    """bool grid: the voxels holding one of ``points`` (scene units, on a grid of ``origin`` and ``voxel_size``),
-    grown by ``skin_voxels`` 6-connected steps (the "grown" skin, module doc)."""
-    skin = torch.zeros(shape, dtype=torch.bool, device=points.device)
-    skin[tuple(_in_grid(points, origin, voxel_size, shape)[1].T)] = True
-    for _ in range(int(skin_voxels)):
-        grown = skin.clone()
-        for axis in range(3):
-            for s in (-1, 1):
-                d = [0, 0, 0]
-                d[axis] = s
-                grown |= _shift(skin, tuple(d), False)
-        skin = grown
-    return skin
 
 
 def gaussian_samples(means: Float[Tensor, "N 3"], scales: Float[Tensor, "N 3"], quats: Float[Tensor, "N 4"],

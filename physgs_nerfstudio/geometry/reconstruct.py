@@ -36,18 +36,13 @@ from .carve import (
 )
 from .config import GeometryConfig
 from .errors import GeometryError
-from .extent import polytope_layer, support_excess
+from .extent import support_excess
 from .gaussians import ViewRender, render_depth, surface_excess, surface_views
 from .grid import VoxelGrid
-from .hidden import (
-    gaussian_samples,
-    hidden_boundary,
-    skin_centred,
-    skin_from_points,
-    without_hidden_space_many,
-)
+from .hidden import HIDDEN_PASSES, gaussian_samples, hidden_boundary, skin_centred, without_hidden_space_many
+from .names import object_labels
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
-from .partial import boundary_fill, part_volumes
+from .partial import BOUNDARY_SUBSAMPLES, boundary_fill, part_volumes
 from .parts import (
     PartGeometry,
     concavities,
@@ -59,7 +54,6 @@ from .parts import (
     sum_rows,
     voxel_mixture,
 )
-from .names import object_labels
 from .select import ObjectSelection, outside_mask_hull, select_object
 from .structure import PartStructure, fuse_structure
 from .support import SupportPlane, find_resting_plane, views_up
@@ -114,14 +108,14 @@ class ObjectGeometry:
     view saw past it) that the support plane's cut, the Gaussians' polytope or the hidden open space rule
     removed (an unseen underside; :func:`unseen_face_share`)"""
     extent_gaussians: int = 0
-    """the Gaussians whose polytope ends the solid (``GeometryConfig.extent_seen``: those some view sees)"""
+    """the Gaussians whose polytope ends the solid (those some view sees)"""
     hidden_removed: dict[str, int] | None = None
     """the nominal solid's voxels removed as hidden open space (:mod:`.hidden`), by the rule that removed them:
     "majority", "open_half"; None = the rule is off"""
     hidden_boundary: np.ndarray | None = None
     """[G, P] volume per variant and part of the kept voxels on the boundary with the hidden open space, whole
     voxels, scene units^3 (:func:`.hidden.hidden_boundary`); ``volumes`` counts them at ``hidden_boundary_fill``,
-    and the mass draws their occupancy uniformly in [0, 1]. None = none (the rule off, or "whole")"""
+    and the mass draws their occupancy uniformly in [0, 1]. None = none (the rule off, or no such voxel)"""
     hidden_edge: np.ndarray | None = None
     """bool [X, Y, Z]: the nominal solid's voxels on that boundary (None with ``hidden_boundary``)"""
     occupancy: np.ndarray | None = None
@@ -131,7 +125,7 @@ class ObjectGeometry:
 
     @property
     def hidden_boundary_fill(self) -> float:
-        """The share of a boundary voxel that ``volumes`` counts: 0.5 ("half"), 1 ("whole", or no boundary)."""
+        """The share of a boundary voxel that ``volumes`` counts: 0.5, or 1 where there is no boundary."""
         return 0.5 if self.hidden_boundary is not None else 1.0
 
     def fill(self) -> np.ndarray:
@@ -173,8 +167,8 @@ def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
     return VoxelGrid.from_bounds((lo - pad).cpu(), (hi + pad).cpu(), cfg.resolution)
 
 
-def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig,
-                  box: VoxelGrid | None = None) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
+def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig
+                  ) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
     """The object's own depth and alpha (its Gaussians rendered alone: a thin part's expected depth is not
     pulled back by the background behind it), and the foreground masks cut down to this object (foreground
     AND the dilated silhouette of its Gaussians). A view whose cut mask agrees with the silhouette at IoU below
@@ -184,7 +178,7 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     away, which the vote alone cannot prevent once several views fail."""
     import cv2
 
-    sub = _Subset(g, _occluders(g, selection, cfg, box))
+    sub = _Subset(g, selection.selected)
     spread = cfg.carve.front_spread > 0 or cfg.carve.max_spread_voxels < float("inf")
     kind = {"expected": "expected", "median": "median"}.get(cfg.carve.depth_render, "both")
     renders = render_depth(sub, views, backend=cfg.backend, spread=spread, depth=kind,  # type: ignore[arg-type]
@@ -208,7 +202,7 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
             fg &= core | ~on_plane
         union = (fg | core).sum()
         iou = (fg & core).sum() / union if union else 1.0
-        cut.append(replace(v, mask=torch.from_numpy(_complete(fg, core, kernel, cfg) if cfg.complete_masks else fg)))
+        cut.append(replace(v, mask=torch.from_numpy(_complete(fg, core, kernel, cfg))))
         if iou < cfg.min_mask_agreement:  # this view's segmentation lost the object: use the splat's consensus
             replaced += 1
             out.append(replace(v, mask=torch.from_numpy(sil), mask_source="silhouette"))
@@ -223,24 +217,6 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
         logger.info("object masks: %d of %d views disagree with the object's rendered silhouette (IoU < %.2g) and "
                     "carve with the silhouette instead", replaced, len(views), cfg.min_mask_agreement)  # fmt: skip
     return out, renders
-
-
-def _occluders(g: Any, selection: ObjectSelection, cfg: GeometryConfig,
-               box: VoxelGrid | None = None) -> torch.Tensor:  # fmt: skip
-    """bool [N]: the Gaussians whose render carves (``GeometryConfig.occluder_min_prob``): the selected ones, and
-    the others within the selection's box (the voxel domain ``box``, :func:`_domain` when None) whose object
-    probability reaches the setting, opaque enough to be selected, off the support plane."""
-    sel = selection.selected
-    if cfg.occluder_min_prob is None or not bool(sel.any()):
-        return sel
-    box = box if box is not None else _domain(g, sel, cfg)
-    lo = torch.as_tensor(box.origin, dtype=g.means.dtype, device=g.means.device)
-    hi = lo + torch.as_tensor(box.shape, dtype=g.means.dtype, device=g.means.device) * box.voxel_size
-    extra = (selection.prob >= cfg.occluder_min_prob) & (g.opacities.reshape(-1) >= cfg.select.min_opacity)
-    extra &= ((g.means >= lo) & (g.means <= hi)).all(-1)
-    if selection.support is not None:
-        extra &= ~selection.support
-    return sel | extra
 
 
 def _within_hull(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
@@ -289,14 +265,12 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
                     variants: list[tuple[str, CarveConfig]], sdf: list[torch.Tensor], device: Any,
                     means: torch.Tensor | None = None, extent_pad_voxels: float | None = None,
                     extent_variant_voxels: float | None = None, scales: torch.Tensor | None = None,
-                    quats: torch.Tensor | None = None, extent_skip: int = 0, extent_shrink_voxels: float | None = None
+                    quats: torch.Tensor | None = None, extent_skip: int = 0
                     ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:  # fmt: skip
     """The solid of every variant, from one voting pass per distinct (mask margin, depth margin), cut to the
     support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
-    that much more, as one more variant, and (unless ``extent_shrink_voxels`` is None) the first variant's solid
-    without its layer that deep where the polytope ends it (:func:`.extent.polytope_layer`), as one more; the first
-    variant's visual hull (:func:`.carve.hull_from_votes`); and the voxels that the views kept (in a solid or the
+    that much more, as one more variant; the first variant's visual hull (:func:`.carve.hull_from_votes`); and the voxels that the views kept (in a solid or the
     hull) and the polytope cut (None without a cut); and the first variant's solid before the cut. ``scales``
     and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
     by_key: dict[VoteKey, CarveConfig] = {}
@@ -322,9 +296,6 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
         wider[idx] = excess <= extent_pad_voxels + extent_variant_voxels
         cut.append(solids[0] & wider)
     beyond = candidates & ~inside
-    if extent_shrink_voxels is not None:  # the nominal carving where the polytope ends it, a little inside
-        layer = polytope_layer(idx, excess, solids[0] & ~inside, extent_pad_voxels, extent_shrink_voxels)
-        cut.append(cut[0] & ~layer)
     return cut, hull & inside, beyond, solids[0]
 
 
@@ -384,39 +355,35 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
 
 def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, beyond: np.ndarray | None,
                     plane: SupportPlane | None, cfg: GeometryConfig, seen_by: Any = None
-                    ) -> tuple[list[np.ndarray], dict[str, int], list[np.ndarray] | None]:  # fmt: skip
+                    ) -> tuple[list[np.ndarray], dict[str, int], list[np.ndarray]]:  # fmt: skip
     """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is sampled by ``surface``, the
     Gaussians some view sees on its surface (``means``, ``scales``, ``quats``); rays that leave the solid below the
     support plane or into space that the views kept and the Gaussians' polytope cut (``beyond``) are enclosed (the
     object's unseen underside). Also returns the nominal solid's voxels that each rule removed, and each variant's
-    kept voxels on the boundary with the space removed (:func:`.hidden.hidden_boundary`; None with "whole").
+    kept voxels on the boundary with the space removed (:func:`.hidden.hidden_boundary`).
     ``seen_by(points, thickness)``: how many views see each point on their rendered surface, within the band
     plus its ``thickness`` (``hidden_skin_seen``: the axis ends' test)."""
     dev = surface.means.device
     reach = int(cfg.hidden_skin_voxels or 0)
     origin = np.asarray(grid.origin)
-    if cfg.hidden_skin == "grown":
-        skin = skin_from_points(surface.means, origin, grid.voxel_size, grid.shape, reach)
-    else:
-        samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, cfg.hidden_skin_sigmas)
-        n = len(surface.means)
-        if seen_by is not None and len(samples) > n:
-            # the means are seen; the axis ends that some view sees too, within the band plus their
-            # Gaussian's own thickness (its smallest standard deviation): a thick Gaussian's shortest axis
-            # ends that far behind
-            ends = samples[n:]
-            thick = (cfg.hidden_skin_sigmas * surface.scales.min(1).values).repeat_interleave(6)
-            samples = torch.cat([samples[:n], ends[seen_by(ends, thick) > 0]])
-        skin = skin_centred(samples, origin, grid.voxel_size, grid.shape, reach, cfg.hidden_skin_tolerance)
+    samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, cfg.hidden_skin_sigmas)
+    n = len(surface.means)
+    if seen_by is not None and len(samples) > n:
+        # the means are seen; the axis ends that some view sees too, within the band plus their Gaussian's own
+        # thickness (its smallest standard deviation): a thick Gaussian's shortest axis ends that far behind
+        ends = samples[n:]
+        thick = (cfg.hidden_skin_sigmas * surface.scales.min(1).values).repeat_interleave(6)
+        samples = torch.cat([samples[:n], ends[seen_by(ends, thick) > 0]])
+    skin = skin_centred(samples, origin, grid.voxel_size, grid.shape, reach, cfg.hidden_skin_tolerance)
     closed = np.zeros(grid.shape, bool) if beyond is None else beyond.copy()
     if plane is not None:
         closed |= ~plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
     before = torch.from_numpy(np.stack(solids)).to(dev)
     kept, counts = without_hidden_space_many(before, skin, closed_t, cfg.hidden_min_open_fraction,
-                                             cfg.hidden_min_open_half, cfg.hidden_passes)  # fmt: skip
+                                             cfg.hidden_min_open_half, HIDDEN_PASSES)  # fmt: skip
     out = list(kept.cpu().numpy())
-    edges = list(hidden_boundary(kept, before & ~kept).cpu().numpy()) if cfg.hidden_boundary == "half" else None
+    edges = list(hidden_boundary(kept, before & ~kept).cpu().numpy())
     removed = counts[0]  # the nominal solid's
     if removed["majority"] or removed["open_half"]:
         logger.info("hidden open space: %d of %d solid voxels that no seen surface encloses removed (%d by the open "
@@ -501,7 +468,7 @@ def reconstruct_object(
     _resting_plane(g, selection, views, cfg)
     step("rendering depth")
     grid = _domain(g, selection.selected, cfg)
-    obj_views, renders = _object_views(g, selection, views, cfg, grid)
+    obj_views, renders = _object_views(g, selection, views, cfg)
     sources: dict[str, int] = {}
     for v in obj_views:
         sources[v.mask_source] = sources.get(v.mask_source, 0) + 1
@@ -510,21 +477,18 @@ def reconstruct_object(
     step("carving")
     variants = _variants(cfg)
     wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
-    shrink = cfg.extent_shrink_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
     ext_idx = torch.nonzero(selection.selected).squeeze(1)
     # each selected Gaussian's smallest depth behind a view's rendered surface: the extent's, the material evidence's
     # and the skin's sets are those within their bands of it (one pass over the views)
     excess = surface_excess(g.means[ext_idx], obj_views, renders)
-    if cfg.extent_seen:
-        seen = excess <= grid.voxel_size
-        if int(seen.sum()) >= 50:
-            logger.info("object extent: %d of %d selected Gaussians are seen by a view; the unseen ones "
-                        "do not set where the solid ends", int(seen.sum()), len(ext_idx))  # fmt: skip
-            ext_idx = ext_idx[seen]
-    ext = {"scales": g.scales[ext_idx], "quats": g.quats[ext_idx]} if cfg.extent_of == "ellipsoids" else {}
+    seen = excess <= grid.voxel_size
+    if int(seen.sum()) >= 50:
+        logger.info("object extent: %d of %d selected Gaussians are seen by a view; the unseen ones "
+                    "do not set where the solid ends", int(seen.sum()), len(ext_idx))  # fmt: skip
+        ext_idx = ext_idx[seen]
+    ext = {"scales": g.scales[ext_idx], "quats": g.quats[ext_idx]}
     # the outlier count of the whole selection: the seen Gaussians' polytope is never wider than all of theirs
     ext["extent_skip"] = int(cfg.extent_outlier_fraction * selection.num_selected)
-    ext["extent_shrink_voxels"] = shrink
     solids, hull, beyond, raw_nominal = _carve_variants(grid, obj_views, renders, variants, sdf, device,
                                                         g.means[ext_idx], cfg.extent_pad_voxels, wider,
                                                         **ext)  # fmt: skip
@@ -560,8 +524,7 @@ def reconstruct_object(
     unseen = before_cuts & ~solids[0]  # kept by the views, removed by the plane's cut or as hidden open space
     if beyond is not None:
         unseen = unseen | _beyond_kept(raw_nominal, beyond)
-    names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else []) \
-        + ([f"extent-{shrink:g}vox"] if shrink is not None else [])
+    names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else [])
     union = np.logical_or.reduce(solids)
     if not solids[0].any():
         raise GeometryError("carving left no solid voxel: the object masks and the views disagree (check poses and "
@@ -583,7 +546,7 @@ def reconstruct_object(
     if by_views:
         P = int(parts.max()) + 1
         shares = observation_shares(grid, np.where(solids[0], parts, -1), P, views, observations, device)
-        if shares and cfg.absorb_unobserved:
+        if shares:
             seen = fuse_part_materials(shares, observations, mat_names, P, a0, lam)[1]
             merged = absorb_unobserved(parts, seen >= cfg.min_part_observation)
             if merged is not parts:
@@ -631,9 +594,9 @@ def reconstruct_object(
         concave = concavities(hull, solids[0], max(2.0, cfg.concavity_px * pixel_voxels))
     step("partial volume")
     cfgs = [cc for _, cc in variants] + [variants[0][1]] * (len(solids) - len(variants))  # the extent variants'
-    fills = boundary_fill(grid, solids, cfgs, obj_views, renders, sdf=sdf, subsamples=cfg.boundary_subsamples,
+    fills = boundary_fill(grid, solids, cfgs, obj_views, renders, sdf=sdf, subsamples=BOUNDARY_SUBSAMPLES,
                           device=device)  # fmt: skip
-    occupancy = fills[0] if cfg.boundary_subsamples > 1 else None
+    occupancy = fills[0] if BOUNDARY_SUBSAMPLES > 1 else None
 
     def areas(s: np.ndarray) -> PartGeometry:
         return part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet, min_plate=cfg.min_plate,
@@ -651,7 +614,7 @@ def reconstruct_object(
     volumes = np.stack([gm.volume for gm in geos] if occupancy is None else
                        [part_volumes(f, np.where(s, parts, -1), P, grid.voxel_size) for f, s in zip(fills, solids)])
     boundary = None
-    if edges is not None and any(e.any() for e in edges):  # edges only with "half"
+    if edges is not None and any(e.any() for e in edges):
         # the kept voxels on the boundary with the hidden open space: half a voxel each (:mod:`.hidden`)
         counts = [np.bincount(parts[e & (parts >= 0)], f[e & (parts >= 0)], minlength=P)[:P]
                   for e, f in zip(edges, fills)]  # fmt: skip
