@@ -1,7 +1,7 @@
 """How the object's geometry is recovered: :class:`GeometryConfig`, the options of
 :func:`.reconstruct.reconstruct_object` (selection, carving, hidden space, parts, structure and the variants that
-sample the geometry in the mass interval). Their documented ranges and what each was measured on:
-docs/architecture.md, "Mass geometry"."""
+sample the geometry in the mass interval). What each rule does: docs/architecture.md, "Mass geometry"; the
+measurements that chose the defaults: CHANGELOG.md and benchmarks/results/mass_stability_cpu.json."""
 
 from __future__ import annotations
 
@@ -40,108 +40,75 @@ class GeometryConfig:
     """when the carved solid's longest side is below this fraction of the domain's, carve again on a grid fitted to
     the solid (outliers of the selection stretched the domain and coarsened the voxels)"""
     extent_pad_voxels: float | None = 0.0
-    """the solid is cut to the support polytope of the object's Gaussians grown by this many voxels
-    (:mod:`physgs_nerfstudio.geometry.extent`: the space under an object that no view sees past is not the
-    object); None = no cut. 0: the outermost Gaussian means already lie on or, by their scatter, beyond the surface
-    (the lamp's lowest of 13,686 was 3 mm below its base), and a voxel counts when its centre is inside"""
+    """the solid is cut to the support polytope of the object's seen Gaussians grown by this many voxels
+    (:mod:`.extent`: space under an object that no view sees past is not the object); None = no cut. 0: the
+    outermost Gaussians lie on or, by their scatter, beyond the surface, and a voxel counts when its centre is in"""
     extent_outlier_fraction: float = 0.001
-    """the polytope of all but this fraction of the object's Gaussians along each of its directions (the outermost
-    ones, :func:`.extent.support_heights`): a few strays under an object's unseen bottom face otherwise set where its
-    solid ends (on a GPU splat of a lamp the lowest of some 20,000 Gaussians near it lay 10 mm under its base, the
-    20th 4.4 mm, the 50th 2.5 mm). 0 = every Gaussian counts; documented range 0-0.003"""
+    """along each direction the polytope skips this share of the outermost Gaussians (:func:`.extent.support_heights`),
+    so that a few strays under an unseen bottom face do not set where the solid ends; documented range 0-0.003"""
     extent_variant_voxels: float | None = 1.0
-    """the mass interval also samples the nominal carving cut to the polytope grown by this many more voxels: where
-    the polytope ends the solid (an underside no view sees past), the surface is placed by the scatter of a few
-    Gaussians, to about a voxel; None = no such variant"""
+    """the interval also samples the nominal carving cut to the polytope grown by this many voxels (where the
+    polytope ends the solid, a few Gaussians' scatter places the surface to about a voxel); None = no such variant"""
     hidden_skin_voxels: int | None = 2
-    """the solid loses its *hidden open space* (:mod:`.hidden`): voxels that no view could carve (under a table top
-    shot from above, under a chair's seat) and that, in most directions, no seen surface encloses. The seen surface
-    (the *skin*) is sampled by the Gaussians that some view sees on its rendered surface; this is how far, in voxels,
-    the skin closes the gaps between their samples (:func:`.hidden.skin_centred`'s window). None = keep all the space no view sees past
-    (the carving alone); documented range 2-3"""
+    """the solid loses its *hidden open space* (:mod:`.hidden`: space no view could carve that no seen surface
+    encloses, such as under a table top); the skin closes the gaps between its samples over this many voxels each
+    way. None = keep all the space no view sees past; documented range 2-3"""
     hidden_skin_tolerance: float = 1.5
-    """the skin: the largest distance, in voxels, between a voxel's centre and the centroid of the samples
-    around it (half the skin's thickness across a surface); documented range 1.25-2"""
+    """a voxel is skin when the samples around it have their centroid within this many voxels of its centre (half
+    the skin's thickness across a surface); documented range 1.25-2"""
     hidden_skin_sigmas: float = 1.0
-    """the skin's samples are the surface Gaussians' means and the ends of their axes at this many standard
-    deviations (:func:`.hidden.gaussian_samples`: a few large Gaussians cover a surface their means alone leave
-    gappy); 0 = the means only"""
+    """the skin's samples: the surface Gaussians' means and the ends of their axes at this many standard deviations
+    (:func:`.hidden.gaussian_samples`); 0 = the means only"""
     hidden_skin_seen: float | None = 1.0
-    """the skin's samples at the ends of the Gaussians' axes count only where some view sees them on its
-    rendered surface (:func:`.gaussians.surface_views`), at most this many voxels plus their Gaussian's
-    own thickness (its smallest standard deviation, at ``hidden_skin_sigmas``) behind it, as the Gaussians'
-    means are seen: an axis end that pokes through the seen surface into space no view sees (a long thin
-    Gaussian tilted across a table top, under its unseen underside) is no sample of that surface
-    (:mod:`.hidden`, "Seen samples"). None = every axis end counts; documented range 0.5-2"""
+    """an axis end samples the skin only where some view sees it on its rendered surface, within this many voxels
+    plus its Gaussian's own thickness (:mod:`.hidden`, "Seen samples"); None = every end; documented range 0.5-2"""
     hidden_skin_band: float | None = 0.5
-    """the skin's Gaussians are those whose centre some view sees at most this many voxels behind its rendered depth
-    (:func:`.gaussians.surface_excess`; :mod:`.hidden`, "The skin's band"); None: ``evidence_surface_voxels``'s
-    band (1 voxel), the set whose labels count as material evidence. Documented range 0.5-1"""
+    """the skin's Gaussians: those whose centre some view sees at most this many voxels behind its rendered depth
+    (:mod:`.hidden`, "The skin's band"); None = ``evidence_surface_voxels``'s band; documented range 0.5-1"""
     hidden_min_open_fraction: float = 0.5
-    """a voxel is hidden open space when the rays from it leave the solid without meeting the seen surface in more
-    than this share of the 26 lattice directions (a majority; :mod:`.hidden`)"""
+    """a voxel is hidden open space when its rays leave the solid without meeting the skin in more than this share
+    of the 26 lattice directions (:mod:`.hidden`)"""
     hidden_min_open_half: int | None = 9
-    """a voxel is also hidden open space when the rays leave in at least this many of the 9 directions of one half
-    (those with a positive, or a negative, step along one of the grid's axes) and in one across it (:mod:`.hidden`,
-    "The open half"): the layer under a seen top that the Gaussians of its partly seen underside enclose sideways;
-    None = the majority alone; documented range 8-9"""
+    """... or in at least this many of the 9 directions of one half and one across it (:mod:`.hidden`, "The open
+    half"); None = the majority alone; documented range 8-9"""
     sheet_voxels: float | None = None
-    """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels;
-    None = the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall,
-    which comes out about a voxel thicker than with the expected depth)"""
+    """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels; None =
+    the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall)"""
     min_plate: float = 0.25
-    """a sheet face counts half only where the thin solid around it is a plate, not a rod: the second-largest
-    spread of its voxels within twice the widest sheet's thickness is at least this times the largest
-    (:func:`physgs_nerfstudio.geometry.parts.part_areas`): a rod of a shell's material (a closed tube leg, filled
-    because no view sees its inside) is as thin as a two-sided wall but its faces are its one outer side;
-    0 = every sheet face counts half"""
+    """a sheet face counts half only where the thin solid is a plate: the second-largest spread of its voxels is at
+    least this times the largest (:func:`.parts.part_areas`; a rod's faces are its one outer side); 0 = always"""
     concavity_px: float | None = 3.0
-    """a wall face that is no sheet and faces a concavity (empty space that only depth carved, this many pixels of
-    the views, and at least 2 voxels, inside the visual hull: a cup's or a pan's inside, the unseen fill's top
-    under a cup's rim) is not counted in a hollow part's area: its wall's outer face is
-    (:func:`physgs_nerfstudio.geometry.parts.part_areas`). In pixels because the hull is wider than the solid by
-    the masks' blur, a few pixels (at 96 px on 2 cores, 5 voxels around the mug); None = every face counts"""
+    """a wall face that is no sheet and faces a concavity (empty space that only depth carved, this many pixels and
+    at least 2 voxels inside the visual hull: a cup's inside) is not counted in a hollow part's area (its outer face
+    is; :func:`.parts.part_areas`); in pixels because the hull is wider than the solid by the masks' blur"""
     min_part_fraction: float = 2e-3
+    """parts smaller than this share of the solid are pooled into one last part (:func:`.parts.part_labels`)"""
     part_materials: Literal["observations", "pooled", "voxels"] = "observations"
-    """a part's material mixture: "observations", the Dirichlet fusion of the views' answers about the part, each
-    view's answer counted once per part (:mod:`physgs_nerfstudio.geometry.part_evidence`; a part no observation
-    reaches falls back to "pooled"); "pooled", from the mean of its Gaussians' Dirichlet posteriors (one piece of
-    one material); "voxels", the volume-weighted mean of its voxels' mixtures, each voxel drawing its own material
-    (:mod:`physgs_nerfstudio.geometry.parts`, "A part's material")"""
+    """a part's material: "observations", the Dirichlet fusion of the views' answers about it (:mod:`.part_evidence`;
+    a part none reaches falls back to "pooled"); "pooled", its Gaussians' mean posterior; "voxels", each voxel its
+    own (:mod:`.parts`)"""
     min_part_observation: float = 0.5
-    """``part_materials="observations"``: a part takes its material from the observations when their summed weight
-    (level weight x confidence x share of the mask, over views and candidates) reaches this, about half a view's
-    answer; else from its Gaussians (``"pooled"``)"""
+    """a part takes its material from the observations when their summed weight (level x confidence x share of the
+    mask) reaches this, about half a view's answer; below it, it joins the observed part nearest each voxel"""
     min_voxel_evidence: float = 0.5
     """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
-    (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
+    (:func:`.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
     evidence_surface_voxels: float | None = 1.0
-    """a Gaussian gives its voxel material evidence (``min_voxel_evidence``) only where at least one view sees its
-    centre on the rendered surface, at most this many voxels behind the object's rendered depth
-    (:func:`.gaussians.surface_excess`). Gaussians under the surface carry the labels that a sliver of blending
-    weight through the surface in front of them gave them in the lifting (each view that sees a Gaussian at all
-    counts as one observation, :mod:`physgs_nerfstudio.nerfstudio.pipeline`): the GPU shoe's rubber sole, under
-    its leather upper, held leather evidence 5-8 mm below the seam, and 22% of its voxels were weighed as the
-    upper's hollow inside. None = every labelled Gaussian counts; documented range 0.5-2"""
+    """a Gaussian's labels count as material evidence only where some view sees its centre at most this many voxels
+    behind the rendered surface (:func:`.gaussians.surface_excess`): one under the surface took the labels of the
+    surface in front of it through a sliver of blending weight. None = every labelled one; documented range 0.5-2"""
     interior_up_weight: float = 10.0
-    """in the nearest-evidence rule of the solid's inside (:func:`.parts.voxel_mixture`), a vertical distance counts
-    this many times a horizontal one, so that an inside voxel takes the material of the observed surface nearest at
-    its own height: an object at rest is built in layers (a sole under an upper, a base under a pole, a top on its
-    legs), and the boundary between two parts inside it continues the seam seen on its sides. 1: plain Euclidean
-    distance. Used only where the views' up direction is within 25 degrees of the grid's z (a capture oriented by
-    nerfstudio's dataparser is); elsewhere 1"""
+    """inside the solid a voxel takes the material of the nearest observed voxel, a vertical distance counting this
+    many times a horizontal one (an object at rest is built in layers, so the seam inside it continues the one seen
+    on its sides); used where the views' up is within 25 degrees of the grid's z; 1 = Euclidean"""
     object_mask_dilate_px: int = 2
-    """the object's own silhouette (its Gaussians rendered alone) is dilated by this before it cuts the
+    """the object's own silhouette (its Gaussians rendered alone) is dilated by this many pixels before it cuts the
     foreground masks, so that other objects in the views do not count as this one"""
     complete_min_share: float = 0.02
-    """a view's mask gets back the pieces of the object's rendered silhouette that it misses (the silhouette is the
-    consensus of every view's masks, so a part that this view's segmentation dropped is not carved away by it); a
-    missed piece counts when its area is at least this share of the silhouette's (smaller ones are the
-    silhouette's blur at the boundary, or thin parts the consensus is no surer of than the mask); documented range
-    0.01-0.05"""
+    """a view's mask gets back each piece of the object's rendered silhouette (the views' consensus) that it misses
+    and that covers at least this share of it; smaller ones are the silhouette's blur; documented range 0.01-0.05"""
     min_mask_agreement: float = 0.5
-    """IoU between a view's object mask and the object's rendered silhouette below which the view carves with
-    the silhouette (:func:`_object_views`)"""
+    """a view whose object mask agrees with the rendered silhouette at IoU below this carves with the silhouette"""
     max_views: int | None = None
     """use at most this many views (evenly spaced); None = all"""
     backend: str = "auto"

@@ -1,24 +1,16 @@
 """The object's extent from its Gaussians: a voxel beyond every Gaussian of the object is not the object.
 
-Carving keeps the space that no view sees past (the inside of a closed object, module doc of :mod:`.carve`). Under
-an object shot from above, that also keeps a slab of the domain's padding: every view but the few lowest has that
-space hidden behind the object, so no vote carves it, and it would count as solid (a 2 cm steel lamp base can come
-out 1.75x its volume with a slab of the padding under it). The Gaussians are the
-splat's only evidence of surface: the object ends at its outermost Gaussians. So the solid is cut to the Gaussians'
-*support polytope*: for a fixed set of directions ``u`` (the 26 lattice directions and a Fibonacci set), a voxel centre
-``x`` is kept when ``u . x <= max_i u . mu_i + pad`` for every ``u``. It contains the convex hull of the means
-(it never cuts into the object's convex hull), tends to it as directions are added, and costs one
-[N, D] product; with the lattice directions the flat bottom of an object standing upright in an oriented
-capture is cut exactly. It does not cut concavities (the space under a table top between its legs): those are
-left to the views, which see them.
+Carving keeps the space that no view sees past (:mod:`.carve`); under an object shot from above that is also a slab
+of the domain's padding. The Gaussians are the splat's only evidence of surface, so the solid is cut to their
+*support polytope*: for a fixed set of directions ``u`` (the 26 lattice directions and a Fibonacci set), a voxel
+centre ``x`` is kept when ``u . x <= max_i u . mu_i + pad`` for every ``u``. It contains the Gaussians' convex hull,
+tends to it as directions are added, costs one [N, D] product, and with the lattice directions cuts the flat bottom
+of an upright object in an oriented capture exactly. Concavities (between a table's legs) are left to the views.
 
-Which Gaussians: those that some view sees on
-its rendered surface (:func:`.gaussians.surface_views`). A Gaussian is evidence of surface only where a view
-sees it; under an unseen underside the splat keeps Gaussians that no view sees, and the outermost of them set
-where the solid would end, leaving a layer of false solid under a lamp base's bottom. With the seen Gaussians the
-seen faces around the underside end it there. The
-outlier count stays that of the whole selection, so the seen Gaussians' polytope is never wider than all of
-theirs.
+Only the Gaussians that some view sees on its rendered surface count (:func:`.gaussians.surface_excess`): under an
+unseen underside a splat keeps Gaussians that no view sees, and those would leave a layer of false solid; the seen
+faces around the underside end it. The outlier count is that of the whole selection, so the seen Gaussians'
+polytope is never wider than all of theirs.
 """
 
 from __future__ import annotations
