@@ -62,22 +62,22 @@ class GeometryConfig:
     hidden_skin_seen: float | None = 1.0
     """an axis end samples the skin only where some view sees it on its rendered surface, within this many voxels
     plus its Gaussian's own thickness (:mod:`.hidden`, "Seen samples"); None = every end; documented range 0.5-2"""
-    hidden_skin_band: float | None = 0.5
+    hidden_skin_band: float = 0.5
     """the skin's Gaussians: those whose centre some view sees at most this many voxels behind its rendered depth
-    (:mod:`.hidden`, "The skin's band"); None = ``evidence_surface_voxels``'s band; documented range 0.5-1"""
+    (:mod:`.hidden`, "The skin's band"); documented range 0.5-1"""
     hidden_min_open_fraction: float = 0.5
     """a voxel is hidden open space when its rays leave the solid without meeting the skin in more than this share
     of the 26 lattice directions (:mod:`.hidden`)"""
-    hidden_min_open_half: int | None = 9
+    hidden_min_open_half: int = 9
     """... or in at least this many of the 9 directions of one half and one across it (:mod:`.hidden`, "The open
-    half"); None = the majority alone; documented range 8-9"""
+    half"); documented range 8-9"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels; None =
     the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall)"""
     min_plate: float = 0.25
     """a sheet face counts half only where the thin solid is a plate: the second-largest spread of its voxels is at
     least this times the largest (:func:`.parts.part_areas`; a rod's faces are its one outer side); 0 = always"""
-    concavity_px: float | None = 3.0
+    concavity_px: float = 3.0
     """a wall face that is no sheet and faces a concavity (empty space that only depth carved, this many pixels and
     at least 2 voxels inside the visual hull: a cup's inside) is not counted in a hollow part's area (its outer face
     is; :func:`.parts.part_areas`); in pixels because the hull is wider than the solid by the masks' blur"""
@@ -93,10 +93,10 @@ class GeometryConfig:
     min_voxel_evidence: float = 0.5
     """a voxel gives its own material mixture when its Gaussians' summed opacity x observed share reaches this
     (:func:`.parts.voxel_mixture`); other solid voxels take the nearest such voxel's"""
-    evidence_surface_voxels: float | None = 1.0
+    evidence_surface_voxels: float = 1.0
     """a Gaussian's labels count as material evidence only where some view sees its centre at most this many voxels
     behind the rendered surface (:func:`.gaussians.surface_excess`): one under the surface took the labels of the
-    surface in front of it through a sliver of blending weight. None = every labelled one; documented range 0.5-2"""
+    surface in front of it through a sliver of blending weight; documented range 0.5-2"""
     interior_up_weight: float = 10.0
     """inside the solid a voxel takes the material of the nearest observed voxel, a vertical distance counting this
     many times a horizontal one (an object at rest is built in layers, so the seam inside it continues the one seen
@@ -119,8 +119,8 @@ class GeometryConfig:
         if not 0.0 <= self.extent_outlier_fraction < 0.5:
             raise ValueError("GeometryConfig.extent_outlier_fraction must be in [0, 0.5), got "
                              f"{self.extent_outlier_fraction}.")
-        if self.hidden_skin_band is not None and not self.hidden_skin_band >= 0:
-            raise ValueError("GeometryConfig.hidden_skin_band must be >= 0 voxels (or None), got "
+        if not self.hidden_skin_band >= 0:
+            raise ValueError("GeometryConfig.hidden_skin_band must be >= 0 voxels, got "
                              f"{self.hidden_skin_band}.")
         if self.hidden_skin_voxels is not None and self.hidden_skin_voxels < 0:
             raise ValueError("GeometryConfig.hidden_skin_voxels must be >= 0 (or None: keep the hidden space), got "
@@ -134,9 +134,8 @@ class GeometryConfig:
         if not 0.0 <= self.hidden_min_open_fraction < 1.0:
             raise ValueError("GeometryConfig.hidden_min_open_fraction must be in [0, 1), got "
                              f"{self.hidden_min_open_fraction}.")
-        if self.hidden_min_open_half is not None and not 1 <= self.hidden_min_open_half <= 9:
-            raise ValueError("GeometryConfig.hidden_min_open_half must be in 1-9 (or None: the majority alone), got "
+        if not 1 <= self.hidden_min_open_half <= 9:
+            raise ValueError("GeometryConfig.hidden_min_open_half must be in 1-9, got "
                              f"{self.hidden_min_open_half}.")
-        if self.evidence_surface_voxels is not None and not self.evidence_surface_voxels >= 0:
-            raise ValueError("GeometryConfig.evidence_surface_voxels must be >= 0 (or None: every labelled Gaussian "
-                             f"counts), got {self.evidence_surface_voxels}.")
+        if not self.evidence_surface_voxels >= 0:
+            raise ValueError(f"GeometryConfig.evidence_surface_voxels must be >= 0, got {self.evidence_surface_voxels}.")

@@ -364,8 +364,8 @@ def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView]
     cut (``beyond``) are enclosed (the object's unseen underside). Also returns the nominal solid's voxels that each
     rule removed, and each variant's kept voxels on the boundary with the space removed
     (:func:`.hidden.hidden_boundary`)."""
-    band = cfg.hidden_skin_band if cfg.hidden_skin_band is not None else _evidence_voxels(cfg)
-    surface = _Subset(g, torch.nonzero(selection.selected).squeeze(1)[excess <= band * grid.voxel_size])
+    on_skin = excess <= cfg.hidden_skin_band * grid.voxel_size
+    surface = _Subset(g, torch.nonzero(selection.selected).squeeze(1)[on_skin])
     samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, cfg.hidden_skin_sigmas)
     n = len(surface.means)
     if cfg.hidden_skin_seen is not None and len(samples) > n:
@@ -550,11 +550,6 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
                     edges)  # fmt: skip
 
 
-def _evidence_voxels(cfg: GeometryConfig) -> float:
-    """How far, in voxels, behind a view's rendered surface a Gaussian's centre may lie for its labels to count as
-    material evidence (``evidence_surface_voxels``; 1 where that is None and every labelled Gaussian counts)."""
-    return cfg.evidence_surface_voxels if cfg.evidence_surface_voxels is not None else 1.0
-
 
 def _merged_parts(parts: np.ndarray, cv: _Carving, views: Sequence[CaptureView],
                   observations: Sequence[MaskObservation], names: list[str], prior: tuple[float, float],
@@ -611,9 +606,8 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
     labelled = getattr(g, "labelled", None)
     pi_sel = pi(sel) if callable(pi) else pi[sel]
     observed = labelled[sel] if labelled is not None else None
-    if cfg.evidence_surface_voxels is not None:
-        near = cv.excess <= _evidence_voxels(cfg) * cv.grid.voxel_size
-        observed = near.to(g.means.dtype) * (observed.reshape(-1) if observed is not None else 1.0)
+    near = cv.excess <= cfg.evidence_surface_voxels * cv.grid.voxel_size  # their labels are material evidence
+    observed = near.to(g.means.dtype) * (observed.reshape(-1) if observed is not None else 1.0)
     union = np.logical_or.reduce(cv.solids)
     mixture = voxel_mixture(cv.grid, union, g.means[sel], g.opacities[sel], pi_sel, observed,
                             min_evidence=cfg.min_voxel_evidence, up_weight=_up_weight(views, cfg.interior_up_weight))
@@ -648,9 +642,7 @@ def _surfaces(cv: _Carving, pp: _Parts, cfg: GeometryConfig, pixel_voxels: float
     """Every variant's per-part wall areas, surfaces and curvatures (:func:`.parts.part_areas`)."""
     sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else (
         cfg.carve.depth_margin_voxels + (2.0 if cfg.carve.depth_render == "median" else 1.0))
-    concave = None
-    if cfg.concavity_px is not None:
-        concave = concavities(cv.hull, cv.solids[0], max(2.0, cfg.concavity_px * pixel_voxels))
+    concave = concavities(cv.hull, cv.solids[0], max(2.0, cfg.concavity_px * pixel_voxels))
 
     def areas(s: np.ndarray) -> PartGeometry:
         return part_areas(cv.grid, s, np.where(s, pp.parts, -1), pp.count, sheet_voxels=sheet,
