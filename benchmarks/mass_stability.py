@@ -39,7 +39,6 @@ SETTINGS: dict[str, list[str]] = {
     "hidden_skin_tolerance=1.25": ["--mass.geometry.hidden-skin-tolerance", "1.25"],
     "hidden_skin_tolerance=2": ["--mass.geometry.hidden-skin-tolerance", "2"],
     "hidden_min_open_half=8": ["--mass.geometry.hidden-min-open-half", "8"],
-    "hidden_passes=1": ["--mass.geometry.hidden-passes", "1"],
     "hidden_skin_seen=0.5": ["--mass.geometry.hidden-skin-seen", "0.5"],
     "hidden_skin_seen=2": ["--mass.geometry.hidden-skin-seen", "2"],
     "hidden_skin_band=1": ["--mass.geometry.hidden-skin-band", "1"],
@@ -58,8 +57,6 @@ SETTINGS: dict[str, list[str]] = {
     "evidence_surface_voxels=2": ["--mass.geometry.evidence-surface-voxels", "2"],
     "no_variants": ["--mass.geometry.no-variants"],
     "structure_evidence=material": ["--mass.geometry.structure.evidence", "material"],
-    "hidden_boundary=whole": ["--mass.geometry.hidden-boundary", "whole"],
-    "boundary_subsamples=3": ["--mass.geometry.boundary-subsamples", "3"],
 }
 
 

@@ -14,15 +14,14 @@ from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
 from physgs_nerfstudio.geometry.extent import (
-    polytope_layer,
     support_directions,
     support_excess,
     support_heights,
     within_support,
 )
-from physgs_nerfstudio.render.projection import quat_to_rotmat
 from physgs_nerfstudio.geometry.grid import VoxelGrid
 from physgs_nerfstudio.geometry.parts import concavities, part_areas
+from physgs_nerfstudio.render.projection import quat_to_rotmat
 
 
 def test_support_directions_are_unit_and_include_the_axes():
@@ -107,34 +106,6 @@ def test_within_support_cuts_the_unseen_slab_under_an_object():
     box = carved & (x[..., 2] > 0)
     assert kept[box].all()
     assert not kept[carved & (x[..., 2] < -0.5 * grid.voxel_size - 1e-9)].any()
-
-
-@pytest.mark.parametrize("depth", [1.0, 2.0])
-def test_polytope_layer_is_the_layer_over_the_cut_not_the_seen_faces(depth):
-    """The interval's shrunk-extent variant (GeometryConfig.extent_shrink_voxels): the box of the test above, carved
-    down to z = -0.3 and half a voxel over its top, and cut to its points' polytope, loses the ``depth`` voxel layers
-    over its unseen bottom (where the cut, not the views, ends it) and nothing at its sides and top (where the views
-    end it, whatever the cut took over the top)."""
-    rng = np.random.default_rng(1)
-    u = rng.uniform(size=(4000, 2))
-    pts = np.concatenate([np.insert(u, axis, v, axis=1) for axis in range(3) for v in (0.0, 1.0)])
-    grid = VoxelGrid.from_bounds(torch.tensor([-0.3, -0.3, -0.3]), torch.tensor([1.3, 1.3, 1.3]), 32)
-    ijk = np.argwhere(np.ones(grid.shape, bool))
-    x = grid.centres(torch.from_numpy(ijk)).double().numpy().reshape(*grid.shape, 3)
-    h = grid.voxel_size
-    # the views kept space down to z = -0.3 (the unseen bottom) and half a voxel over the seen top (its depth margin)
-    carved = ((x[..., 0] > 0) & (x[..., 0] < 1) & (x[..., 1] > 0) & (x[..., 1] < 1) & (x[..., 2] < 1 + h))
-    idx = tuple(np.argwhere(carved).T)
-    excess = support_excess(grid, torch.from_numpy(pts).float(), carved)
-    inside = np.zeros_like(carved)
-    inside[idx] = excess <= 0.0
-    solid, beyond = carved & inside, carved & ~inside
-    layer = polytope_layer(idx, excess, beyond, 0.0, depth)
-    assert not (layer & ~solid).any()
-    z = x[..., 2]
-    assert layer[solid & (z < depth * h - 1e-6)].all()  # the voxels within depth of the bottom face
-    assert not layer[solid & (z > (depth + 1) * h)].any()  # the sides and the top keep theirs
-    assert polytope_layer(idx, excess, np.zeros_like(beyond), 0.0, depth).sum() == 0  # nothing cut: no layer
 
 
 @settings(max_examples=20, deadline=None)

@@ -12,7 +12,7 @@ import torch
 from helpers.shapes import box_surface, flat_gaussians, geometry_of, ring_views
 
 from physgs_nerfstudio.export.shapes import field_from
-from physgs_nerfstudio.geometry import CarveConfig, GeometryConfig, VoxelGrid
+from physgs_nerfstudio.geometry import CarveConfig, VoxelGrid
 from physgs_nerfstudio.geometry.carve import (
     carve_votes_many,
     carved_by_votes,
@@ -188,17 +188,19 @@ def tray():
     return pf, views, volume
 
 
-def _depth_variants(pf, views, sub):
-    geo = geometry_of(pf, views, resolution=48, boundary_subsamples=sub,
-               depth_margin_variants=(-0.5, 1.0))  # fmt: skip
+def _depth_variants(pf, views, monkeypatch, sub):
+    from physgs_nerfstudio.geometry import reconstruct
+
+    monkeypatch.setattr(reconstruct, "BOUNDARY_SUBSAMPLES", sub)  # 1: whole voxels, to compare against
+    geo = geometry_of(pf, views, resolution=48, depth_margin_variants=(-0.5, 1.0))
     vol = dict(zip(geo.variant_names, geo.volumes.sum(1)))
     return vol["nominal"], vol["depth1vox"], geo
 
 
-def test_the_depth_margin_no_longer_adds_a_layer_on_the_faces_only_the_depth_places(tray):
+def test_the_depth_margin_no_longer_adds_a_layer_on_the_faces_only_the_depth_places(tray, monkeypatch):
     pf, views, truth = tray
-    whole, whole_plus, _ = _depth_variants(pf, views, 1)
-    part, part_plus, geo = _depth_variants(pf, views, 2)
+    whole, whole_plus, _ = _depth_variants(pf, views, monkeypatch, 1)
+    part, part_plus, geo = _depth_variants(pf, views, monkeypatch, 2)
     # whole voxels: the +1 voxel margin adds a layer on the well's floor and walls (3.1% at 48 voxels)
     assert whole_plus / whole - 1 > 0.02
     # partial volume: the tolerance keeps those voxels, but they lie in front of the surface (-0.5%)
@@ -211,11 +213,13 @@ def test_the_depth_margin_no_longer_adds_a_layer_on_the_faces_only_the_depth_pla
     assert geo.fill().sum() * geo.grid.voxel_size**3 == pytest.approx(geo.volumes[0].sum(), rel=1e-5)
 
 
-def test_one_subsample_is_whole_voxels(tray):
+def test_one_subsample_is_whole_voxels(tray, monkeypatch):
+    from helpers.shapes import whole_voxel_volume
+
+    from physgs_nerfstudio.geometry import reconstruct
+
     pf, views, _ = tray
-    geo = geometry_of(pf, views, resolution=32, boundary_subsamples=1)
+    monkeypatch.setattr(reconstruct, "BOUNDARY_SUBSAMPLES", 1)
+    geo = geometry_of(pf, views, resolution=32)
     assert geo.occupancy is None
-    edge = 0.0 if geo.hidden_boundary is None else geo.hidden_boundary[0].sum()
-    assert geo.volumes[0].sum() == pytest.approx(geo.solid.sum() * geo.grid.voxel_size**3 - 0.5 * edge)
-    with pytest.raises(ValueError, match="boundary_subsamples"):
-        GeometryConfig(boundary_subsamples=0)
+    assert geo.volumes[0].sum() == pytest.approx(whole_voxel_volume(geo))

@@ -1,6 +1,6 @@
 """The package's structure rules (docs/architecture.md, "Structure rules"), read from the source with `ast`:
-no function over 80 lines in perception/, export/, sim/, nerfstudio/model.py and nerfstudio/model_outputs.py; no
-import circle between the package's modules, and none between its sub-packages (``nerfstudio/`` -> ``viewer/`` ->
+no function over 80 lines in perception/, export/, sim/, geometry/, nerfstudio/model.py and
+nerfstudio/model_outputs.py; no import circle between the package's modules, and none between its sub-packages (``nerfstudio/`` -> ``viewer/`` ->
 ``export/`` -> ``nerfstudio/`` is a loop even when no two files import each other). Imports inside functions
 count: they close a circle at run time just the same."""
 
@@ -13,7 +13,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "physgs_nerfstudio"
 MAX_FUNCTION_LINES = 80
-LENGTH_LIMITED = ("perception", "export", "sim", "nerfstudio/model.py", "nerfstudio/model_outputs.py")
+LENGTH_LIMITED = ("perception", "export", "sim", "geometry", "nerfstudio/model.py", "nerfstudio/model_outputs.py")
 
 
 def _modules() -> dict[str, Path]:

@@ -101,4 +101,3 @@ def test_geometry_config_rejects_out_of_range_stray_fraction_and_surface_band():
             GeometryConfig(extent_outlier_fraction=bad)
     with pytest.raises(ValueError, match="evidence_surface_voxels"):
         GeometryConfig(evidence_surface_voxels=-1.0)
-    assert GeometryConfig(evidence_surface_voxels=None).evidence_surface_voxels is None

@@ -190,13 +190,8 @@ def carve_votes_many(
     device: torch.device | str = "cpu",
     points: Tensor | None = None,
 ) -> list[CarveVotes]:
-    """:func:`carve_votes` under several settings in one pass: each voxel centre is projected into each view,
-    and its mask distance and rendered depth are looked up, once; then it is voted on under every setting
-    (per setting the same arithmetic as a call of its own, so the votes are identical). Views of one image size
-    are voted on together, ``batch_points`` (voxel, view) pairs at a time (default: 2^23 on a GPU, where it saves
-    kernel launches; one view at a time on the CPU): the same operations on every pair, so the same votes.
-    ``points`` [M, 3] (scene units): vote at these points instead of the grid's voxel centres (``grid`` then
-    gives only the voxel size, the margins' unit: :func:`boundary_fill`'s sub-voxel points)."""
+    """:func:`carve_votes` under several settings, the same votes as a call each: every voxel centre, or each of
+    ``points`` [M, 3], is looked up once per view (``batch_points`` pairs at a time: :func:`default_batch_points`)."""
     if batch_points is None:
         batch_points = default_batch_points(device)
     M = grid.num_voxels if points is None else len(points)

@@ -1,24 +1,16 @@
 """The object's extent from its Gaussians: a voxel beyond every Gaussian of the object is not the object.
 
-Carving keeps the space that no view sees past (the inside of a closed object, module doc of :mod:`.carve`). Under
-an object shot from above, that also keeps a slab of the domain's padding: every view but the few lowest has that
-space hidden behind the object, so no vote carves it, and it would count as solid (a 2 cm steel lamp base can come
-out 1.75x its volume with a slab of the padding under it). The Gaussians are the
-splat's only evidence of surface: the object ends at its outermost Gaussians. So the solid is cut to the Gaussians'
-*support polytope*: for a fixed set of directions ``u`` (the 26 lattice directions and a Fibonacci set), a voxel centre
-``x`` is kept when ``u . x <= max_i u . mu_i + pad`` for every ``u``. It contains the convex hull of the means
-(it never cuts into the object's convex hull), tends to it as directions are added, and costs one
-[N, D] product; with the lattice directions the flat bottom of an object standing upright in an oriented
-capture is cut exactly. It does not cut concavities (the space under a table top between its legs): those are
-left to the views, which see them.
+Carving keeps the space that no view sees past (:mod:`.carve`); under an object shot from above that is also a slab
+of the domain's padding. The Gaussians are the splat's only evidence of surface, so the solid is cut to their
+*support polytope*: for a fixed set of directions ``u`` (the 26 lattice directions and a Fibonacci set), a voxel
+centre ``x`` is kept when ``u . x <= max_i u . mu_i + pad`` for every ``u``. It contains the Gaussians' convex hull,
+tends to it as directions are added, costs one [N, D] product, and with the lattice directions cuts the flat bottom
+of an upright object in an oriented capture exactly. Concavities (between a table's legs) are left to the views.
 
-Which Gaussians (``GeometryConfig.extent_seen``, on by default): those that some view sees on
-its rendered surface (:func:`.gaussians.surface_views`). A Gaussian is evidence of surface only where a view
-sees it; under an unseen underside the splat keeps Gaussians that no view sees, and the outermost of them set
-where the solid would end, leaving a layer of false solid under a lamp base's bottom. With the seen Gaussians the
-seen faces around the underside end it there. The
-outlier count stays that of the whole selection, so the seen Gaussians' polytope is never wider than all of
-theirs.
+Only the Gaussians that some view sees on its rendered surface count (:func:`.gaussians.surface_excess`): under an
+unseen underside a splat keeps Gaussians that no view sees, and those would leave a layer of false solid; the seen
+faces around the underside end it. The outlier count is that of the whole selection, so the seen Gaussians'
+polytope is never wider than all of theirs.
 """
 
 from __future__ import annotations
@@ -33,7 +25,7 @@ from torch import Tensor
 from ..render.projection import quat_to_rotmat
 from .grid import VoxelGrid
 
-__all__ = ["polytope_layer", "support_directions", "support_excess", "within_support"]
+__all__ = ["support_directions", "support_excess", "within_support"]
 
 
 def support_directions(n_fibonacci: int = 100) -> Float[Tensor, "D 3"]:
@@ -51,7 +43,7 @@ def support_directions(n_fibonacci: int = 100) -> Float[Tensor, "D 3"]:
 
 
 def support_heights(means: Float[Tensor, "N 3"], d: Float[Tensor, "D 3"], scales: Tensor | None = None,
-                    quats: Tensor | None = None, chunk: int = 1 << 16, skip: int = 0) -> Float[Tensor, "D"]:  # fmt: skip
+                    quats: Tensor | None = None, chunk: int = 1 << 16, skip: int = 0) -> Float[Tensor, D]:  # fmt: skip
     """h(u) = max_i u . mu_i (+ sigma_i(u), the Gaussian's standard deviation along u, when ``scales`` [N, 3] and
     ``quats`` [N, 4] are given: the support function of the Gaussians' one-sigma ellipsoids), float64. ``skip``: the
     (skip + 1)-th largest instead of the largest (the ``skip`` outermost Gaussians along u do not count; all but one
@@ -103,22 +95,3 @@ def within_support(grid: VoxelGrid, means: Float[Tensor, "N 3"], candidates: np.
     k = support_excess(grid, means, candidates, n_fibonacci, scales, quats, skip) <= pad_voxels
     out[tuple(idx[k].T)] = True
     return out
-
-
-def polytope_layer(idx: tuple[np.ndarray, ...], excess: np.ndarray, beyond: np.ndarray, pad: float,
-                   depth: float) -> np.ndarray:  # fmt: skip
-    """bool [X, Y, Z]: the candidates (``idx``, with their ``excess`` beyond the polytope in voxels) within ``depth``
-    voxels inside the polytope grown by ``pad`` (``excess > pad - depth``) and within ``ceil(depth) + 2``
-    26-connected steps of the voxels of ``beyond`` (the carved solid's voxels that the polytope cut) more than a
-    voxel past it: the layer next to where the polytope, not the views, ends the solid (no view saw past the space
-    under it). A seen face loses nothing: the carving keeps at most about a voxel past it (its depth margin)."""
-    from scipy import ndimage  # lazily: the cut itself needs no SciPy
-    out = np.zeros_like(beyond)
-    deep = np.zeros_like(beyond)
-    deep[idx] = excess > pad + 1.0
-    deep &= beyond
-    if not deep.any() or depth <= 0:
-        return out
-    out[idx] = (excess > pad - depth) & (excess <= pad)
-    near = ndimage.binary_dilation(deep, np.ones((3, 3, 3), bool), iterations=math.ceil(depth) + 2)
-    return out & near

@@ -1,101 +1,54 @@
 """Hidden open space: solid the views could not carve that no seen surface encloses.
 
-Carving keeps every voxel that no view sees past (module doc of :mod:`.carve`): the inside of a closed object, but
-also the space *under* a part that every view looks down on. Under a table top shot only from above (the
-`indoor_room` layout: 15 cameras 1.75-4.27 m high, the top at 0.75 m) that space would be kept as solid, several
-times the table's volume; under a chair's seat it is carved only by the few low views, so the chair's volume would
-swing with the carving's vote.
+Carving keeps every voxel that no view sees past (:mod:`.carve`): the inside of a closed object, but also the space
+*under* a part that every view looks down on (a table top shot from above, a chair's seat). An object's inside is
+enclosed by its surface, which the views saw and the Gaussians sample; the space under a top is enclosed by the top
+on one side only. So a voxel is *hidden open space* when, for most of the 26 lattice directions, a ray from it leaves
+the solid into carved space without touching the *skin*, the seen surface. A ray that leaves the solid below the
+support plane or beyond the Gaussians' support polytope (the object's unseen underside) counts as enclosed. Skin
+voxels are never removed. A step along a diagonal is blocked by any skin voxel of the unit cube it crosses, so that
+rays cannot slip through a skin one voxel thick.
 
-The two differ in what surrounds them. An object's inside is enclosed by its surface, which the views saw and the
-Gaussians sample. Hidden space under a top is enclosed by the top on one side only: below and to the sides it ends
-where the lowest views' rays grazed the top's edges, a boundary that no Gaussian lies on. So a voxel is *hidden open
-space* when, for most of the 26 lattice directions, a ray from it leaves the solid into carved space without
-touching the *skin*, the seen surface: the Gaussians that some view sees on its rendered surface
-(:func:`.gaussians.surface_excess`) sample it. A ray that leaves the solid below the support plane or beyond
-the Gaussians' support polytope (the cuts of :mod:`.extent` and :func:`.reconstruct._cut_below`: the object's
-unseen underside) counts as enclosed, as one that reaches the skin. Skin voxels are never removed.
+The skin (:func:`skin_centred`). Its samples are the surface Gaussians (those some view sees on its rendered
+surface, :func:`.gaussians.surface_excess`): their means and the ends of their axes at one standard deviation
+(:func:`gaussian_samples`). A scattered sample leaves gaps that rays leak through, so a voxel is also skin when the
+samples within ``window`` voxels of it each way have their centroid within ``tolerance`` voxels of its centre:
+around a gap the samples surround the voxel and the gap closes; off a face or past an edge they lie on one side and
+the skin does not grow. It is about 1 + 2 x tolerance voxels thick across a face.
 
-The skin (:func:`skin_centred`, the default). The samples are the surface Gaussians' means and the ends of their
-axes at one standard deviation (:func:`gaussian_samples`): a few large Gaussians cover a surface their means alone
-leave gappy. They are a scattered sample, not a closed digital surface: left as they are, rays leave a solid through
-the gaps (a shoe at demo settings would lose a quarter of its inside). A voxel is skin when it holds a sample, or
-when the samples within ``window`` voxels of it each way (a cube of 5 at the default 2) have their centroid within
-``tolerance`` (1.5) voxels of its centre. Around a gap in a surface the samples surround the voxel, so the gap
-closes; off a face, or past a surface's edge, they all lie on one side and their centroid is far. So the skin is
-about 1 + 2 x 1.5 voxels thick across a face and ends within a voxel of an edge. ``hidden_skin="grown"``
-(:func:`skin_from_points`) grows the samples' voxels by ``window`` 6-connected steps instead: that closes every gap
-but also grows each face by 2 voxels off itself and past its edges, so that the skin of a table top's side faces
-encloses two layers of hidden space under the top. The centred skin's gaps are not all closed: at a third of a
-plane's voxels sampled, 2-3% of its columns keep a hole, which single rays pass but a majority of directions does
-not.
+Seen samples (``GeometryConfig.hidden_skin_seen``). An axis end counts only where some view sees it on its rendered
+surface, within the band plus its Gaussian's smallest standard deviation: a needle-shaped Gaussian tilted across a
+thin top puts one end under the top's unseen underside, and that skin would enclose the space under it.
 
-Seen samples (``GeometryConfig.hidden_skin_seen``, default 1 voxel). The ends of the axes sample the surface only
-where the surface is. GPU splats (60 views at 512 px) render a table top with needles: the surface Gaussians' axes
-are about 1.8, 0.05 and 0.01 voxel (12 mm voxels), and a needle tilted across a 25 mm top puts one end of its long
-axis under the top's underside, where no view sees; with those ends the skin reaches a voxel or more under the top
-and encloses the layer there. So an axis end counts only where some view sees it on its rendered surface, as the
-means are seen (:func:`.gaussians.surface_views`), within the band plus its Gaussian's smallest standard deviation:
-the end of a thick Gaussian's shortest axis lies that far behind the face it renders, and on a thin plate it is the
-sample that holds the plate's lower part (a CPU demo's Gaussians are about a voxel thick each way; with a plain
-1-voxel band a table top loses up to a tenth of its own volume). None = every end counts.
+The skin's band (``GeometryConfig.hidden_skin_band``). The skin's Gaussians are those whose centre some view sees
+at most the band behind its rendered depth: a splat fills a thin plate through its thickness, and a wider band
+samples the plate's unseen lower face, whose skin encloses space under it.
 
-The skin's band (``GeometryConfig.hidden_skin_band``, default 0.5 voxel). Which Gaussians sample the skin: those
-whose centre some view sees no more than the band behind its rendered depth. A GPU splat fills a thin plate through
-its thickness with semi-transparent Gaussians (a 25 mm top at 512 px: the surface Gaussians' centres spread from
-15 mm under the top's upper face to its lower face and a few beyond), and the rendered depth lies inside that layer,
-so a whole voxel's band takes in centres down to the plate's unseen lower face, whose skin reaches past it and
-encloses space under it. Half a voxel keeps the samples on the seen face; 0 (only centres in front of the rendered
-depth) loses part of the face itself.
+The majority (``min_open_fraction`` = 0.5): a voxel under a top has the top above it and open space below and to
+the sides; a voxel inside the top has the top's skin above and around it.
 
-Why these choices:
+The open half (``min_open_half``). The lowest views see a little under a top near its edges, and the Gaussians that
+render that underside lie a voxel or two below it; their skin blocks the sideways rays under the top, and only the
+9 downward rays stay open, no majority. So a voxel is also hidden open space when all the directions of one *half*
+(the 9 with a step along one grid axis, one way) are open and at least one of the 8 *across* that half is: a thick
+top whose upper face's skin does not reach its lower part is closed across by its seen sides and stays.
 
-- A step along a diagonal is blocked by any skin voxel of the unit cube it crosses (its *supercover*), so that rays
-  cannot slip diagonally through a skin one voxel thick.
-- The majority (``min_open_fraction`` = 0.5): a voxel under a top has the top above it and open space below and to
-  the sides (most directions open); a voxel inside the top itself, between its seen upper face and its unseen
-  lower face, has the top's skin above and around it (most directions enclosed).
+Passes (:data:`HIDDEN_PASSES`). What one pass removes is open space to the rays of the next, so the rules run again
+on what they leave until a pass removes nothing: a closed object whose first pass removes nothing is unchanged.
 
-The open half (``min_open_half``, default 9). The skin is not only the top's: the lowest views see a little under a
-top near its edges, and the Gaussians that render that underside lie a voxel or two *below* it (at grazing angles
-depth is loose); at 11 mm voxels the voxels 1.5 and 2.5 cm under a 25 mm top can be skin on a fifth and a tenth of
-its footprint. Those stray skin voxels block the rays that run sideways under the top, the top blocks the upward
-ones, and only the 9 downward rays stay open: 9-12 of 26, no majority, so a layer 2-3 cm thick would stay under the
-top. So a voxel is also hidden open space when all the directions of one *half* (the 9 with a step along one of the
-grid's axes, one way) are open and at least one of the 8 directions *across* that half (no step along its axis) is
-open too. The second condition keeps a thick top whose upper face's skin does not reach its lower part: its sides,
-seen whole, close every ray across, as they close the majority's (tests/test_hidden_space.py). None = the majority
-alone.
+The boundary with hidden open space (:func:`hidden_boundary`). The skin reaches a voxel or more past its samples,
+so the last kept voxel at the boundary with the removed space holds the object's unseen surface somewhere inside
+it, or lies just outside it; its expected occupancy is about 1/2 (0.53-0.63 against the truth on recorded GPU
+rooms), so the volume counts it as half a voxel, and the mass's Monte Carlo draws its occupancy
+uniformly in [0, 1] (:mod:`physgs_nerfstudio.mass.integrate`, "Unseen boundary"). A seen face needs no such count:
+the carving's centre test is unbiased there.
 
-Passes (``passes``, :func:`without_hidden_space`; ``GeometryConfig.hidden_passes``, default 8). What one pass
-removes is not the object, so it is open space to the rays of the next: from the voxels between the stray skin and
-the top, the rays that ran down through the removed layer now leave the solid there. Run until a pass removes
-nothing (at most ``passes``), the rules reach a fixed point: a closed object whose first pass removes nothing is
-unchanged. The cost falls on a cup's unseen inside, which later passes carve more of: its hollow body's carved
-volume comes down to about its wall's (area x thickness), and the mass takes the smaller of the two in each sample.
-1 = one pass.
+Limits: the space within the skin's reach under a seen edge stays (about a voxel under a thin top shot only from
+above), and the 26 lattice directions are coarse.
 
-Limits: the space within the skin's reach under a seen edge stays (the skin of a top's side faces encloses the
-layer under the top sideways), so a thin top shot only from above keeps about a voxel of hidden space under it.
-Where a top is sampled by Gaussians about a voxel wide (demo settings), its own Gaussians, and its legs', put skin a
-voxel or two under it. The 26 lattice directions are coarse: from the middle of a square table aligned with the
-grid, the horizontal diagonals run into its legs, which enclose.
-
-The boundary with hidden open space (:func:`hidden_boundary`; ``GeometryConfig.hidden_boundary``, default "half").
-The rules keep a voxel that the skin reaches or encloses, and the skin reaches a voxel or more past the samples; so
-at the boundary with the space they removed (a top's unseen underside) the last kept voxel holds the object's
-surface somewhere inside it, or just outside it, and where is not observed. Its expected occupancy is about 1/2 (on
-recorded GPU rooms, 0.53-0.63 against the truth), so the volume counts it as half a voxel, and the mass's Monte
-Carlo draws its occupancy uniformly in [0, 1], one draw per sample shared by every such voxel
-(:mod:`physgs_nerfstudio.mass.integrate`, "Unseen boundary"). A seen face needs no such count: the carving keeps a
-voxel there when its centre lies behind the rendered surface, which is unbiased. "whole" = every kept voxel counts
-whole.
-
-Cost: for each direction a pointer-doubling scan (each voxel looks 1, 2, 4, ... steps ahead), about
-``26 x (log2 n + 4)`` tensor operations on the solid's bounding box per pass; a round reads and writes only the
-voxels whose look-ahead lies inside the box (the others are resolved by then: every ray ends inside it). The
-carving's variants share the skin, so they run together on their common bounding box
-(:func:`without_hidden_space_many`, the same voxels as each alone; tests/test_hidden_space.py checks both against a
-direct ray march, pass after pass).
+Cost: per direction a pointer-doubling scan (each voxel looks 1, 2, 4, ... steps ahead) on the solid's bounding
+box; the carving's variants share the skin and run together (:func:`without_hidden_space_many`, the same voxels as
+each alone; tests/test_hidden_space.py checks both against a direct ray march).
 """
 
 from __future__ import annotations
@@ -110,13 +63,18 @@ from torch import Tensor
 
 from ..render.projection import quat_to_rotmat
 
-__all__ = ["LATTICE_DIRECTIONS", "gaussian_samples", "hidden_boundary", "hidden_open_rules", "hidden_open_space",
-           "open_counts", "open_fraction", "skin_centred", "skin_from_points", "without_hidden_space",
+__all__ = ["HIDDEN_PASSES", "LATTICE_DIRECTIONS", "gaussian_samples", "hidden_boundary", "hidden_open_rules",
+           "hidden_open_space", "open_counts", "open_fraction", "skin_centred", "without_hidden_space",
            "without_hidden_space_many"]
 
 LATTICE_DIRECTIONS: tuple[tuple[int, int, int], ...] = tuple(
     d for d in itertools.product((-1, 0, 1), repeat=3) if any(d))  # fmt: skip
 """The 26 directions of the 3x3x3 lattice (faces, edges and corners)."""
+
+HIDDEN_PASSES = 8
+"""the most passes of the rules ("Passes"): they stop earlier, at the first pass that removes nothing, so this only
+bounds the cost; a single pass left the CPU demo table and chair 2-3% heavier
+(benchmarks/results/mass_stability_cpu.json)"""
 
 _UNRESOLVED, _OPEN, _CLOSED = 0, 1, 2
 
@@ -141,23 +99,6 @@ def _in_grid(points: Float[Tensor, "N 3"], origin: Tensor | np.ndarray, voxel_si
     ij = torch.floor(p).long()
     ok = ((ij >= 0) & (ij < torch.as_tensor(shape, device=points.device))).all(1)
     return p[ok], ij[ok]
-
-
-def skin_from_points(points: Float[Tensor, "N 3"], origin: Tensor | np.ndarray, voxel_size: float,
-                     shape: tuple[int, int, int], skin_voxels: int) -> Bool[Tensor, "X Y Z"]:  # fmt: skip
-    """bool grid: the voxels holding one of ``points`` (scene units, on a grid of ``origin`` and ``voxel_size``),
-    grown by ``skin_voxels`` 6-connected steps (the "grown" skin, module doc)."""
-    skin = torch.zeros(shape, dtype=torch.bool, device=points.device)
-    skin[tuple(_in_grid(points, origin, voxel_size, shape)[1].T)] = True
-    for _ in range(int(skin_voxels)):
-        grown = skin.clone()
-        for axis in range(3):
-            for s in (-1, 1):
-                d = [0, 0, 0]
-                d[axis] = s
-                grown |= _shift(skin, tuple(d), False)
-        skin = grown
-    return skin
 
 
 def gaussian_samples(means: Float[Tensor, "N 3"], scales: Float[Tensor, "N 3"], quats: Float[Tensor, "N 4"],

@@ -1,33 +1,24 @@
 """Partial volume: how much of each boundary voxel the carving's surface keeps.
 
 The carving (:mod:`.carve`) decides each voxel by its centre, so a voxel on the solid's boundary counts whole or
-not at all. Where the rule's surface is the object's surface that is unbiased (over a face, as many centres fall
-just inside as just outside), but the depth vote's surface is not the rendered surface: a voxel is carved only when
-it lies in front of that surface by more than ``depth_margin_voxels``. The margin is a tolerance (a noisy depth must
-not carve the object), yet counted by centres it becomes volume: a layer ``margin`` deep on every face that only the
-depth places. On the demo's 96 px renders a pixel covers 1.5-2 voxels, the masks place few of a chair's faces and
-the depth places most, and the depth margin's +1 voxel (the mass interval's own geometry variant) would add
-about 2.5 L outside every true part to a 9.75 L chair.
+not at all. Where the rule's surface is the object's that is unbiased, but the depth vote carves a voxel only when
+it lies in front of the rendered surface by more than ``depth_margin_voxels``: a tolerance against noisy depth that,
+counted by centres, would become a layer of volume on every face that only the depth places (on the demo's renders
+the depth places most of a chair's faces, and the +1 voxel margin variant added about a quarter of its volume).
 
-So the volume near the solid's surface is measured, not read off voxel centres. Every voxel that the surface may
-cut counts the share of its ``n x n x n`` sub-points (a regular lattice: the centre rule at a finer step) that the
-same vote keeps when the depth margin is no wider than 0 (:func:`surface_config`): the rendered surface itself, or,
-with a negative margin, the surface that far behind it (a negative margin says that the surface lies deeper: it
-moves the surface, it is no tolerance). The voxels that the surface may cut:
+So every voxel that the surface may cut counts the share of its ``n x n x n`` sub-points (:data:`BOUNDARY_SUBSAMPLES`
+per axis) that the same vote keeps with the depth margin no wider than 0 (:func:`surface_config`: the rendered
+surface itself; a negative margin says the surface lies deeper and stays). The voxels that the surface may cut:
 
-* the solid's voxels with a face onto space outside it, and, under a positive depth margin, as many layers deeper
-  as the margin has voxels, rounded up (the voxels that the margin keeps lie in front of the layer that the surface
-  cuts; one kept by the margin alone, wholly in front of the surface, counts 0);
-* the voxels just outside the solid that the vote itself carved (their centres lie in front of the surface, part of
-  them may lie behind it). Counting only the kept voxels would lose an eighth of a voxel layer on every face, on
-  average over where the face falls in its voxels. Their share goes to the part of a solid neighbour
-  (:func:`part_volumes`).
+* the solid's voxels with a face onto space outside it and, under a positive depth margin, as many layers deeper as
+  the margin has voxels, rounded up (one kept by the margin alone, wholly in front of the surface, counts 0);
+* the voxels just outside the solid that the vote itself carved (part of them may lie behind the surface; counting
+  only the kept voxels would lose an eighth of a voxel layer on every face). Their share goes to the part of a solid
+  neighbour (:func:`part_volumes`).
 
-So the margin still decides which voxels the carving keeps (its robustness), and the rendered surface decides how
-much of the space around that surface is solid. The silhouettes' faces get the same finer sampling (no bias, less
-aliasing). Faces that other rules end (the support plane, the Gaussians' polytope, hidden open space, which
-:mod:`.hidden` counts half) are unchanged: the vote keeps every sub-point of their voxels, which count whole, and
-the space those rules removed outside them counts 0.
+The margin still decides which voxels the carving keeps; the rendered surface decides how much of the space around
+it is solid. Faces that other rules end (the support plane, the Gaussians' polytope, hidden open space) are
+unchanged: the vote keeps every sub-point of their voxels, and the space those rules removed counts 0.
 """
 
 from __future__ import annotations
@@ -46,8 +37,13 @@ from .carve import CarveConfig, VoteKey, carve_votes_many, carved_by_votes, vote
 from .gaussians import ViewRender
 from .grid import VoxelGrid
 
-__all__ = ["boundary_fill", "boundary_layers", "boundary_voxels", "far_depth_voxels", "outer_rim", "part_volumes",
-           "rim_labels", "sub_offsets", "surface_config"]
+__all__ = ["BOUNDARY_SUBSAMPLES", "boundary_fill", "boundary_layers", "boundary_voxels", "far_depth_voxels",
+           "outer_rim", "part_volumes", "rim_labels", "sub_offsets", "surface_config"]
+
+BOUNDARY_SUBSAMPLES = 2
+"""sub-points per axis of a boundary voxel (2 x 2 x 2): the centre rule at half the voxel's step. Finer sampling
+converges: 3 per axis moved the CPU demo table's and chair's masses by 0.1% and 0.03%
+(benchmarks/results/mass_stability_cpu.json) at 3.4x the sub-points"""
 
 
 def surface_config(cfg: CarveConfig) -> CarveConfig:
@@ -135,7 +131,7 @@ def boundary_fill(
     renders: Sequence[ViewRender] | None,
     *,
     sdf: Sequence[Tensor],
-    subsamples: int = 2,
+    subsamples: int = BOUNDARY_SUBSAMPLES,
     device: torch.device | str = "cpu",
 ) -> list[np.ndarray]:
     """float32 [X, Y, Z] per solid: the share of each voxel that the volume counts (module doc): 1 inside

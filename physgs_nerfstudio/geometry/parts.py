@@ -8,25 +8,19 @@
   an opaque, fully observed Gaussian by default). A solid voxel without evidence (the inside of a 3DGS object:
   Gaussians sit on surfaces; or a surface no view labelled) takes the mixture of the nearest voxel that has
   it (distance transform), i.e. it takes the nearest observed surface evidence. "Nearest" counts a vertical
-  distance ``up_weight`` times (10 by default, ``GeometryConfig.interior_up_weight``): an object at rest is
-  built in layers, and the seam between two parts inside it continues the one seen on its sides. A shoe's rubber
-  sole, 25 mm thick under a leather upper as wide as it, is seen only along its edge; by plain Euclidean distance
-  half of its inside is nearer to the upper, goes to the hollow upper and weighs nothing. A weight of 3 is not
-  enough: the short CPU trainings leave Gaussians on the sole's top face inside the upper, seen through its
-  semi-transparent leather and labelled leather, and at 3 they reach 3 times as deep as the sole's edge reaches
-  in; at 10 the sole's edge reaches across its whole thickness.
+  distance ``up_weight`` times (``GeometryConfig.interior_up_weight``): an object at rest is built in layers,
+  and the seam between two parts inside it continues the one seen on its sides. A sole under an upper as wide as
+  it is seen only along its edge; by plain distance half of its inside is nearer the upper, and at a weight of 3
+  the Gaussians of the sole's top face, seen through a short training's semi-transparent upper, still reach 3 times
+  as deep as its edge; at 10 the edge reaches across its whole thickness.
 * **Parts.** Connected components (26-connectivity) of solid voxels sharing a dominant (argmax) material;
   parts below ``min_part_fraction`` of the object's volume are pooled into one residual part.
-* **A part's material** (:func:`pooled_part_alpha`, the default ``part_materials="pooled"``). A part is one
-  connected region whose voxels share their dominant material, i.e. one piece of one material. Its Dirichlet
-  is the weighted mean of its Gaussians' posteriors, ``alpha0 + mean(lambda * e_g)`` (weights: opacity x
-  observed share), and its mixture weights are taken from that pooled posterior (dominance or predictive, as
-  the field's). Averaging the Gaussians' *weights* instead (``"voxels"``) keeps every weakly observed
-  Gaussian's spread: at 16 views, with alpha0 = 1 over 10-28 candidates, a wooden table top came out 63% oak
-  with the rest spread over other materials, metals among them, and the metal tail alone doubled the part's
-  mean density. The pooled evidence is a typical member's (the mean, not the sum: the Gaussians of a part see
-  the same pixels, so summing would count each view many times). The whole part then switches material
-  together in the mass's Monte Carlo.
+* **A part's material** (:func:`pooled_part_alpha`, ``part_materials="pooled"``; the default fuses the views'
+  answers per part, :mod:`.part_evidence`). A part is one piece of one material; its Dirichlet is the weighted mean
+  of its Gaussians' posteriors, ``alpha0 + mean(lambda * e_g)`` (weights: opacity x observed share): the mean, not
+  the sum, since a part's Gaussians see the same pixels. Averaging the Gaussians' *weights* instead (``"voxels"``)
+  keeps every weakly observed Gaussian's spread over 10-28 candidates, and a metal tail can double a wooden part's
+  mean density. The whole part switches material together in the mass's Monte Carlo.
 * **Material draws within a part** (:func:`material_quantiles`, ``part_materials="voxels"``). The mass's Monte Carlo draws one level
   ``u ~ U(0, 1)`` per part and sample; each voxel of the part then takes the material where its own mixture's
   cumulative sum (materials in the order of the part's mean mixture) first reaches ``u``. Where the voxels are

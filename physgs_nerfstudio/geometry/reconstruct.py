@@ -36,18 +36,13 @@ from .carve import (
 )
 from .config import GeometryConfig
 from .errors import GeometryError
-from .extent import polytope_layer, support_excess
+from .extent import support_excess
 from .gaussians import ViewRender, render_depth, surface_excess, surface_views
 from .grid import VoxelGrid
-from .hidden import (
-    gaussian_samples,
-    hidden_boundary,
-    skin_centred,
-    skin_from_points,
-    without_hidden_space_many,
-)
+from .hidden import HIDDEN_PASSES, gaussian_samples, hidden_boundary, skin_centred, without_hidden_space_many
+from .names import object_labels
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
-from .partial import boundary_fill, part_volumes
+from .partial import BOUNDARY_SUBSAMPLES, boundary_fill, part_volumes
 from .parts import (
     PartGeometry,
     concavities,
@@ -59,7 +54,6 @@ from .parts import (
     sum_rows,
     voxel_mixture,
 )
-from .names import object_labels
 from .select import ObjectSelection, outside_mask_hull, select_object
 from .structure import PartStructure, fuse_structure
 from .support import SupportPlane, find_resting_plane, views_up
@@ -114,14 +108,14 @@ class ObjectGeometry:
     view saw past it) that the support plane's cut, the Gaussians' polytope or the hidden open space rule
     removed (an unseen underside; :func:`unseen_face_share`)"""
     extent_gaussians: int = 0
-    """the Gaussians whose polytope ends the solid (``GeometryConfig.extent_seen``: those some view sees)"""
+    """the Gaussians whose polytope ends the solid (those some view sees)"""
     hidden_removed: dict[str, int] | None = None
     """the nominal solid's voxels removed as hidden open space (:mod:`.hidden`), by the rule that removed them:
     "majority", "open_half"; None = the rule is off"""
     hidden_boundary: np.ndarray | None = None
     """[G, P] volume per variant and part of the kept voxels on the boundary with the hidden open space, whole
     voxels, scene units^3 (:func:`.hidden.hidden_boundary`); ``volumes`` counts them at ``hidden_boundary_fill``,
-    and the mass draws their occupancy uniformly in [0, 1]. None = none (the rule off, or "whole")"""
+    and the mass draws their occupancy uniformly in [0, 1]. None = none (the rule off, or no such voxel)"""
     hidden_edge: np.ndarray | None = None
     """bool [X, Y, Z]: the nominal solid's voxels on that boundary (None with ``hidden_boundary``)"""
     occupancy: np.ndarray | None = None
@@ -131,7 +125,7 @@ class ObjectGeometry:
 
     @property
     def hidden_boundary_fill(self) -> float:
-        """The share of a boundary voxel that ``volumes`` counts: 0.5 ("half"), 1 ("whole", or no boundary)."""
+        """The share of a boundary voxel that ``volumes`` counts: 0.5, or 1 where there is no boundary."""
         return 0.5 if self.hidden_boundary is not None else 1.0
 
     def fill(self) -> np.ndarray:
@@ -173,8 +167,8 @@ def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
     return VoxelGrid.from_bounds((lo - pad).cpu(), (hi + pad).cpu(), cfg.resolution)
 
 
-def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig,
-                  box: VoxelGrid | None = None) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
+def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig
+                  ) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
     """The object's own depth and alpha (its Gaussians rendered alone: a thin part's expected depth is not
     pulled back by the background behind it), and the foreground masks cut down to this object (foreground
     AND the dilated silhouette of its Gaussians). A view whose cut mask agrees with the silhouette at IoU below
@@ -184,7 +178,7 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     away, which the vote alone cannot prevent once several views fail."""
     import cv2
 
-    sub = _Subset(g, _occluders(g, selection, cfg, box))
+    sub = _Subset(g, selection.selected)
     spread = cfg.carve.front_spread > 0 or cfg.carve.max_spread_voxels < float("inf")
     kind = {"expected": "expected", "median": "median"}.get(cfg.carve.depth_render, "both")
     renders = render_depth(sub, views, backend=cfg.backend, spread=spread, depth=kind,  # type: ignore[arg-type]
@@ -208,7 +202,7 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
             fg &= core | ~on_plane
         union = (fg | core).sum()
         iou = (fg & core).sum() / union if union else 1.0
-        cut.append(replace(v, mask=torch.from_numpy(_complete(fg, core, kernel, cfg) if cfg.complete_masks else fg)))
+        cut.append(replace(v, mask=torch.from_numpy(_complete(fg, core, kernel, cfg))))
         if iou < cfg.min_mask_agreement:  # this view's segmentation lost the object: use the splat's consensus
             replaced += 1
             out.append(replace(v, mask=torch.from_numpy(sil), mask_source="silhouette"))
@@ -223,24 +217,6 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
         logger.info("object masks: %d of %d views disagree with the object's rendered silhouette (IoU < %.2g) and "
                     "carve with the silhouette instead", replaced, len(views), cfg.min_mask_agreement)  # fmt: skip
     return out, renders
-
-
-def _occluders(g: Any, selection: ObjectSelection, cfg: GeometryConfig,
-               box: VoxelGrid | None = None) -> torch.Tensor:  # fmt: skip
-    """bool [N]: the Gaussians whose render carves (``GeometryConfig.occluder_min_prob``): the selected ones, and
-    the others within the selection's box (the voxel domain ``box``, :func:`_domain` when None) whose object
-    probability reaches the setting, opaque enough to be selected, off the support plane."""
-    sel = selection.selected
-    if cfg.occluder_min_prob is None or not bool(sel.any()):
-        return sel
-    box = box if box is not None else _domain(g, sel, cfg)
-    lo = torch.as_tensor(box.origin, dtype=g.means.dtype, device=g.means.device)
-    hi = lo + torch.as_tensor(box.shape, dtype=g.means.dtype, device=g.means.device) * box.voxel_size
-    extra = (selection.prob >= cfg.occluder_min_prob) & (g.opacities.reshape(-1) >= cfg.select.min_opacity)
-    extra &= ((g.means >= lo) & (g.means <= hi)).all(-1)
-    if selection.support is not None:
-        extra &= ~selection.support
-    return sel | extra
 
 
 def _within_hull(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
@@ -289,16 +265,15 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
                     variants: list[tuple[str, CarveConfig]], sdf: list[torch.Tensor], device: Any,
                     means: torch.Tensor | None = None, extent_pad_voxels: float | None = None,
                     extent_variant_voxels: float | None = None, scales: torch.Tensor | None = None,
-                    quats: torch.Tensor | None = None, extent_skip: int = 0, extent_shrink_voxels: float | None = None
+                    quats: torch.Tensor | None = None, extent_skip: int = 0,
                     ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:  # fmt: skip
     """The solid of every variant, from one voting pass per distinct (mask margin, depth margin), cut to the
     support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
-    that much more, as one more variant, and (unless ``extent_shrink_voxels`` is None) the first variant's solid
-    without its layer that deep where the polytope ends it (:func:`.extent.polytope_layer`), as one more; the first
-    variant's visual hull (:func:`.carve.hull_from_votes`); and the voxels that the views kept (in a solid or the
-    hull) and the polytope cut (None without a cut); and the first variant's solid before the cut. ``scales``
-    and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids (:func:`.extent.support_heights`)."""
+    that much more, as one more variant; the first variant's visual hull (:func:`.carve.hull_from_votes`); the
+    voxels that the views kept (in a solid or the hull) and the polytope cut (None without a cut); and the first
+    variant's solid before the cut. ``scales`` and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids
+    (:func:`.extent.support_heights`)."""
     by_key: dict[VoteKey, CarveConfig] = {}
     for _, cc in variants:
         by_key.setdefault(vote_key(cc), cc)
@@ -322,9 +297,6 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
         wider[idx] = excess <= extent_pad_voxels + extent_variant_voxels
         cut.append(solids[0] & wider)
     beyond = candidates & ~inside
-    if extent_shrink_voxels is not None:  # the nominal carving where the polytope ends it, a little inside
-        layer = polytope_layer(idx, excess, solids[0] & ~inside, extent_pad_voxels, extent_shrink_voxels)
-        cut.append(cut[0] & ~layer)
     return cut, hull & inside, beyond, solids[0]
 
 
@@ -382,41 +354,39 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
     return [s & above for s in solids], hull & above
 
 
-def _without_hidden(grid: VoxelGrid, solids: list[np.ndarray], surface: Any, beyond: np.ndarray | None,
-                    plane: SupportPlane | None, cfg: GeometryConfig, seen_by: Any = None
-                    ) -> tuple[list[np.ndarray], dict[str, int], list[np.ndarray] | None]:  # fmt: skip
-    """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is sampled by ``surface``, the
-    Gaussians some view sees on its surface (``means``, ``scales``, ``quats``); rays that leave the solid below the
-    support plane or into space that the views kept and the Gaussians' polytope cut (``beyond``) are enclosed (the
-    object's unseen underside). Also returns the nominal solid's voxels that each rule removed, and each variant's
-    kept voxels on the boundary with the space removed (:func:`.hidden.hidden_boundary`; None with "whole").
-    ``seen_by(points, thickness)``: how many views see each point on their rendered surface, within the band
-    plus its ``thickness`` (``hidden_skin_seen``: the axis ends' test)."""
+def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView], renders: list[ViewRender],
+                    excess: torch.Tensor, grid: VoxelGrid, solids: list[np.ndarray], beyond: np.ndarray | None,
+                    cfg: GeometryConfig) -> tuple[list[np.ndarray], dict[str, int], list[np.ndarray]]:  # fmt: skip
+    """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is sampled by the selected
+    Gaussians whose centres some view sees within ``hidden_skin_band`` behind its surface (``excess``: their depth
+    behind the nearest rendered surface), their axis ends only where a view sees them too (``hidden_skin_seen``);
+    rays that leave the solid below the support plane or into space that the views kept and the Gaussians' polytope
+    cut (``beyond``) are enclosed (the object's unseen underside). Also returns the nominal solid's voxels that each
+    rule removed, and each variant's kept voxels on the boundary with the space removed
+    (:func:`.hidden.hidden_boundary`)."""
+    on_skin = excess <= cfg.hidden_skin_band * grid.voxel_size
+    surface = _Subset(g, torch.nonzero(selection.selected).squeeze(1)[on_skin])
+    samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, cfg.hidden_skin_sigmas)
+    n = len(surface.means)
+    if cfg.hidden_skin_seen is not None and len(samples) > n:
+        # the means are seen; the axis ends that some view sees too, within the band plus their Gaussian's own
+        # thickness (its smallest standard deviation): a thick Gaussian's shortest axis ends that far behind
+        ends = samples[n:]
+        thick = (cfg.hidden_skin_sigmas * surface.scales.min(1).values).repeat_interleave(6)
+        seen = surface_views(ends, views, renders, cfg.hidden_skin_seen * grid.voxel_size + thick)
+        samples = torch.cat([samples[:n], ends[seen > 0]])
+    skin = skin_centred(samples, np.asarray(grid.origin), grid.voxel_size, grid.shape,
+                        int(cfg.hidden_skin_voxels or 0), cfg.hidden_skin_tolerance)  # fmt: skip
     dev = surface.means.device
-    reach = int(cfg.hidden_skin_voxels or 0)
-    origin = np.asarray(grid.origin)
-    if cfg.hidden_skin == "grown":
-        skin = skin_from_points(surface.means, origin, grid.voxel_size, grid.shape, reach)
-    else:
-        samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, cfg.hidden_skin_sigmas)
-        n = len(surface.means)
-        if seen_by is not None and len(samples) > n:
-            # the means are seen; the axis ends that some view sees too, within the band plus their
-            # Gaussian's own thickness (its smallest standard deviation): a thick Gaussian's shortest axis
-            # ends that far behind
-            ends = samples[n:]
-            thick = (cfg.hidden_skin_sigmas * surface.scales.min(1).values).repeat_interleave(6)
-            samples = torch.cat([samples[:n], ends[seen_by(ends, thick) > 0]])
-        skin = skin_centred(samples, origin, grid.voxel_size, grid.shape, reach, cfg.hidden_skin_tolerance)
     closed = np.zeros(grid.shape, bool) if beyond is None else beyond.copy()
-    if plane is not None:
-        closed |= ~plane.above_voxels(grid)
+    if selection.plane is not None:
+        closed |= ~selection.plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
     before = torch.from_numpy(np.stack(solids)).to(dev)
     kept, counts = without_hidden_space_many(before, skin, closed_t, cfg.hidden_min_open_fraction,
-                                             cfg.hidden_min_open_half, cfg.hidden_passes)  # fmt: skip
+                                             cfg.hidden_min_open_half, HIDDEN_PASSES)  # fmt: skip
     out = list(kept.cpu().numpy())
-    edges = list(hidden_boundary(kept, before & ~kept).cpu().numpy()) if cfg.hidden_boundary == "half" else None
+    edges = list(hidden_boundary(kept, before & ~kept).cpu().numpy())
     removed = counts[0]  # the nominal solid's
     if removed["majority"] or removed["open_half"]:
         logger.info("hidden open space: %d of %d solid voxels that no seen surface encloses removed (%d by the open "
@@ -460,6 +430,248 @@ def _variants(cfg: GeometryConfig) -> list[tuple[str, CarveConfig]]:
     return out
 
 
+@dataclass
+class _Carving:
+    """The carved object (:func:`_carve_object`): its grid, the variants' names and carving settings, their solids
+    (the nominal first) after every cut, the nominal visual hull, the views and renders that carved and their masks'
+    signed distances, each selected Gaussian's depth behind the rendered surface nearest it (``excess``,
+    :func:`.gaussians.surface_excess`), the space no view placed (:func:`unseen_face_share`), the hidden open space
+    removed and each variant's boundary with it (:mod:`.hidden`), and how many Gaussians the extent used."""
+
+    grid: VoxelGrid
+    names: list[str]
+    cfgs: list[CarveConfig]
+    solids: list[np.ndarray]
+    hull: np.ndarray
+    views: list[CaptureView]
+    renders: list[ViewRender]
+    sdf: list[torch.Tensor]
+    excess: torch.Tensor
+    unseen: np.ndarray
+    extent_gaussians: int
+    hidden_removed: dict[str, int] | None = None
+    edges: list[np.ndarray] | None = None
+
+
+@dataclass
+class _Parts:
+    """The object's parts and their materials (:func:`_part_materials`): per-voxel ``mixture`` [X, Y, Z, K],
+    ``parts`` on the union of the solids, ``pm`` [P, K] per part, the coupled quantile draw ``levels`` (None: one
+    material per part), the observations' shares of each part (the structure's evidence) and the material names."""
+
+    mixture: np.ndarray
+    parts: np.ndarray
+    pm: np.ndarray
+    levels: np.ndarray | None
+    shares: list[tuple[int, np.ndarray]]
+    names: list[str]
+
+    @property
+    def count(self) -> int:
+        return int(self.parts.max()) + 1
+
+
+def _resolved(cfg: GeometryConfig, g: Any) -> GeometryConfig:
+    """``cfg`` with ``carve.depth_render="auto"`` resolved for the backend that renders ``g``."""
+    if cfg.carve.depth_render != "auto":
+        return cfg
+    kind = resolve_depth_render("auto", resolve_backend(cfg.backend, g.means.device))  # type: ignore[arg-type]
+    return replace(cfg, carve=replace(cfg.carve, depth_render=kind))
+
+
+def _views_used(views: Sequence[CaptureView], cfg: GeometryConfig) -> list[CaptureView]:
+    """The views that carve: all, or ``max_views`` of them evenly spaced."""
+    views = list(views)
+    if cfg.max_views is not None and len(views) > cfg.max_views:
+        keep = np.linspace(0, len(views) - 1, cfg.max_views).round().astype(int)
+        views = [views[i] for i in keep]
+    if not views:
+        raise GeometryError("no views to carve the object from: the run has no training cameras.")
+    return views
+
+
+def _refit(grid: VoxelGrid, solids: list[np.ndarray], cfg: GeometryConfig) -> VoxelGrid | None:
+    """A grid fitted to the carved solids when they span less than ``refit_fraction`` of ``grid`` (outliers of the
+    selection stretched the domain and coarsened the voxels), at full resolution; None otherwise."""
+    lo, hi = _solid_bounds(grid, np.logical_or.reduce(solids))
+    side = float(np.max(grid.shape)) * grid.voxel_size
+    if lo is None or float((hi - lo).max()) >= cfg.refit_fraction * side:
+        return None
+    pad = float((hi - lo).max()) * (cfg.pad_fraction + 2.0 / cfg.resolution)  # + 2 new voxels
+    logger.info("the carved object spans %.0f%% of the selection's box: carved again on a grid fitted to it",
+                100 * float((hi - lo).max()) / side)  # fmt: skip
+    return VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad), cfg.resolution)
+
+
+def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], renders: list[ViewRender],
+                  cfg: GeometryConfig) -> _Carving:  # fmt: skip
+    """Every variant's solid: carved on the selection's domain (again on a fitted grid, :func:`_refit`), cut to the
+    seen Gaussians' polytope (:mod:`.extent`) and above the support plane, less the hidden open space."""
+    grid = _domain(g, selection.selected, cfg)
+    sdf = signed_mask_distances([v.mask for v in views])
+    variants = _variants(cfg)
+    wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
+    ext_idx = torch.nonzero(selection.selected).squeeze(1)
+    # each selected Gaussian's smallest depth behind a view's rendered surface: the extent's, the material evidence's
+    # and the skin's sets are those within their bands of it (one pass over the views)
+    excess = surface_excess(g.means[ext_idx], views, renders)
+    seen = excess <= grid.voxel_size
+    if int(seen.sum()) >= 50:
+        logger.info("object extent: %d of %d selected Gaussians are seen by a view; the unseen ones "
+                    "do not set where the solid ends", int(seen.sum()), len(ext_idx))  # fmt: skip
+        ext_idx = ext_idx[seen]
+    # the outlier count of the whole selection: the seen Gaussians' polytope is never wider than all of theirs
+    ext = {"scales": g.scales[ext_idx], "quats": g.quats[ext_idx],
+           "extent_skip": int(cfg.extent_outlier_fraction * selection.num_selected)}  # fmt: skip
+
+    def carve(on: VoxelGrid) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:
+        return _carve_variants(on, views, renders, variants, sdf, g.means.device, g.means[ext_idx],
+                               cfg.extent_pad_voxels, wider, **ext)  # fmt: skip
+
+    solids, hull, beyond, raw_nominal = carve(grid)
+    fitted = _refit(grid, solids, cfg)
+    if fitted is not None:
+        grid = fitted
+        solids, hull, beyond, raw_nominal = carve(grid)
+    before_cuts = solids[0]
+    solids, hull = _cut_below(grid, solids, hull, selection.plane)
+    removed, edges = None, None
+    if cfg.hidden_skin_voxels is not None:
+        solids, removed, edges = _without_hidden(g, selection, views, renders, excess, grid, solids, beyond, cfg)
+    if not solids[0].any():
+        raise GeometryError("carving left no solid voxel: the object masks and the views disagree (check poses and "
+                            "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
+    unseen = before_cuts & ~solids[0]  # kept by the views, removed by the plane's cut or as hidden open space
+    if beyond is not None:
+        unseen = unseen | _beyond_kept(raw_nominal, beyond)
+    names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else [])
+    cfgs = [cc for _, cc in variants] + [variants[0][1]] * (len(solids) - len(variants))  # the extent variant's
+    return _Carving(grid, names, cfgs, solids, hull, views, renders, sdf, excess, unseen, len(ext_idx), removed,
+                    edges)  # fmt: skip
+
+
+
+def _merged_parts(parts: np.ndarray, cv: _Carving, views: Sequence[CaptureView],
+                  observations: Sequence[MaskObservation], names: list[str], prior: tuple[float, float],
+                  cfg: GeometryConfig, device: Any) -> tuple[np.ndarray, list[tuple[int, np.ndarray]]]:  # fmt: skip
+    """``parts`` after the observations: a part they do not reach joins the observed part nearest each of its
+    voxels (:func:`.part_evidence.absorb_unobserved`), and touching parts they name the same material merge; and
+    each observation's shares of the parts (:func:`.part_evidence.observation_shares`)."""
+    a0, lam = prior
+
+    def shares_of(p: np.ndarray) -> list[tuple[int, np.ndarray]]:
+        return observation_shares(cv.grid, np.where(cv.solids[0], p, -1), int(p.max()) + 1, views, observations,
+                                  device)  # fmt: skip
+
+    shares = shares_of(parts)
+    if not shares:
+        return parts, shares
+    seen = fuse_part_materials(shares, observations, names, int(parts.max()) + 1, a0, lam)[1]
+    merged = absorb_unobserved(parts, seen >= cfg.min_part_observation)
+    if merged is not parts:
+        parts = merged
+        shares = shares_of(parts)
+    # touching parts whose views name the same material are one piece of it (the absorbed voxels that separated them
+    # now join them)
+    P = int(parts.max()) + 1
+    fused, seen = fuse_part_materials(shares, observations, names, P, a0, lam)
+    dom = np.where(seen >= cfg.min_part_observation, np.argmax(fused, 1), -1 - np.arange(P))
+    parts, old_to_new = merge_same_material(parts, dom)
+    merged_p = int(parts.max()) + 1  # the shares re-binned once, not recomputed per observation
+    if merged_p < P:
+        shares = [(i, np.bincount(old_to_new, sh, minlength=merged_p)) for i, sh in shares]
+    return parts, shares
+
+
+def _part_mixture(parts: np.ndarray, mixture: np.ndarray, cv: _Carving) -> np.ndarray:
+    """[P, K]: each part's volume-weighted voxel mixture over the nominal solid (over the union for a part only in
+    other variants)."""
+    P = int(parts.max()) + 1
+    nominal, union = cv.solids[0], np.logical_or.reduce(cv.solids)
+    pm = sum_rows(np.where(nominal, parts, -1)[nominal], mixture[nominal], P)
+    empty = pm.sum(1) == 0
+    if empty.any():
+        pm += sum_rows(parts[union], mixture[union] * empty[parts[union]][:, None], P)
+    return pm / pm.sum(1, keepdims=True)
+
+
+def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence[CaptureView],
+                    observations: Sequence[MaskObservation], cv: _Carving, cfg: GeometryConfig,
+                    material_names: Sequence[str] | None, alpha: torch.Tensor | None, material_weights: str,
+                    dirichlet_prior: tuple[float, float] | None) -> _Parts:  # fmt: skip
+    """Per-voxel material mixture, the parts (components of one dominant material) and each part's material:
+    fused from the views' answers about it, from its Gaussians' pooled posteriors, or drawn per voxel
+    (``part_materials``; :func:`reconstruct_object`'s arguments)."""
+    sel, device = selection.selected, g.means.device
+    labelled = getattr(g, "labelled", None)
+    pi_sel = pi(sel) if callable(pi) else pi[sel]
+    observed = labelled[sel] if labelled is not None else None
+    near = cv.excess <= cfg.evidence_surface_voxels * cv.grid.voxel_size  # their labels are material evidence
+    observed = near.to(g.means.dtype) * (observed.reshape(-1) if observed is not None else 1.0)
+    union = np.logical_or.reduce(cv.solids)
+    mixture = voxel_mixture(cv.grid, union, g.means[sel], g.opacities[sel], pi_sel, observed,
+                            min_evidence=cfg.min_voxel_evidence, up_weight=_up_weight(views, cfg.interior_up_weight))
+    parts = part_labels(union, mixture, cfg.min_part_fraction)
+    names = list(material_names) if material_names is not None else [str(k) for k in range(pi_sel.shape[1])]
+    prior = dirichlet_prior if dirichlet_prior is not None else (1.0, 4.0)
+    by_views = cfg.part_materials == "observations" and alpha is not None and bool(observations)
+    shares: list[tuple[int, np.ndarray]] = []
+    if by_views:
+        parts, shares = _merged_parts(parts, cv, views, observations, names, prior, cfg, device)
+    P = int(parts.max()) + 1
+    pm = _part_mixture(parts, mixture, cv)
+    if observations and not by_views:  # the structure's evidence
+        shares = observation_shares(cv.grid, np.where(cv.solids[0], parts, -1), P, views, observations, device)
+    if cfg.part_materials == "voxels" or alpha is None:
+        return _Parts(mixture, parts, pm, material_quantiles(parts, mixture, P, pm), shares, names)
+    pooled, support = pooled_part_alpha(cv.grid, parts, P, g.means[sel], g.opacities[sel], alpha[sel], observed)
+    has = support > 0
+    if by_views and shares:
+        fused, seen = fuse_part_materials(shares, observations, names, P, *prior)
+        obs = seen >= cfg.min_part_observation
+        pooled[obs] = fused[obs]
+        has = has | obs
+    if has.any():
+        w = material_mixture_weights(torch.from_numpy(pooled[has]), material_weights)  # type: ignore[arg-type]
+        pm[has] = w.double().numpy()
+    return _Parts(mixture, parts, pm, None, shares, names)
+
+
+def _surfaces(cv: _Carving, pp: _Parts, cfg: GeometryConfig, pixel_voxels: float, device: Any
+              ) -> list[PartGeometry]:  # fmt: skip
+    """Every variant's per-part wall areas, surfaces and curvatures (:func:`.parts.part_areas`)."""
+    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else (
+        cfg.carve.depth_margin_voxels + (2.0 if cfg.carve.depth_render == "median" else 1.0))
+    concave = concavities(cv.hull, cv.solids[0], max(2.0, cfg.concavity_px * pixel_voxels))
+
+    def areas(s: np.ndarray) -> PartGeometry:
+        return part_areas(cv.grid, s, np.where(s, pp.parts, -1), pp.count, sheet_voxels=sheet,
+                          min_plate=cfg.min_plate, concave=concave, device=device)  # fmt: skip
+
+    # the variants' surfaces on a thread pool: each is independent, and NumPy's and SciPy's loops release the GIL
+    # for much of the work (the same numbers as one at a time)
+    with ThreadPoolExecutor(max_workers=max(1, min(len(cv.solids), os.cpu_count() or 1))) as pool:
+        return list(pool.map(areas, cv.solids))
+
+
+def _volumes(cv: _Carving, pp: _Parts, fills: list[np.ndarray], geos: list[PartGeometry]
+             ) -> tuple[np.ndarray, np.ndarray | None]:  # fmt: skip
+    """[G, P] volume per variant and part (partial volume's shares, or whole voxels), less half of each voxel on the
+    boundary with hidden open space; and that boundary's whole volume [G, P] (None: no such voxel)."""
+    P, h3 = pp.count, cv.grid.voxel_size**3
+    if BOUNDARY_SUBSAMPLES > 1:
+        volumes = np.stack([part_volumes(f, np.where(s, pp.parts, -1), P, cv.grid.voxel_size)
+                            for f, s in zip(fills, cv.solids)])  # fmt: skip
+    else:
+        volumes = np.stack([gm.volume for gm in geos])
+    if cv.edges is None or not any(e.any() for e in cv.edges):
+        return volumes, None
+    on = pp.parts >= 0  # the kept voxels on the boundary with the hidden open space: half a voxel each
+    boundary = np.stack([np.bincount(pp.parts[e & on], f[e & on], minlength=P)[:P]
+                         for e, f in zip(cv.edges, fills)]) * h3  # fmt: skip
+    return volumes - 0.5 * boundary, boundary
+
+
 @torch.no_grad()
 def reconstruct_object(
     g: Any,
@@ -483,188 +695,45 @@ def reconstruct_object(
     ``material_weights`` the field's weighting, for ``part_materials="pooled"`` (None: "voxels");
     ``dirichlet_prior``: the model's (alpha0, lambda) for ``part_materials="observations"`` (None: (1, 4), the
     fusion's defaults). ``progress(stage: str)`` is called as stages start."""
-    cfg = cfg or GeometryConfig()
-    if cfg.carve.depth_render == "auto":
-        kind = resolve_depth_render("auto", resolve_backend(cfg.backend, g.means.device))  # type: ignore[arg-type]
-        cfg = replace(cfg, carve=replace(cfg.carve, depth_render=kind))
+    cfg = _resolved(cfg or GeometryConfig(), g)
     step = progress or (lambda _s: None)
-    views = list(views)
-    if cfg.max_views is not None and len(views) > cfg.max_views:
-        keep = np.linspace(0, len(views) - 1, cfg.max_views).round().astype(int)
-        views = [views[i] for i in keep]
-    if not views:
-        raise GeometryError("no views to carve the object from: the run has no training cameras.")
+    views = _views_used(views, cfg)
     step("selecting the object")
     labels = object_labels(views, observations) if cfg.select.object_names is not None else None
     selection = select_object(g, views, cfg.select, backend=cfg.backend, labels=labels)
     _within_hull(g, selection, views, cfg)
     _resting_plane(g, selection, views, cfg)
     step("rendering depth")
-    grid = _domain(g, selection.selected, cfg)
-    obj_views, renders = _object_views(g, selection, views, cfg, grid)
+    obj_views, renders = _object_views(g, selection, views, cfg)
+    step("carving")
+    cv = _carve_object(g, selection, obj_views, renders, cfg)
+    step("materials and parts")
+    pp = _part_materials(g, pi, selection, views, observations, cv, cfg, material_names, alpha, material_weights,
+                         dirichlet_prior)  # fmt: skip
+    pixel_voxels = _pixel_voxels(obj_views, cv.grid) if obj_views else 1.0
+    step("partial volume")
+    fills = boundary_fill(cv.grid, cv.solids, cv.cfgs, obj_views, renders, sdf=cv.sdf, subsamples=BOUNDARY_SUBSAMPLES,
+                          device=g.means.device)  # fmt: skip
+    geos = _surfaces(cv, pp, cfg, pixel_voxels, g.means.device)
+    step("structure")
+    lib = library_thickness if library_thickness is not None else [None] * pp.pm.shape[1]
+    nominal_parts = np.where(cv.solids[0], pp.parts, -1)
+    structure = fuse_structure(cv.grid, nominal_parts, pp.count, views, observations,
+                               [lib[k] for k in np.argmax(pp.pm, 1)], pp.pm, pp.names, cfg.structure,
+                               shares=pp.shares)  # fmt: skip
+    volumes, boundary = _volumes(cv, pp, fills, geos)
     sources: dict[str, int] = {}
     for v in obj_views:
         sources[v.mask_source] = sources.get(v.mask_source, 0) + 1
-    sdf = signed_mask_distances([v.mask for v in obj_views])
-    device = g.means.device
-    step("carving")
-    variants = _variants(cfg)
-    wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
-    shrink = cfg.extent_shrink_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
-    ext_idx = torch.nonzero(selection.selected).squeeze(1)
-    # each selected Gaussian's smallest depth behind a view's rendered surface: the extent's, the material evidence's
-    # and the skin's sets are those within their bands of it (one pass over the views)
-    excess = surface_excess(g.means[ext_idx], obj_views, renders)
-    if cfg.extent_seen:
-        seen = excess <= grid.voxel_size
-        if int(seen.sum()) >= 50:
-            logger.info("object extent: %d of %d selected Gaussians are seen by a view; the unseen ones "
-                        "do not set where the solid ends", int(seen.sum()), len(ext_idx))  # fmt: skip
-            ext_idx = ext_idx[seen]
-    ext = {"scales": g.scales[ext_idx], "quats": g.quats[ext_idx]} if cfg.extent_of == "ellipsoids" else {}
-    # the outlier count of the whole selection: the seen Gaussians' polytope is never wider than all of theirs
-    ext["extent_skip"] = int(cfg.extent_outlier_fraction * selection.num_selected)
-    ext["extent_shrink_voxels"] = shrink
-    solids, hull, beyond, raw_nominal = _carve_variants(grid, obj_views, renders, variants, sdf, device,
-                                                        g.means[ext_idx], cfg.extent_pad_voxels, wider,
-                                                        **ext)  # fmt: skip
-    lo, hi = _solid_bounds(grid, np.logical_or.reduce(solids))
-    if lo is not None and float((hi - lo).max()) < cfg.refit_fraction * float(np.max(grid.shape)) * grid.voxel_size:
-        # the solid fills a small part of a domain that outliers of the selection stretched: carve again on a grid
-        # fitted to the solid, at full resolution
-        share = float((hi - lo).max()) / (float(np.max(grid.shape)) * grid.voxel_size)
-        pad = float((hi - lo).max()) * (cfg.pad_fraction + 2.0 / cfg.resolution)  # + 2 new voxels
-        grid = VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad), cfg.resolution)
-        logger.info("the carved object spans %.0f%% of the selection's box: carved again on a grid fitted to it",
-                    100 * share)
-        solids, hull, beyond, raw_nominal = _carve_variants(grid, obj_views, renders, variants, sdf, device,
-                                                            g.means[ext_idx], cfg.extent_pad_voxels, wider,
-                                                            **ext)  # fmt: skip
-    before_cuts = solids[0]
-    solids, hull = _cut_below(grid, solids, hull, selection.plane)
-    sel = selection.selected
-    band = (cfg.evidence_surface_voxels if cfg.evidence_surface_voxels is not None else 1.0) * grid.voxel_size
-    on_surface = excess <= band
-    hidden_removed = None
-    edges: list[np.ndarray] | None = None
-    if cfg.hidden_skin_voxels is not None:
-        skin_of = on_surface if cfg.hidden_skin_band is None else excess <= cfg.hidden_skin_band * grid.voxel_size
-        surf = _Subset(g, torch.nonzero(sel).squeeze(1)[skin_of])
-        skin_band = (cfg.hidden_skin_seen or 0.0) * grid.voxel_size
-
-        def seen_by(points: torch.Tensor, thick: torch.Tensor) -> torch.Tensor:
-            return surface_views(points, obj_views, renders, skin_band + thick)
-
-        solids, hidden_removed, edges = _without_hidden(grid, solids, surf, beyond, selection.plane, cfg,
-                                                        seen_by if cfg.hidden_skin_seen is not None else None)
-    unseen = before_cuts & ~solids[0]  # kept by the views, removed by the plane's cut or as hidden open space
-    if beyond is not None:
-        unseen = unseen | _beyond_kept(raw_nominal, beyond)
-    names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else []) \
-        + ([f"extent-{shrink:g}vox"] if shrink is not None else [])
-    union = np.logical_or.reduce(solids)
-    if not solids[0].any():
-        raise GeometryError("carving left no solid voxel: the object masks and the views disagree (check poses and "
-                         "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
-    step("materials and parts")
-    labelled = getattr(g, "labelled", None)
-    pi_sel = pi(sel) if callable(pi) else pi[sel]
-    observed = labelled[sel] if labelled is not None else None
-    if cfg.evidence_surface_voxels is not None:
-        observed = on_surface.to(g.means.dtype) * (observed.reshape(-1) if observed is not None else 1.0)
-    mixture = voxel_mixture(grid, union, g.means[sel], g.opacities[sel], pi_sel, observed,
-                            min_evidence=cfg.min_voxel_evidence, up_weight=_up_weight(views, cfg.interior_up_weight))
-    parts = part_labels(union, mixture, cfg.min_part_fraction)
-    K = pi_sel.shape[1]
-    mat_names = material_names if material_names is not None else [str(k) for k in range(K)]
-    a0, lam = dirichlet_prior if dirichlet_prior is not None else (1.0, 4.0)
-    by_views = cfg.part_materials == "observations" and alpha is not None and bool(observations)
-    shares: list[tuple[int, np.ndarray]] = []
-    if by_views:
-        P = int(parts.max()) + 1
-        shares = observation_shares(grid, np.where(solids[0], parts, -1), P, views, observations, device)
-        if shares and cfg.absorb_unobserved:
-            seen = fuse_part_materials(shares, observations, mat_names, P, a0, lam)[1]
-            merged = absorb_unobserved(parts, seen >= cfg.min_part_observation)
-            if merged is not parts:
-                parts = merged
-                shares = observation_shares(grid, np.where(solids[0], parts, -1), int(parts.max()) + 1, views,
-                                            observations, device)  # fmt: skip
-            # touching parts whose views name the same material are one piece of it (the absorbed voxels that
-            # separated them now join them)
-            P = int(parts.max()) + 1
-            fused, seen = fuse_part_materials(shares, observations, mat_names, P, a0, lam)
-            dom = np.where(seen >= cfg.min_part_observation, np.argmax(fused, 1), -1 - np.arange(P))
-            parts, old_to_new = merge_same_material(parts, dom)
-            merged_p = int(parts.max()) + 1  # once: per observation it cost 0.26 s of a GPU export (~1,000 of them)
-            if merged_p < P:
-                shares = [(i, np.bincount(old_to_new, sh, minlength=merged_p)) for i, sh in shares]
-    P = int(parts.max()) + 1
-    nominal_parts = np.where(solids[0], parts, -1)
-    pm = sum_rows(nominal_parts[solids[0]], mixture[solids[0]], P)
-    empty = pm.sum(1) == 0  # a part only in other variants: its union mixture
-    if empty.any():
-        pm += sum_rows(parts[union], mixture[union] * empty[parts[union]][:, None], P)
-    pm /= pm.sum(1, keepdims=True)
-    levels: np.ndarray | None = None  # one material per part and sample, from its pooled mixture
-    if observations and not by_views:  # the structure's evidence
-        shares = observation_shares(grid, nominal_parts, P, views, observations, device)
-    if cfg.part_materials == "voxels" or alpha is None:
-        levels = material_quantiles(parts, mixture, P, pm)
-    else:
-        pooled, support = pooled_part_alpha(grid, parts, P, g.means[sel], g.opacities[sel], alpha[sel],
-                                            observed)
-        has = support > 0
-        if by_views and shares:
-            fused, seen = fuse_part_materials(shares, observations, mat_names, P, a0, lam)
-            obs = seen >= cfg.min_part_observation
-            pooled[obs] = fused[obs]
-            has = has | obs
-        if has.any():
-            w = material_mixture_weights(torch.from_numpy(pooled[has]), material_weights)  # type: ignore[arg-type]
-            pm[has] = w.double().numpy()
-    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else (
-        cfg.carve.depth_margin_voxels + (2.0 if cfg.carve.depth_render == "median" else 1.0))
-    concave = None
-    pixel_voxels = _pixel_voxels(obj_views, grid) if obj_views else 1.0
-    if cfg.concavity_px is not None:
-        concave = concavities(hull, solids[0], max(2.0, cfg.concavity_px * pixel_voxels))
-    step("partial volume")
-    cfgs = [cc for _, cc in variants] + [variants[0][1]] * (len(solids) - len(variants))  # the extent variants'
-    fills = boundary_fill(grid, solids, cfgs, obj_views, renders, sdf=sdf, subsamples=cfg.boundary_subsamples,
-                          device=device)  # fmt: skip
-    occupancy = fills[0] if cfg.boundary_subsamples > 1 else None
-
-    def areas(s: np.ndarray) -> PartGeometry:
-        return part_areas(grid, s, np.where(s, parts, -1), P, sheet_voxels=sheet, min_plate=cfg.min_plate,
-                          concave=concave, device=device)
-
-    # the variants' surfaces on a thread pool: each is independent, and NumPy's and SciPy's loops release the GIL
-    # for much of the work (8 variants of a 128-voxel grid on 2 cores: 1.3x; the same numbers as one at a time)
-    with ThreadPoolExecutor(max_workers=max(1, min(len(solids), os.cpu_count() or 1))) as pool:
-        geos: list[PartGeometry] = list(pool.map(areas, solids))
-    step("structure")
-    dom = np.argmax(pm, 1)
-    lib = library_thickness if library_thickness is not None else [None] * K
-    structure = fuse_structure(grid, nominal_parts, P, views, observations, [lib[k] for k in dom], pm, mat_names,
-                               cfg.structure, shares=shares)  # fmt: skip
-    volumes = np.stack([gm.volume for gm in geos] if occupancy is None else
-                       [part_volumes(f, np.where(s, parts, -1), P, grid.voxel_size) for f, s in zip(fills, solids)])
-    boundary = None
-    if edges is not None and any(e.any() for e in edges):  # edges only with "half"
-        # the kept voxels on the boundary with the hidden open space: half a voxel each (:mod:`.hidden`)
-        counts = [np.bincount(parts[e & (parts >= 0)], f[e & (parts >= 0)], minlength=P)[:P]
-                  for e, f in zip(edges, fills)]  # fmt: skip
-        boundary = np.stack(counts) * grid.voxel_size**3
-        volumes = volumes - 0.5 * boundary
     return ObjectGeometry(
-        grid=grid, solid=solids[0], parts=parts, part_mixture=pm, mixture=mixture, variant_names=names,
-        volumes=volumes, areas=np.stack([gm.area for gm in geos]),
+        grid=cv.grid, solid=cv.solids[0], parts=pp.parts, part_mixture=pp.pm, mixture=pp.mixture,
+        variant_names=cv.names, volumes=volumes, areas=np.stack([gm.area for gm in geos]),
         sheet_share=geos[0].sheet_share, structure=structure, selection=selection, views_used=len(views),
-        mask_sources=sources, material_levels=levels, surface_areas=np.stack([gm.surface for gm in geos]),
+        mask_sources=sources, material_levels=pp.levels, surface_areas=np.stack([gm.surface for gm in geos]),
         pixel_voxels=pixel_voxels, full_areas=np.stack([gm.full_area for gm in geos]),
-        curvatures=np.stack([gm.curvature for gm in geos]), seam_areas=seam_areas(nominal_parts, P, grid.voxel_size),
-        hidden_removed=hidden_removed, unseen_surface_share=unseen_face_share(solids[0], unseen),
-        hidden_boundary=boundary, hidden_edge=edges[0] if edges is not None and boundary is not None else None,
-        extent_gaussians=len(ext_idx), occupancy=occupancy,
+        curvatures=np.stack([gm.curvature for gm in geos]),
+        seam_areas=seam_areas(nominal_parts, pp.count, cv.grid.voxel_size), hidden_removed=cv.hidden_removed,
+        unseen_surface_share=unseen_face_share(cv.solids[0], cv.unseen), hidden_boundary=boundary,
+        hidden_edge=cv.edges[0] if cv.edges is not None and boundary is not None else None,
+        extent_gaussians=cv.extent_gaussians, occupancy=fills[0] if BOUNDARY_SUBSAMPLES > 1 else None,
     )  # fmt: skip

@@ -35,7 +35,7 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   the surface lies (with its own ``V_p`` as the cap, a cup carved down to its wall came out 4-7% light). The
   wall's volume ``W_p`` (:func:`wall_volume`) is ``A_p t_p`` where the faces are sheets (both sides of the wall
   reconstructed: their half areas add up to its middle surface) and shrinks with the mean curvature where the wall
-  lies inside a fully counted face (a closed bottle's glass, a tube's wall; ``wall_curvature``).
+  lies inside a fully counted face (a closed bottle's glass, a tube's wall).
 
 The reported mean, median and central ``level`` interval all come from these same samples. The report also
 gives, per part, ``surface_layer_share`` = ``S u / V`` (:func:`_layer_share`): how much of its volume one
@@ -75,9 +75,6 @@ class MassConfig:
     """Monte Carlo samples of the mass."""
     seed: int = 0
     """Seed of the Monte Carlo samples."""
-    wall_curvature: Advanced[bool] = True
-    """a hollow part's wall inside a curved face holds less than area x thickness (:func:`wall_volume`); False:
-    area x thickness everywhere"""
     seam_offset_voxels: Advanced[float] = 1.0
     """spread (one standard deviation) of each seam between two parts inside the object, in units of the carving's
     resolution, one draw per seam and sample (module doc, "Seams"). 1.0: the root mean square of the seams' offsets
@@ -270,7 +267,7 @@ def mass_draws(pf: Any, geo: ObjectGeometry, cfg: MassConfig | None = None) -> M
     if geo.hidden_boundary is not None:  # drawn after the seams
         o = rng.random(S) - geo.hidden_boundary_fill
         V_solid = np.maximum(V_solid + o[:, None] * geo.hidden_boundary[gi] * mpu**3, 0.0)
-    if cfg.wall_curvature and geo.curvatures is not None and geo.full_areas is not None:
+    if geo.curvatures is not None and geo.full_areas is not None:
         wall = wall_volume(A, geo.full_areas[gi] * mpu**2, geo.curvatures[gi] * mpu, thick)
     else:
         wall = A * thick

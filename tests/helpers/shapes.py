@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 from physgs_nerfstudio.export.shapes import field_from
@@ -119,3 +120,24 @@ def table_on_floor():
         for y in (-0.22, 0.22)
     ]
     return on_tile_floor([torch.cat(t) for t in zip(*parts)], 1.2)
+
+
+def grown_skin(points, origin, voxel_size: float, shape, steps: int):
+    """bool tensor: the voxels (a grid of ``origin`` and ``voxel_size``) holding one of ``points``, grown by
+    ``steps`` 6-connected steps: a skin that closes every gap, the simplest input for the hidden-space rules."""
+    from scipy import ndimage
+
+    ij = np.floor((np.asarray(points, dtype=np.float64) - np.asarray(origin)) / voxel_size).astype(int)
+    ij = ij[np.all((ij >= 0) & (ij < np.asarray(shape)), 1)]
+    skin = np.zeros(shape, bool)
+    skin[tuple(ij.T)] = True
+    if steps > 0 and skin.any():
+        skin = ndimage.binary_dilation(skin, ndimage.generate_binary_structure(3, 1), iterations=steps)
+    return torch.from_numpy(skin)
+
+
+def whole_voxel_volume(geo) -> float:
+    """The nominal volume in whole voxels (scene units^3): the solid's voxels, those on the boundary with hidden open
+    space at half, without partial volume's shares (geometry/partial.py)."""
+    edge = 0 if geo.hidden_edge is None else int(geo.hidden_edge.sum())
+    return (int(geo.solid.sum()) - 0.5 * edge) * geo.grid.voxel_size**3
