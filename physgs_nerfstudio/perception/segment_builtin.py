@@ -65,7 +65,7 @@ class BuiltinSegmenterConfig:
     """The graph segmentation's Gaussian pre-smoothing, in pixels."""
     graph_min_size: Advanced[int] = 10
     """The graph segmentation's smallest region, in pixels."""
-    thresholds: Advanced[tuple[float, float, float]] = (9.0, 6.0, 3.0)
+    thresholds: Advanced[tuple[float, float, float]] = (6.0, 6.0, 3.0)
     """Dissimilarity (CIE Lab Delta E, see ``colour_weight``) up to which adjacent regions are merged, for
     the whole (background detection) / part / subpart levels."""
     colour_weight: Advanced[float] = 0.0
@@ -81,8 +81,6 @@ class BuiltinSegmenterConfig:
     """... and smaller than this many pixels."""
     min_solidity: Advanced[float] = 0.25
     """Drop slivers: masks keeping less than this fraction of their area after a 3x3 erosion."""
-    border_frac: Advanced[float] = 0.15
-    """A coarse region holding at least this fraction of the image's border pixels is background."""
     max_background_frac: Advanced[float] = 0.5
     """Masks with more than this fraction of background pixels are dropped."""
     min_predicted_iou: Advanced[float] = 0.2
@@ -270,12 +268,9 @@ def _border_pixels(labels: np.ndarray) -> np.ndarray:
     return np.concatenate([labels[0], labels[-1], labels[1:-1, 0], labels[1:-1, -1]])
 
 
-def _background(labels: np.ndarray, border_frac: float) -> np.ndarray:
-    """bool [H, W]: union of the regions that hold >= border_frac of the border pixels."""
-    border = _border_pixels(labels)
-    counts = np.bincount(border, minlength=int(labels.max()) + 1)
-    bg_ids = np.flatnonzero(counts >= border_frac * len(border))
-    return np.isin(labels, bg_ids)
+def _background(labels: np.ndarray) -> np.ndarray:
+    """bool [H, W]: union of the regions that touch the image border (module doc, "The whole object")."""
+    return np.isin(labels, np.unique(_border_pixels(labels)))
 
 
 def _contrast_score(mask: np.ndarray, lab: np.ndarray, ring: int) -> float:
@@ -443,7 +438,7 @@ class BuiltinSegmenter:
                     continue
                 piou = _contrast_score(m, lab, ring)
                 stab = _best_iou_with_labels(m, perturbed[level], area)
-                if piou < cfg.min_predicted_iou or stab < cfg.min_stability:
+                if level != "whole" and (piou < cfg.min_predicted_iou or stab < cfg.min_stability):
                     continue
                 level_masks.append(Mask(m, area, piou, stab, level))
             if level == "part" and cfg.thin_chroma is not None:
@@ -474,11 +469,9 @@ class BuiltinSegmenter:
         merger.merge(t_whole)
         coarse = merger.labels()
         coarse_perturbed = merger.merge(t_whole * cfg.perturb).labels()
-        background = _background(coarse, cfg.border_frac)
+        background = _background(coarse)
         by_level["whole"] = cc_label(~background, connectivity=1).astype(np.int32)
-        perturbed["whole"] = cc_label(~_background(coarse_perturbed, cfg.border_frac), connectivity=1).astype(
-            np.int32
-        )
+        perturbed["whole"] = cc_label(~_background(coarse_perturbed), connectivity=1).astype(np.int32)
         return by_level, perturbed, background
 
     def _thin_masks(
