@@ -22,6 +22,25 @@ each material that a mask of that majority covers goes 0.895 -> 0.921 (lowest 0.
 footrest 0.33 -> 0.73), the share painted by a mask of another majority stays about 0.025, and the masks per view
 (the VLM's calls) rise 6.6 -> 7.0; the demo's time does not change (``benchmarks/segment_coverage.py``).
 
+The whole object. The cameras of a capture orbit the object and frame it whole, while the support it stands on (a
+floor, a table top) and the backdrop run past every image's border. So the background is every region of the
+whole-level merge (``thresholds[0]``, Delta E 6: the part level's) that touches the image border, and a whole mask is
+a connected component of the rest, whatever its contrast or stability scores (a glossy or low-contrast object, which
+the perturbed threshold merges into the floor, is exactly what this level must keep; the scores still rank it).
+Two kinds of support pixels are not reached from the border that way: the floor seen through the object (between a
+table's legs, a chair's) and the object's cast shadow. Both are the support in less light: a shadow scales the
+irradiance, not the surface's reflectance spectrum, so their chromaticity (r, g over r + g + b) stays the support's
+while they are no brighter. A region off the border whose mean chromaticity is within ``support_chroma`` (0.5
+percent) of a border region's and whose mean brightness is at most ``SUPPORT_BRIGHT_TOL`` (10%: the render noise and
+the floor's light falloff) above it is background too. On the path-traced development families of
+``benchmarks/mass_suite.py`` (16 families at two seeds, 16 views at 96 px; ``mass_suite.py --masks``) the union of
+the whole masks against the object's label maps: median IoU 0.19 -> 0.58 and the share of the masks on the support
+0.27 -> 0.12 (the border-share rule with its Delta E 9 merge and the whole masks' contrast and stability filters ->
+this). The chromaticity tolerance was the best of 0.5, 0.7, 1 and 2 (wider ones trim achromatic objects on a grey
+floor: median IoU 0.40 at 1); at 1 without the brightness test (a tolerance of 10x) it falls to 0.21. An object
+with the support's chromaticity and no brighter than it gets no whole mask in some views: the perception run then
+says in how many, and that SAM's masks are the remedy (``pipeline.no_object_message``).
+
 Built by ``BuiltinSegmenterConfig.setup()``; the protocol, the mask type and the shared mask operations are in
 :mod:`.segment`.
 """
@@ -37,6 +56,11 @@ import numpy as np
 
 from ..advanced import Advanced
 from .segment import LEVELS, Mask, check_image, deduplicate, sort_masks
+
+SUPPORT_BRIGHT_TOL = 0.1
+"""A region is the support in less light (module doc, "The whole object") when its mean brightness is at most this
+much above the border region's: the path tracer's noise and the floor's light falloff between the image border and
+the object."""
 
 # ---------------------------------------------------------------------------------------------------------
 # builtin (no weights)
@@ -67,7 +91,8 @@ class BuiltinSegmenterConfig:
     """The graph segmentation's smallest region, in pixels."""
     thresholds: Advanced[tuple[float, float, float]] = (6.0, 6.0, 3.0)
     """Dissimilarity (CIE Lab Delta E, see ``colour_weight``) up to which adjacent regions are merged, for
-    the whole (background detection) / part / subpart levels."""
+    the whole (background: the regions touching the border, module doc "The whole object") / part / subpart
+    levels."""
     colour_weight: Advanced[float] = 0.0
     """Region dissimilarity = colour_weight * mean-colour distance + (1 - colour_weight) * mean colour
     step across the shared boundary (0: boundary strength only, which keeps shaded objects apart from a
@@ -93,6 +118,10 @@ class BuiltinSegmenterConfig:
     """Thin parts (module doc, "Thin fragments"): part-level regions that the area or sliver test drops are grouped
     with adjacent such regions whose mean chromaticity (CIE a*, b*) differs by less than this (Delta E), and a
     group that passes the tests is a part mask. None = off."""
+    support_chroma: Advanced[float | None] = 0.5
+    """The support seen through the object or in its shadow (module doc, "The whole object"): a region off the
+    border whose mean chromaticity is within this (r, g over r + g + b, in percent) of a border region's, and no
+    brighter, is background. None = off."""
     max_masks_per_level: Advanced[tuple[int, int, int]] = (4, 16, 24)
     """Cap per level (best score x area first); bounds the VLM calls per view."""
     levels: Advanced[tuple[str, ...]] = LEVELS
@@ -273,6 +302,30 @@ def _background(labels: np.ndarray) -> np.ndarray:
     return np.isin(labels, np.unique(_border_pixels(labels)))
 
 
+def _support_like(labels: np.ndarray, image: np.ndarray, background: np.ndarray, min_area: int, chroma_tol: float,
+                  bright_tol: float) -> np.ndarray:
+    """bool [H, W]: the regions off ``background`` that look like a border-touching region of at least ``min_area``
+    pixels seen in less light (module doc, "The whole object"): their mean chromaticity (r, g over r + g + b, in
+    percent) within ``chroma_tol`` of that region's and their mean brightness at most ``1 + bright_tol`` times
+    its."""
+    n = int(labels.max()) + 1
+    flat = labels.reshape(-1)
+    rgb = image.reshape(-1, 3).astype(np.float64) + 1.0
+    bright = rgb.sum(1)
+    size = np.bincount(flat, minlength=n).astype(np.float64)
+    chroma = np.stack([np.bincount(flat, 100 * rgb[:, c] / bright, n) for c in (0, 1)], 1) / np.maximum(size, 1)[:, None]
+    mean_bright = np.bincount(flat, bright, n) / np.maximum(size, 1)
+    border = np.unique(_border_pixels(labels))
+    ref = border[size[border] >= min_area]
+    is_bg = np.bincount(flat, background.reshape(-1), n) > 0
+    cand = np.flatnonzero(~is_bg & (size > 0))
+    if not len(ref) or not len(cand):
+        return np.zeros(labels.shape, bool)
+    near = np.linalg.norm(chroma[cand, None] - chroma[None, ref], axis=-1) < chroma_tol
+    darker = mean_bright[cand, None] <= (1 + bright_tol) * mean_bright[None, ref]
+    return np.isin(labels, cand[(near & darker).any(1)])
+
+
 def _contrast_score(mask: np.ndarray, lab: np.ndarray, ring: int) -> float:
     """Boundary-contrast heuristic in [0, 1]: contrast / (contrast + spread), where contrast is the Lab
     distance between the mask's mean colour and the mean colour of a ring just outside it, and spread the
@@ -390,8 +443,8 @@ class BuiltinSegmenter:
     while adjacent regions' mean CIE Lab colours differ by less than a threshold; the fine / medium / coarse
     thresholds give the subpart / part / whole levels:
 
-    * whole: connected components of the foreground, where background = coarse regions holding a large
-      share of the image border (``border_frac``);
+    * whole: connected components of the foreground, where background = the coarse regions touching the image
+      border and the regions that look like them in less light (module doc, "The whole object");
     * part / subpart: regions at the medium / fine threshold that are mostly foreground.
 
     Scores (heuristics, documented honestly): ``predicted_iou`` = boundary contrast ratio
@@ -427,7 +480,7 @@ class BuiltinSegmenter:
         lab = _lab(image)
         ring = max(2, int(round(3 * max(h, w) / 512)))
         superpixels = _superpixels(image, cfg)
-        by_level, perturbed, background = self._hierarchy(superpixels, lab)
+        by_level, perturbed, background = self._hierarchy(superpixels, lab, image, min_area)
         raw: list[Mask] = []
         for li, level in enumerate(LEVELS):
             if level not in cfg.levels:
@@ -451,7 +504,7 @@ class BuiltinSegmenter:
         return sort_masks(masks)
 
     def _hierarchy(
-        self, superpixels: np.ndarray, lab: np.ndarray
+        self, superpixels: np.ndarray, lab: np.ndarray, image: np.ndarray, min_area: int
     ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], np.ndarray]:
         """Label maps per level, fine -> coarse, each merged further from the previous one (a monotone
         hierarchy); the same with perturbed thresholds (for stability); the background of the coarsest."""
@@ -470,6 +523,9 @@ class BuiltinSegmenter:
         coarse = merger.labels()
         coarse_perturbed = merger.merge(t_whole * cfg.perturb).labels()
         background = _background(coarse)
+        if cfg.support_chroma is not None:
+            background |= _support_like(coarse, image, background, min_area, cfg.support_chroma,
+                                        SUPPORT_BRIGHT_TOL)
         by_level["whole"] = cc_label(~background, connectivity=1).astype(np.int32)
         perturbed["whole"] = cc_label(~_background(coarse_perturbed), connectivity=1).astype(np.int32)
         return by_level, perturbed, background
