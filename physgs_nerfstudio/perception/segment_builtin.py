@@ -55,7 +55,7 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from ..advanced import Advanced
-from .segment import LEVELS, Mask, check_image, deduplicate, sort_masks
+from .segment import LEVELS, Mask, check_image, deduplicate, mask_iou_matrix, sort_masks
 
 SUPPORT_BRIGHT_TOL = 0.1
 """A region is the support in less light (module doc, "The whole object") when its mean brightness is at most this
@@ -413,6 +413,18 @@ def _thin_groups(
     return out
 
 
+def _deduplicate_whole_first(masks: Sequence[Mask], iou_threshold: float) -> list[Mask]:
+    """:func:`.segment.deduplicate` within the whole level and within the others, then the part and subpart masks that
+    repeat a whole mask dropped: a one-region object's part mask is its whole mask, and the whole one must stay, since
+    the geometry carves the object from the whole level (whatever the two masks' scores)."""
+    whole = deduplicate([m for m in masks if m.level == "whole"], iou_threshold)
+    rest = deduplicate([m for m in masks if m.level != "whole"], iou_threshold)
+    if not whole or not rest:
+        return whole + rest
+    iou = mask_iou_matrix(np.stack([m.segmentation for m in rest]), np.stack([m.segmentation for m in whole]))
+    return whole + [m for m, row in zip(rest, iou) if row.max() <= iou_threshold]
+
+
 def _downscale(image: np.ndarray, work_size: int) -> np.ndarray:
     """`image` shrunk (area interpolation) so its longer side is at most `work_size`."""
     full_h, full_w = image.shape[:2]
@@ -498,7 +510,7 @@ class BuiltinSegmenter:
                 level_masks.extend(self._thin_masks(by_level[level], lab, background, min_area, ring))
             level_masks.sort(key=lambda m: -m.score * m.area)
             raw.extend(level_masks[: cfg.max_masks_per_level[li]])
-        masks = deduplicate(raw, cfg.dedup_iou)
+        masks = _deduplicate_whole_first(raw, cfg.dedup_iou)
         if (h, w) != (full_h, full_w):
             masks = _upscale(masks, full_w, full_h)
         return sort_masks(masks)
@@ -522,13 +534,21 @@ class BuiltinSegmenter:
         merger.merge(t_whole)
         coarse = merger.labels()
         coarse_perturbed = merger.merge(t_whole * cfg.perturb).labels()
-        background = _background(coarse)
-        if cfg.support_chroma is not None:
-            background |= _support_like(coarse, image, background, min_area, cfg.support_chroma,
-                                        SUPPORT_BRIGHT_TOL)
+        background = self._whole_background(coarse, image, min_area)
         by_level["whole"] = cc_label(~background, connectivity=1).astype(np.int32)
-        perturbed["whole"] = cc_label(~_background(coarse_perturbed), connectivity=1).astype(np.int32)
+        perturbed["whole"] = cc_label(~self._whole_background(coarse_perturbed, image, min_area), connectivity=1).astype(
+            np.int32
+        )
         return by_level, perturbed, background
+
+    def _whole_background(self, coarse: np.ndarray, image: np.ndarray, min_area: int) -> np.ndarray:
+        """bool [H, W]: the regions of ``coarse`` touching the border, and those like them in less light (module doc,
+        "The whole object")."""
+        background = _background(coarse)
+        if self.config.support_chroma is not None:
+            background |= _support_like(coarse, image, background, min_area, self.config.support_chroma,
+                                        SUPPORT_BRIGHT_TOL)
+        return background
 
     def _thin_masks(
         self, lbl: np.ndarray, lab: np.ndarray, background: np.ndarray, min_area: int, ring: int
