@@ -16,7 +16,7 @@ from physgs_nerfstudio.perception.segment_builtin import BuiltinSegmenterConfig
 OBJECT, SHADOW, HOLE = 1, 2, 3
 
 
-def _standing_frame(seed: int = 0, object_rgb=(60, 90, 160)) -> tuple[np.ndarray, np.ndarray]:
+def _standing_frame(seed: int = 0, object_rgb=(60, 90, 160), floor_rgb=(190, 170, 140)) -> tuple[np.ndarray, np.ndarray]:
     """96 px: a backdrop over a textured beige floor that runs past the left, right and bottom borders; a square frame
     (label 1) standing on it with the floor seen through its opening (label 3) and its shadow on the floor beside it
     (label 2: the floor at 55% of its light); pixel noise."""
@@ -26,7 +26,7 @@ def _standing_frame(seed: int = 0, object_rgb=(60, 90, 160)) -> tuple[np.ndarray
     img = np.empty((h, h, 3))
     img[:] = (150, 160, 175)
     floor = yy >= 40
-    img[floor] = np.array([190, 170, 140]) * (1 + 0.06 * rng.standard_normal((int(floor.sum()), 1)))
+    img[floor] = np.array(floor_rgb) * (1 + 0.06 * rng.standard_normal((int(floor.sum()), 1)))
     lab = np.zeros((h, h), np.int32)
     outer = (np.abs(xx - 44) <= 16) & (yy >= 26) & (yy <= 70)
     hole = (np.abs(xx - 44) <= 8) & (yy >= 40) & (yy <= 64)
@@ -57,6 +57,16 @@ def test_the_whole_mask_keeps_the_object_and_leaves_its_shadow_and_opening(seed)
     off = _whole(BuiltinSegmenterConfig(support_chroma=None).setup().segment(img), lab.shape)
     assert (off & (lab == SHADOW)).sum() > 0.5 * (lab == SHADOW).sum()
     assert (off & (lab == HOLE)).sum() > 0.5 * (lab == HOLE).sum()
+
+
+def test_a_grey_object_darker_than_a_grey_floor_is_not_taken_for_its_shadow():
+    """On a neutral grey floor chromaticity cannot tell a grey object from the floor in less light: the rule compares
+    only a coloured support, so the dark grey frame keeps its whole mask (its shadow, as dark as the frame here, stays
+    in it: the rule's documented limit on grey supports)."""
+    img, lab = _standing_frame(0, object_rgb=(95, 95, 95), floor_rgb=(170, 170, 170))
+    u = _whole(BuiltinSegmenterConfig().setup().segment(img), lab.shape)
+    obj = lab == OBJECT
+    assert (u & obj).sum() > 0.9 * obj.sum()
 
 
 def test_a_low_contrast_object_keeps_its_mask_whatever_its_stability():
