@@ -6,6 +6,7 @@
     python benchmarks/mass_suite.py --objects mug chair --seeds 101                           # today's fixed presets
     python benchmarks/mass_suite.py --seeds 70001 --export-args "--mass.geometry.resolution 128" --alt-name r128
     python benchmarks/mass_suite.py --merge A/mass_suite.json B/mass_suite_rows_baseline.jsonl merged.json  # one table
+    python benchmarks/mass_suite.py --masks --families mug chair --seeds 71001 --renderers mitsuba  # the segmenter only
 
 **The suite.** Every family of `physgs_nerfstudio.synth.families` (today's twelve presets as parametric families and
 eleven new ones), each drawn from the seed (dimensions, part counts, walls, hollow or solid, each part's material and
@@ -265,6 +266,49 @@ def run_one(item: dict, a: argparse.Namespace) -> dict:
     return {**out, "scene_s": scene_s, "wall_s": time.perf_counter() - t0}
 
 
+def mask_scores(scene_dir: Path, segmenter=None) -> dict:
+    """The built-in segmenter's whole-object masks on one scene against its label maps (``--masks``): the union of a
+    view's ``whole`` masks (what the geometry carves from) summed over the views; ``iou`` with the object's parts,
+    ``support_share`` of the masks on the support or stand (role ``ground``), ``views_without_object``."""
+    from PIL import Image
+
+    from physgs_nerfstudio.perception.segment_builtin import BuiltinSegmenterConfig
+
+    seg = segmenter or BuiltinSegmenterConfig().setup()
+    gt = json.loads((scene_dir / "ground_truth.json").read_text())
+    obj_ids = [p["id"] for p in gt["parts"] if p["role"] == "object"]
+    sup_ids = [p["id"] for p in gt["parts"] if p["role"] != "object"]
+    inter = union = masked = on_support = empty = 0
+    for fr in gt["frames"]:
+        part = np.asarray(Image.open(scene_dir / fr["part_path"]))
+        obj, sup = np.isin(part, obj_ids), np.isin(part, sup_ids)
+        whole = [m.segmentation for m in seg.segment(np.asarray(Image.open(scene_dir / fr["file_path"]).convert("RGB")))
+                 if m.level == "whole"]  # fmt: skip
+        u = np.any(whole, 0) if whole else np.zeros_like(obj)
+        empty += not u.any()
+        inter, union = inter + int((u & obj).sum()), union + int((u | obj).sum())
+        masked, on_support = masked + int(u.sum()), on_support + int((u & sup).sum())
+    return {"iou": inter / max(union, 1), "support_share": on_support / max(masked, 1), "views_without_object": empty,
+            "views": len(gt["frames"])}  # fmt: skip
+
+
+def masks_mode(todo: list[dict], a: argparse.Namespace) -> None:
+    """``--masks``: write the scenes, score the built-in segmenter's whole masks on each (:func:`mask_scores`), print
+    one line per scene and the medians, and write OUT/mask_iou.json."""
+    write_scenes(todo, a)
+    rows = []
+    for t in todo:
+        r = {"family": t["family"], "seed": t["seed"], "renderer": t["renderer"],
+             **mask_scores(a.out / _tag(t, a.support) / "scene")}  # fmt: skip
+        rows.append(r)
+        print(f"{r['family']:10s} {r['seed']} {r['renderer']:8s} IoU {r['iou']:.2f}  support share "
+              f"{r['support_share']:.2f}  views without object {r['views_without_object']}/{r['views']}", flush=True)
+    if rows:
+        print(f"median IoU {_median([r['iou'] for r in rows]):.3f}  median support share "
+              f"{_median([r['support_share'] for r in rows]):.3f}  ({len(rows)} scenes)")
+    (a.out / "mask_iou.json").write_text(json.dumps({"seeds": a.seeds, "support": a.support, "rows": rows}, indent=2))
+
+
 def _median(xs: list) -> float | None:
     xs = [x for x in xs if x is not None and math.isfinite(x)]
     return statistics.median(xs) if xs else None
@@ -329,6 +373,9 @@ def _args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--scenes-only", action="store_true",
                     help="write the scenes (--jobs processes at once) and stop: a GPU machine renders them on its CPUs "
                          "before the runs")
+    ap.add_argument("--masks", action="store_true",
+                    help="write the scenes and score the built-in segmenter's whole-object masks against their label "
+                         "maps (IoU, share on the support; OUT/mask_iou.json) instead of running the pipeline")
     ap.add_argument("--export-args", type=shlex.split, default=None,
                     help="re-export every finished demo with these extra `physgs export` flags (one quoted string) into "
                          "export_NAME/ and score that: a method row beside the baseline")  # fmt: skip
@@ -377,6 +424,8 @@ def main(argv: list[str] | None = None) -> None:
 
     if a.scenes_only:
         return write_scenes(todo, a)
+    if a.masks:
+        return masks_mode(todo, a)
     method = "baseline" if a.export_args is None else a.alt_name
     partial = a.out / f"mass_suite_rows_{method}.jsonl"  # every finished row at once: a run stopped early keeps them
 

@@ -81,6 +81,19 @@ class PerceptionResult:
     seconds: float = 0.0
     skipped_frames: list[str] = field(default_factory=list)
     """One line per frame left out because its image could not be read."""
+    segmented_views: set[str] = field(default_factory=set)
+    """Views the segmenter's masks were made or read for in this run."""
+    views_without_object: set[str] = field(default_factory=set)
+    """... of them, those without a ``whole``-level mask (no object found: :func:`no_object_message`)."""
+
+
+def no_object_message(result: PerceptionResult, segmenter: str) -> str:
+    """One line: in how many views the segmenter found no whole object, why that matters and what to try."""
+    hint = (' (too little contrast against its support or background for the built-in segmenter: try SAM weights, '
+            'pip install -e ".[sam]" and segmenter:sam --segmenter.checkpoint PATH)' if segmenter == "builtin" else "")
+    return (f"the {segmenter} segmenter found no whole-object mask in {len(result.views_without_object)} of "
+            f"{len(result.segmented_views)} views{hint}; the object's geometry is carved from those masks, so "
+            "those views cannot place it")
 
 
 class NoObservations(PhysGSError, RuntimeError):
@@ -409,10 +422,12 @@ class PerceptionRun:
             return [whole_image_mask(h, w)]
         path = mask_path(self.root, view)
         masks = load_masks(path, self.seg_fp)
-        if masks is not None and (not masks or masks[0].segmentation.shape == (h, w)):
-            return masks
-        masks = self.segmenter.segment(image)
-        save_masks(path, masks, (h, w), self.seg_fp)
+        if masks is None or (masks and masks[0].segmentation.shape != (h, w)):
+            masks = self.segmenter.segment(image)
+            save_masks(path, masks, (h, w), self.seg_fp)
+        self.result.segmented_views.add(view)
+        if not any(m.level == "whole" for m in masks):
+            self.result.views_without_object.add(view)
         return masks
 
     def query(self, view: str, mask_id: int, mask: Mask, image: np.ndarray) -> Query:
@@ -556,6 +571,8 @@ class PerceptionRun:
             )  # fmt: skip
             result.materials, result.materials_json = out.materials, out.materials_json
             result.label_paths, result.confidence_paths = out.label_paths, out.confidence_paths
+        if result.views_without_object:
+            logger.warning(no_object_message(result, config.segmenter.name))
         result.seconds = time.time() - self.t0
         _write_run_summary(self.root, config, result)
 
@@ -630,7 +647,8 @@ def _write_run_summary(root: Path, config: PerceptionConfig, result: PerceptionR
     summary = {
         "config": jsonable(config),
         "result": {
-            k: jsonable(v) for k, v in asdict(result).items() if k not in ("label_paths", "confidence_paths")
+            k: jsonable(sorted(v) if isinstance(v, set) else v)
+            for k, v in asdict(result).items() if k not in ("label_paths", "confidence_paths")
         },
     }
     text = redact_urls(json.dumps(summary, indent=2, default=str))  # no user:password@ of a --vlm.base-url
