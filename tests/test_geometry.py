@@ -220,9 +220,11 @@ def test_floor_is_not_the_object():
     assert np.allclose(capture_centre(views), [0, 0, 0.15], atol=1e-3)
 
 
-def test_resting_plane_among_the_background_ends_the_solid():
-    """The masks hold the box alone, so the floor is background; the plane the box stands on is still found among
-    all the Gaussians, and no voxel centre of the solid lies under it."""
+def test_the_support_around_the_object_ends_the_solid_between_voxels():
+    """The masks hold the box alone, so the floor is background; the support it stands on is still found in the ring
+    around its base (:func:`physgs_nerfstudio.geometry.support.find_support`), the grid has a layer of voxel faces on
+    it, and no voxel of the solid lies under it or straddles it. Switched off, the grid and the solid are as the
+    carving left them."""
     from physgs_nerfstudio.geometry.select import SelectConfig
     from physgs_nerfstudio.geometry.support import SupportConfig
 
@@ -230,16 +232,17 @@ def test_resting_plane_among_the_background_ends_the_solid():
     views = ring_views(pf, (0, 0, 0.15), 1.6, elevations=(15.0, 40.0, 70.0), mask_pf=only_obj)
     geo = geometry_of(pf, views, resolution=40)
     plane = geo.selection.plane
-    assert plane is not None and geo.selection.support is None  # found among the background, not the foreground
+    assert plane is not None and not geo.selection.plane_in_masks  # found around the object, not in its masks
+    assert geo.selection.support is not None and not bool((geo.selection.support & geo.selection.selected).any())
     assert abs(plane.normal[2]) > 0.999 and abs(plane.offset + 1e-3) < 0.01
+    k = (plane.offset - geo.grid.origin[2]) / geo.grid.voxel_size
+    assert abs(k - round(k)) < 1e-6  # a layer of faces on the plane
     ijk = np.argwhere(geo.solid)
     z = np.asarray(geo.grid.origin)[2] + (ijk[:, 2] + 0.5) * geo.grid.voxel_size
-    assert (plane.height(np.column_stack([np.zeros((len(z), 2)), z])) >= 0).all()
+    assert (z - plane.offset >= 0.5 * geo.grid.voxel_size - 1e-9).all()
     assert 0.9 * 0.3**3 <= geo.volumes[0].sum() <= 1.2 * 0.3**3
-    off = geometry_of(pf, views, resolution=40, select=SelectConfig(support=SupportConfig(cut_below=False)))
-    assert off.selection.plane is None
-    # nothing below the plane is cut that the carving kept above it
-    assert (geo.solid <= off.solid).all() if geo.solid.shape == off.solid.shape else True
+    off = geometry_of(pf, views, resolution=40, select=SelectConfig(support=SupportConfig(enabled=False)))
+    assert off.selection.plane is None and off.selection.support is None
 
 
 def test_structure_per_part_not_per_material(tmp_path):

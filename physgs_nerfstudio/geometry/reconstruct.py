@@ -62,7 +62,7 @@ from .parts import (
 from .names import object_labels
 from .select import ObjectSelection, outside_mask_hull, select_object
 from .structure import PartStructure, fuse_structure
-from .support import SupportPlane, find_resting_plane, views_up
+from .support import SupportPlane, align_to_plane, find_support, support_gaussians, views_up
 
 logger = logging.getLogger(__name__)
 
@@ -153,7 +153,7 @@ class ObjectGeometry:
                 "selected_gaussians": self.selection.num_selected,
                 "object_centre_scene": [float(x) for x in self.selection.centre],
                 "rests_on_plane": self.selection.plane is not None,
-                "support_plane_in_masks": self.selection.support is not None,
+                "support_plane_in_masks": self.selection.plane_in_masks,
                 "on_support_gaussians": self.selection.on_support, "clusters": self.selection.num_clusters,
                 "split_from_gaussians": self.selection.split_from,
                 "object_name": self.selection.object_name,
@@ -328,24 +328,35 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     return cut, hull & inside, beyond, solids[0]
 
 
-def _resting_plane(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
-    """Set ``selection.plane`` to the plane the object rests on when the selection found no support plane among the
-    foreground (:func:`.support.find_resting_plane`; ``cfg.select.support.cut_below`` off: no plane, no cut)."""
+def _support_under(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
+    """Where the selection found no support plane among the foreground, find the support under the object among all
+    the Gaussians (:func:`.support.find_support`) and, in place, drop the object's Gaussians on or under it, set
+    ``selection.plane`` and ``selection.support`` (its Gaussians around the object, whose pixels the masks lose)."""
     sc = cfg.select.support
-    if not sc.cut_below:
-        selection.plane = None
+    if selection.plane is not None or not sc.enabled or not bool(selection.selected.any()):
         return
-    if selection.plane is not None or not sc.enabled:
-        return
-    opaque = g.opacities.reshape(-1) >= cfg.select.min_opacity
-    keep = opaque | selection.selected
-    means = g.means[keep].double().cpu().numpy()
+    keep = (g.opacities.reshape(-1) >= cfg.select.min_opacity) | selection.selected
+    idx = torch.nonzero(keep).squeeze(1)
+    means = g.means[idx].double().cpu().numpy()
+    sel = selection.selected[idx].cpu().numpy()
     cams = np.stack([v.centre.double().cpu().numpy() for v in views])
-    plane = find_resting_plane(means, selection.selected[keep].cpu().numpy(), cams, views_up(views), sc)
-    if plane is not None:
-        logger.info("object: resting on a plane found among the Gaussians around it (%.0f%% of them on it); the "
-                    "solid ends there", 100 * plane.share)  # fmt: skip
+    plane, why = find_support(means, sel, cams, views_up(views), sc)
+    if plane is None:
+        logger.info("object: no support under it (%s)", why)
+        return
+    drop = sel & plane.drops(means)
+    if drop.all() or not drop[sel].mean() < 0.5:  # the "support" is most of the object: it is no support
+        logger.info("object: the level layer around its base holds %.0f%% of the object's Gaussians: no support",
+                    100 * drop[sel].mean())  # fmt: skip
+        return
+    dev = selection.selected.device
+    selection.selected[idx[torch.from_numpy(drop).to(dev)]] = False
+    selection.on_support += int(drop.sum())
+    selection.support = torch.zeros_like(selection.selected)
+    selection.support[idx[torch.from_numpy(support_gaussians(means, sel & ~drop, plane)).to(dev)]] = True
     selection.plane = plane
+    logger.info("object: standing on a support (%s); %d of its Gaussians on or under it dropped", why,
+                int(drop.sum()))  # fmt: skip
 
 
 def _beyond_kept(raw: np.ndarray, beyond: np.ndarray) -> np.ndarray:
@@ -498,9 +509,9 @@ def reconstruct_object(
     labels = object_labels(views, observations) if cfg.select.object_names is not None else None
     selection = select_object(g, views, cfg.select, backend=cfg.backend, labels=labels)
     _within_hull(g, selection, views, cfg)
-    _resting_plane(g, selection, views, cfg)
+    _support_under(g, selection, views, cfg)
     step("rendering depth")
-    grid = _domain(g, selection.selected, cfg)
+    grid = align_to_plane(_domain(g, selection.selected, cfg), selection.plane)
     obj_views, renders = _object_views(g, selection, views, cfg, grid)
     sources: dict[str, int] = {}
     for v in obj_views:
@@ -534,7 +545,8 @@ def reconstruct_object(
         # fitted to the solid, at full resolution
         share = float((hi - lo).max()) / (float(np.max(grid.shape)) * grid.voxel_size)
         pad = float((hi - lo).max()) * (cfg.pad_fraction + 2.0 / cfg.resolution)  # + 2 new voxels
-        grid = VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad), cfg.resolution)
+        grid = align_to_plane(VoxelGrid.from_bounds(torch.from_numpy(lo - pad), torch.from_numpy(hi + pad),
+                                                    cfg.resolution), selection.plane)  # fmt: skip
         logger.info("the carved object spans %.0f%% of the selection's box: carved again on a grid fitted to it",
                     100 * share)
         solids, hull, beyond, raw_nominal = _carve_variants(grid, obj_views, renders, variants, sdf, device,
