@@ -154,6 +154,7 @@ class ObjectGeometry:
                 "object_centre_scene": [float(x) for x in self.selection.centre],
                 "rests_on_plane": self.selection.plane is not None,
                 "support_plane_in_masks": self.selection.plane_in_masks,
+                "support_found": self.selection.support_found,
                 "on_support_gaussians": self.selection.on_support, "clusters": self.selection.num_clusters,
                 "split_from_gaussians": self.selection.split_from,
                 "object_name": self.selection.object_name,
@@ -341,13 +342,14 @@ def _support_under(g: Any, selection: ObjectSelection, views: Sequence[CaptureVi
     sel = selection.selected[idx].cpu().numpy()
     cams = np.stack([v.centre.double().cpu().numpy() for v in views])
     plane, why = find_support(means, sel, cams, views_up(views), sc)
+    selection.support_found = why
     if plane is None:
         logger.info("object: no support under it (%s)", why)
         return
     drop = sel & plane.drops(means)
     if drop.all() or not drop[sel].mean() < 0.5:  # the "support" is most of the object: it is no support
-        logger.info("object: the level layer around its base holds %.0f%% of the object's Gaussians: no support",
-                    100 * drop[sel].mean())  # fmt: skip
+        selection.support_found = f"no support: the level layer around its base holds {drop[sel].mean():.0%} of it"
+        logger.info("object: %s", selection.support_found)
         return
     dev = selection.selected.device
     selection.selected[idx[torch.from_numpy(drop).to(dev)]] = False

@@ -171,6 +171,8 @@ class ObjectSelection:
     reconstruction); None: none"""
     plane_in_masks: bool = False
     """the plane was found among the foreground (step 2: the masks took it in)"""
+    support_found: str = ""
+    """how the support under the object was found, or why none was (:func:`.support.find_support`, for the report)"""
     split_from: int = 0
     """the chosen cluster's Gaussians before ``split_on_plane`` split it (0: not split; module doc, step 2)"""
     object_name: str | None = None
