@@ -347,7 +347,7 @@ def _support_under(g: Any, selection: ObjectSelection, views: Sequence[CaptureVi
         logger.info("object: no support under it (%s)", why)
         return
     drop = sel & plane.drops(means)
-    if drop.all() or not drop[sel].mean() < 0.5:  # the "support" is most of the object: it is no support
+    if int(sel.sum() - drop.sum()) < 50:  # nothing of the object would be left above it: no support
         selection.support_found = f"no support: the level layer around its base holds {drop[sel].mean():.0%} of it"
         logger.info("object: %s", selection.support_found)
         return
