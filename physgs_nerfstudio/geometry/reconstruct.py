@@ -22,14 +22,12 @@ import numpy as np
 import torch
 
 from ..bayes.mixture import material_mixture_weights
-from ..render.backend import resolve_backend
 from .capture import CaptureView, MaskObservation
 from .carve import (
     CarveConfig,
     VoteKey,
     carve_votes_many,
     hull_from_votes,
-    resolve_depth_render,
     signed_mask_distances,
     solid_from_votes,
     vote_key,
@@ -46,6 +44,7 @@ from .hidden import (
     skin_from_points,
     without_hidden_space_many,
 )
+from .names import object_labels
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .partial import boundary_fill, part_volumes
 from .parts import (
@@ -59,7 +58,6 @@ from .parts import (
     sum_rows,
     voxel_mixture,
 )
-from .names import object_labels
 from .select import ObjectSelection, outside_mask_hull, select_object
 from .structure import PartStructure, fuse_structure
 from .support import SupportPlane, align_to_plane, find_support, support_gaussians, views_up
@@ -177,7 +175,7 @@ def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
 def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig,
                   box: VoxelGrid | None = None) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
     """The object's own depth and alpha (its Gaussians rendered alone: a thin part's expected depth is not
-    pulled back by the background behind it), and the foreground masks cut down to this object (foreground
+    pulled by the background behind it), and the foreground masks cut down to this object (foreground
     AND the dilated silhouette of its Gaussians). A view whose cut mask agrees with the silhouette at IoU below
     ``min_mask_agreement`` (its segmentation merged the object into the background, or found nothing) carves
     with the dilated silhouette instead: the silhouette is the consensus of every view's masks, lifted onto the
@@ -186,17 +184,14 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     import cv2
 
     sub = _Subset(g, _occluders(g, selection, cfg, box))
-    spread = cfg.carve.front_spread > 0 or cfg.carve.max_spread_voxels < float("inf")
-    kind = {"expected": "expected", "median": "median"}.get(cfg.carve.depth_render, "both")
-    renders = render_depth(sub, views, backend=cfg.backend, spread=spread, depth=kind,  # type: ignore[arg-type]
-                           extent=any(c.extent_multiple() > 0 for _, c in _variants(cfg)))  # fmt: skip
+    renders = render_depth(sub, views, backend=cfg.backend)
     k = 2 * cfg.object_mask_dilate_px + 1
     kernel = np.ones((k, k), np.uint8)
     ground: list[np.ndarray | None] = [None] * len(views)
     if selection.support is not None and bool(selection.support.any()):
         # the support plane took the masks with it (select.py, step 2): its pixels around the object are not the
         # object's, though the dilated silhouette reaches them
-        plane = render_depth(_Subset(g, selection.support), views, backend=cfg.backend)
+        plane = render_depth(_Subset(g, selection.support), views, backend=cfg.backend, surface=False)
         ground = [p.alpha.cpu().numpy() > 0.5 for p in plane]
     out = []
     replaced = 0
@@ -466,10 +461,6 @@ def _variants(cfg: GeometryConfig) -> list[tuple[str, CarveConfig]]:
     out += [(f"mask{m:+g}px", replace(base, mask_margin_px=base.mask_margin_px + m)) for m in cfg.mask_margin_variants_px]
     out += [(f"vote{k}/{q:g}", replace(base, min_votes=k, min_vote_fraction=q)) for k, q in cfg.vote_variants]
     out += [(f"depth{d:g}vox", replace(base, depth_margin_voxels=d)) for d in cfg.depth_margin_variants]
-    k = base.extent_multiple()
-    if k > 0:  # the surface's place in front of the centres is known to about one extent (docs/architecture.md)
-        out += [(f"front{k + d:g}x", replace(base, front_extent=k + d)) for d in cfg.front_extent_variants
-                if k + d >= 0]  # fmt: skip
     return out
 
 
@@ -497,9 +488,6 @@ def reconstruct_object(
     ``dirichlet_prior``: the model's (alpha0, lambda) for ``part_materials="observations"`` (None: (1, 4), the
     fusion's defaults). ``progress(stage: str)`` is called as stages start."""
     cfg = cfg or GeometryConfig()
-    if cfg.carve.depth_render == "auto":
-        kind = resolve_depth_render("auto", resolve_backend(cfg.backend, g.means.device))  # type: ignore[arg-type]
-        cfg = replace(cfg, carve=replace(cfg.carve, depth_render=kind))
     step = progress or (lambda _s: None)
     views = list(views)
     if cfg.max_views is not None and len(views) > cfg.max_views:
@@ -637,8 +625,7 @@ def reconstruct_object(
         if has.any():
             w = material_mixture_weights(torch.from_numpy(pooled[has]), material_weights)  # type: ignore[arg-type]
             pm[has] = w.double().numpy()
-    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else (
-        cfg.carve.depth_margin_voxels + (2.0 if cfg.carve.depth_render == "median" else 1.0))
+    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else cfg.carve.depth_margin_voxels + 2.0
     concave = None
     pixel_voxels = _pixel_voxels(obj_views, grid) if obj_views else 1.0
     if cfg.concavity_px is not None:
