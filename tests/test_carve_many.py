@@ -86,7 +86,7 @@ def _slack(r, i: int, j: int, lookup: str) -> float:
 
 
 def _oracle(grid, views, renders, cfg):
-    empty, seen, by_depth, direct, near = (np.zeros(grid.num_voxels, int) for _ in range(5))
+    empty, seen, by_depth, near = (np.zeros(grid.num_voxels, int) for _ in range(4))
     _, Y, Z = grid.shape
     for flat in range(grid.num_voxels):
         i, j, k = flat // (Y * Z), (flat // Z) % Y, flat % Z
@@ -105,12 +105,11 @@ def _oracle(grid, views, renders, cfg):
             margin += cfg.depth_slope_margin * _slack(r, int(w), int(u), cfg.depth_lookup)
             inside = cfg.use_depth and dist <= cfg.mask_margin_px and a >= cfg.min_alpha
             by_depth[flat] += int(inside and pc[2] < d - margin)
-            direct[flat] += int(inside and pc[2] <= d + margin)
             band = cfg.near_band_voxels * grid.voxel_size
             near[flat] += int(inside and dist <= cfg.mask_margin_px - cfg.near_inset_px and pc[2] <= d + margin + band
                               and margin <= band)
             empty[flat] += int(dist > cfg.mask_margin_px or (inside and pc[2] < d - margin))
-    return empty, seen, by_depth, direct, near
+    return empty, seen, by_depth, near
 
 
 def test_many_settings_in_one_pass_match_the_rule_and_single_calls() -> None:
@@ -123,20 +122,20 @@ def test_many_settings_in_one_pass_match_the_rule_and_single_calls() -> None:
     many = carve_votes_many(grid, views, renders, cfgs, chunk=300)
     for cfg, got in zip(cfgs, many):
         # float32 vs float64 projection: a voxel exactly on a threshold may flip; none does in this scene
-        for name, want in zip(("empty", "seen", "depth_empty", "direct", "near"), _oracle(grid, views, renders, cfg)):
+        for name, want in zip(("empty", "seen", "depth_empty", "near"), _oracle(grid, views, renders, cfg)):
             if name == "near" and not cfg.depth_consensus:
                 assert got.near is None  # not counted when no setting asks for it
                 continue
             assert np.array_equal(getattr(got, name).numpy(), want), (name, cfg)
         one = carve_votes(grid, views, renders, cfg)
-        for name in ("empty", "seen", "depth_empty", "direct"):
+        for name in ("empty", "seen", "depth_empty"):
             assert torch.equal(getattr(one, name), getattr(got, name)), name
     assert len({tuple(v.empty.tolist()) for v in many[:7]}) == 7  # the settings really differ here
     assert not torch.equal(many[8].near, many[7].near)  # (the band: only what counts as near)
     assert not torch.equal(many[8].near, many[9].near)  # (the inset: views with the voxel on their mask's edge)
     nearest = [CarveConfig(depth_lookup="nearest"), CarveConfig(depth_lookup="nearest", depth_margin_voxels=1.0)]
     for cfg, got in zip(nearest, carve_votes_many(grid, views, renders, nearest, chunk=300)):
-        for name, want in zip(("empty", "seen", "depth_empty", "direct"), _oracle(grid, views, renders, cfg)):
+        for name, want in zip(("empty", "seen", "depth_empty"), _oracle(grid, views, renders, cfg)):
             assert np.array_equal(getattr(got, name).numpy(), want), (name, cfg)
 
 
@@ -174,7 +173,7 @@ def test_depth_consensus_needs_a_majority_of_the_views_near_the_surface() -> Non
     # voxel: 0 depth 10/40 near (a few views render the face too deep), 1 depth 30/35, 2 masks 10, 3 none,
     # 4 masks 5 + depth 5 of 40 near
     votes = CarveVotes(empty=t(10, 30, 10, 0, 10), seen=t(60, 60, 60, 60, 60), depth_empty=t(10, 30, 0, 0, 5),
-                       direct=t(10, 30, 0, 0, 5), num_views=60, near=t(40, 35, 0, 30, 40))  # fmt: skip
+                       num_views=60, near=t(40, 35, 0, 30, 40))  # fmt: skip
     cfg = CarveConfig(depth_consensus=0.5, min_component=0.0, fill_cavities=False)
     keep = solid_from_votes(votes, grid, cfg).ravel()
     assert keep.tolist() == [True, False, False, True, True]

@@ -19,7 +19,7 @@ from helpers.shapes import (
 )
 
 from physgs_nerfstudio.export.shapes import field_from, shell_sphere
-from physgs_nerfstudio.geometry import CarveConfig, GeometryConfig, MaskObservation, reconstruct_object
+from physgs_nerfstudio.geometry import GeometryConfig, MaskObservation, reconstruct_object
 from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.geometry.select import capture_centre
 from physgs_nerfstudio.mass import MassConfig, integrate_mass
@@ -161,9 +161,11 @@ def test_floor_is_not_the_object():
     assert np.allclose(capture_centre(views), [0, 0, 0.15], atol=1e-3)
 
 
-def test_resting_plane_among_the_background_ends_the_solid():
-    """The masks hold the box alone, so the floor is background; the plane the box stands on is still found among
-    all the Gaussians, and no voxel centre of the solid lies under it."""
+def test_the_support_around_the_object_ends_the_solid_between_voxels():
+    """The masks hold the box alone, so the floor is background; the support it stands on is still found in the ring
+    around its base (:func:`physgs_nerfstudio.geometry.support.find_support`), the grid has a layer of voxel faces on
+    it, and no voxel of the solid lies under it or straddles it. Switched off, the grid and the solid are as the
+    carving left them."""
     from physgs_nerfstudio.geometry.select import SelectConfig
     from physgs_nerfstudio.geometry.support import SupportConfig
 
@@ -171,16 +173,17 @@ def test_resting_plane_among_the_background_ends_the_solid():
     views = ring_views(pf, (0, 0, 0.15), 1.6, elevations=(15.0, 40.0, 70.0), mask_pf=only_obj)
     geo = geometry_of(pf, views, resolution=40)
     plane = geo.selection.plane
-    assert plane is not None and geo.selection.support is None  # found among the background, not the foreground
+    assert plane is not None and not geo.selection.plane_in_masks  # found around the object, not in its masks
+    assert geo.selection.support is not None and not bool((geo.selection.support & geo.selection.selected).any())
     assert abs(plane.normal[2]) > 0.999 and abs(plane.offset + 1e-3) < 0.01
+    k = (plane.offset - geo.grid.origin[2]) / geo.grid.voxel_size
+    assert abs(k - round(k)) < 1e-6  # a layer of faces on the plane
     ijk = np.argwhere(geo.solid)
     z = np.asarray(geo.grid.origin)[2] + (ijk[:, 2] + 0.5) * geo.grid.voxel_size
-    assert (plane.height(np.column_stack([np.zeros((len(z), 2)), z])) >= 0).all()
+    assert (z - plane.offset >= 0.5 * geo.grid.voxel_size - 1e-9).all()
     assert 0.9 * 0.3**3 <= geo.volumes[0].sum() <= 1.2 * 0.3**3
-    off = geometry_of(pf, views, resolution=40, select=SelectConfig(support=SupportConfig(cut_below=False)))
-    assert off.selection.plane is None
-    # nothing below the plane is cut that the carving kept above it
-    assert (geo.solid <= off.solid).all() if geo.solid.shape == off.solid.shape else True
+    off = geometry_of(pf, views, resolution=40, select=SelectConfig(support=SupportConfig(enabled=False)))
+    assert off.selection.plane is None and off.selection.support is None
 
 
 def test_structure_per_part_not_per_material(tmp_path):
@@ -515,10 +518,8 @@ def test_masks_that_lost_a_part_are_completed_by_the_consensus_silhouette(box):
             cols = torch.nonzero(m.any(0)).squeeze(1)
             m[:, : int(cols.min() + (cols.max() - cols.min()) / 3)] = False
         damaged.append(replace(v, mask=m))
-    for kind in ("expected", "median"):  # the masks' effect, whichever depth carves
-        carve = CarveConfig(depth_render=kind)
-        kept = geometry_of(pf, damaged, carve=carve).volumes[0].sum()
-        assert 0.93 * 0.024 <= kept <= 1.1 * 0.024, kind  # (0.949 with the expected depth)
+    kept = geometry_of(pf, damaged).volumes[0].sum()
+    assert 0.93 * 0.024 <= kept <= 1.1 * 0.024
 
 
 def capsule_surface(radius, length, spacing):
@@ -567,27 +568,28 @@ def exact_capsule_masks(views, length, radius):
 
 
 @pytest.mark.parametrize("radius, length, opacity, spacing", [(0.1, 0.0, 0.5, 0.012), (0.02, 0.3, 0.8, 0.01)])
-def test_compact_solids_are_not_carved_from_the_front_by_the_median_depth(radius, length, opacity, spacing):
+def test_compact_solids_are_not_carved_from_the_front_by_the_surface_depth(radius, length, opacity, spacing):
     """A solid sphere (26 px across) and a thin solid rod (6 px wide) whose surface Gaussians are not opaque: a
-    pixel's expected depth mixes the front surface with the back one and lies behind the front, so the expected
-    depth carved the front away (0.60x and 0.85x of the true volume); the median depth (transmittance 1/2) stays on
-    the front surface. Masks are the exact silhouettes, so the volume is the depth rule's alone."""
+    pixel's expected depth mixes the front surface with the back one and lies behind the front (it carved the front
+    away: 0.60x and 0.85x of the true volume); the surface depth stays on the front surface. Masks are the exact
+    silhouettes, so the volume is the depth rule's alone."""
     means, scales, quats = capsule_surface(radius, length, spacing)
     pf = field_from(means, scales, quats, densities=[1000.0], names=["c"], thickness_m=[None], opacity=opacity)
     views = exact_capsule_masks(ring_views(pf, (0, 0, 0), 1.0 if length == 0 else 0.9, n=16), length, radius)
     true_v = math.pi * radius**2 * length + 4 / 3 * math.pi * radius**3
     # (whole voxels: the rules' carving compared, without partial volume's shares)
     kw = {"resolution": 48, "variants": False}
-    new = whole_voxel_volume(geometry_of(pf, views, carve=_carve(depth_render="median"), **kw)) / true_v
-    old = whole_voxel_volume(geometry_of(pf, views, carve=_carve(depth_render="expected"), **kw)) / true_v
-    assert 0.9 <= new <= 1.12
-    assert old < 0.88
+    got = whole_voxel_volume(geometry_of(pf, views, carve=_carve(), **kw)) / true_v
+    assert 0.9 <= got <= 1.12
 
 
-def test_median_depth_is_the_transmittance_crossing():
-    """reference_median_depth against a direct per-pixel loop: composite the Gaussians that the rasterizer used at
-    a pixel (their alphas recovered from colour renders of one-hot indicators), front to back."""
-    from physgs_nerfstudio.render import rasterize, reference_median_depth
+@pytest.mark.parametrize("transmittance", [0.5, 0.8])
+def test_surface_depth_is_the_transmittance_crossing(transmittance):
+    """reference_surface_depth against a direct per-pixel loop: composite the Gaussians that the rasterizer used at
+    a pixel (their alphas recovered from colour renders of one-hot indicators), front to back, and find the densest
+    point of the one that crosses the level along the pixel's ray by sampling its density on the ray."""
+    from physgs_nerfstudio.render import rasterize, reference_surface_depth
+    from physgs_nerfstudio.render.projection import covariance_3d
 
     g = torch.Generator().manual_seed(3)
     n = 40
@@ -596,19 +598,33 @@ def test_median_depth_is_the_transmittance_crossing():
     quats = torch.randn(n, 4, generator=g)
     quats = quats / quats.norm(dim=1, keepdim=True)
     opac = 0.2 + 0.7 * torch.rand(n, generator=g)
+    prec = torch.linalg.inv(covariance_3d(quats.double(), scales.double()))
     views = ring_views(field_from(means, scales, quats), (0, 0, 0), 1.2, n=3, size=24)
+    checked = 0
     for v in views:
-        med = reference_median_depth(means, quats, scales, opac, v.viewmat, v.K, 24, 24)
+        got = reference_surface_depth(means, quats, scales, opac, v.viewmat, v.K, 24, 24, transmittance=transmittance)
         w, _, _ = rasterize(means, quats, scales, opac, torch.eye(n), v.viewmat[None], v.K[None], 24, 24,
                             backend="reference")  # blending weight of each Gaussian at each pixel  # fmt: skip
-        z = (means @ v.viewmat[:3, :3].T + v.viewmat[:3, 3])[:, 2]
+        R, t, K = v.viewmat[:3, :3].double(), v.viewmat[:3, 3].double(), v.K.double()
+        z = (means.double() @ R.T + t)[:, 2]
         order = torch.argsort(z)
         for y in range(0, 24, 3):
             for x in range(0, 24, 3):
                 acc = torch.cumsum(w[0, y, x, order], 0)  # 1 - transmittance after each Gaussian
-                hit = torch.nonzero(acc >= 0.5 - 1e-6)
-                want = float(z[order[hit[0, 0]]]) if len(hit) else float("inf")
-                assert float(med[y, x]) == pytest.approx(want, rel=1e-5, abs=1e-6)
+                hit = torch.nonzero(acc >= 1 - transmittance - 1e-6)
+                if not len(hit):
+                    assert math.isinf(float(got[y, x]))
+                    continue
+                i = int(order[hit[0, 0]])
+                ray = torch.tensor([(x + 0.5 - K[0, 2]) / K[0, 0], (y + 0.5 - K[1, 2]) / K[1, 1], 1.0],
+                                   dtype=torch.float64) @ R  # the pixel's ray, world, per unit of camera z
+                cam = -R.T @ t
+                zs = torch.linspace(float(z[i]) - 0.5, float(z[i]) + 0.5, 20001, dtype=torch.float64)
+                off = cam + zs[:, None] * ray - means[i].double()
+                want = float(zs[torch.argmin(((off @ prec[i]) * off).sum(-1))])
+                assert float(got[y, x]) == pytest.approx(want, abs=1e-4)
+                checked += 1
+    assert checked > 20
 
 
 def test_a_parts_whole_surface_is_reported(box):

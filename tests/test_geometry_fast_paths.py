@@ -190,56 +190,36 @@ def test_solid_from_votes_on_the_bounding_box_equals_the_whole_grid():
 
 def _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=1 << 20):
     """The carving votes as computed before the views were voted on together (carve_votes_many at 95953ad, one view
-    and one setting at a time, 2-D indexing of each image): the oracle of the batched vote; with the along-ray
-    extent (``front_extent``) read as the spread is and subtracted from the depth per setting."""
-    from physgs_nerfstudio.geometry.carve import (
-        _corners,
-        _sample,
-        carve_depth,
-        depth_slack,
-        signed_mask_distances,
-    )
+    and one setting at a time, 2-D indexing of each image): the oracle of the batched vote."""
+    from physgs_nerfstudio.geometry.carve import _corners, _sample, depth_slack, signed_mask_distances
 
-    def sample_opaque(depth, alpha, u, v, min_alpha, *extras):
+    def sample_opaque(depth, alpha, u, v, min_alpha):
         num, den = torch.zeros_like(u), torch.zeros_like(u)
-        nums = [torch.zeros_like(u) if e is not None else None for e in extras]
         for yy, xx, w in _corners(depth.shape, u, v):
             ok = alpha[yy, xx] >= min_alpha
             w = torch.where(ok, w, 0.0)
             num += w * torch.where(ok, depth[yy, xx], 0.0)
-            for e, n in zip(extras, nums):
-                if n is not None:
-                    n += w * torch.where(ok, e[yy, xx], 0.0)
             den += w
-        has = den > 0
-        d = torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
-        return (d, has, *[torch.where(has, n / den.clamp_min(1e-12), torch.zeros_like(n)) if n is not None else None
-                          for n in nums])
+        return torch.where(den > 0, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
 
     M, G = grid.num_voxels, len(cfgs)
-    empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32) for _ in cfgs] for _ in range(3))
+    empty, depth_empty = ([torch.zeros(M, dtype=torch.int32) for _ in cfgs] for _ in range(2))
     seen = torch.zeros(M, dtype=torch.int32)
     sdf = signed_mask_distances([v.mask for v in views])
     cams = [(v.viewmat[:3, :3], v.viewmat[:3, 3], v.K) for v in views]
     any_depth = renders is not None and any(c.use_depth for c in cfgs)
     slope = any(c.depth_slope_margin > 0 for c in cfgs)
-    lookup, kind = cfgs[0].depth_lookup, cfgs[0].depth_render
-    images = ([carve_depth(r, kind, cfgs[0].mixed_depth_voxels * grid.voxel_size) for r in renders]
-              if any_depth else [None] * len(views))  # fmt: skip
-    depth = ([(d, r.alpha, depth_slack(d, r.alpha, lookup=lookup) if slope else None)
-              for d, r in zip(images, renders)] if any_depth else [None] * len(views))  # fmt: skip
-    use_spread = any_depth and any(c.front_spread > 0 or c.max_spread_voxels < float("inf") for c in cfgs)
-    spreads = [r.spread for r in renders] if use_spread else [None] * len(views)
-    use_extent = any_depth and any(c.extent_multiple() > 0 for c in cfgs)
-    extents = [r.extent for r in renders] if use_extent else [None] * len(views)
+    lookup = cfgs[0].depth_lookup
+    depth = ([(r.depth, r.alpha, depth_slack(r.depth, r.alpha, lookup=lookup) if slope else None)
+              for r in renders] if any_depth else [None] * len(views))  # fmt: skip
     shape = torch.as_tensor(grid.shape)
     for s0 in range(0, M, chunk):
         flat = torch.arange(s0, min(M, s0 + chunk))
         ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
         x = grid.centres(ijk)
         n_seen = torch.zeros(len(flat), dtype=torch.int32)
-        n_empty, n_depth, n_direct = ([torch.zeros_like(n_seen) for _ in range(G)] for _ in range(3))
-        for view, (R, t, K), sd, dz, spr, ext in zip(views, cams, sdf, depth, spreads, extents):
+        n_empty, n_depth = ([torch.zeros_like(n_seen) for _ in range(G)] for _ in range(2))
+        for view, (R, t, K), sd, dz in zip(views, cams, sdf, depth):
             pc = x @ R.T + t
             z = pc[:, 2]
             u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
@@ -251,36 +231,25 @@ def _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=1 << 20):
                 vi = w.floor().long().clamp(0, view.height - 1)
                 d, a = dz[0][vi, ui], dz[1][vi, ui]
                 sl = dz[2][vi, ui] if dz[2] is not None else None
-                sp = spr[vi, ui] if spr is not None else None
-                ex = ext[vi, ui] if ext is not None else None
                 if lookup == "bilinear":
-                    d, _, sp, ex = sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5,
-                                                 spr, ext)  # fmt: skip
-            d_as_read = d if dz is not None else None
+                    d = sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5)
             for g, cfg in enumerate(cfgs):
                 vote = ok & (dist > cfg.mask_margin_px)
                 if dz is not None and cfg.use_depth:
-                    d = d_as_read - cfg.extent_multiple() * ex if ex is not None else d_as_read
                     margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
                     if sl is not None and cfg.depth_slope_margin > 0:
                         margin = margin + cfg.depth_slope_margin * sl
                     inside = ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha)
-                    front = d
-                    if sp is not None:
-                        front = d - cfg.front_spread * sp
-                        if cfg.max_spread_voxels < float("inf"):
-                            inside = inside & (sp <= cfg.max_spread_voxels * grid.voxel_size)
-                    dvote = inside & (z < front - margin)
+                    dvote = inside & (z < d - margin)
                     vote |= dvote
                     n_depth[g] += dvote.int()
-                    n_direct[g] += (inside & (z <= d + margin)).int()
                 n_empty[g] += vote.int()
             n_seen += ok.int()
         sl = slice(s0, s0 + len(flat))
         seen[sl] = n_seen
         for g in range(G):
-            empty[g][sl], depth_empty[g][sl], direct[g][sl] = n_empty[g], n_depth[g], n_direct[g]
-    return [(empty[g], seen, depth_empty[g], direct[g]) for g in range(G)]
+            empty[g][sl], depth_empty[g][sl] = n_empty[g], n_depth[g]
+    return [(empty[g], seen, depth_empty[g]) for g in range(G)]
 
 
 def _carving_scene(seed, sizes=((40, 32), (40, 32), (36, 30), (40, 32), (40, 32))):
@@ -304,9 +273,7 @@ def _carving_scene(seed, sizes=((40, 32), (40, 32), (36, 30), (40, 32), (40, 32)
         depth = 2.0 + torch.rand(H, W, generator=g)
         alpha = torch.rand(H, W, generator=g)
         depth[alpha < 0.1] = float("inf")
-        renders.append(ViewRender(depth=depth, alpha=alpha, spread=0.05 * torch.rand(H, W, generator=g),
-                                  median=depth - 0.2 * torch.rand(H, W, generator=g),
-                                  extent=0.03 * torch.rand(H, W, generator=g)))  # fmt: skip
+        renders.append(ViewRender(depth=depth, alpha=alpha))
         views.append(CaptureView(torch.tensor(vm, dtype=torch.float32), K, W, H, mask, name=f"v{i}"))
     grid = VoxelGrid.from_bounds(np.array([-0.6, -0.5, -0.4]), np.array([0.6, 0.5, 0.45]), 22)
     return grid, views, renders
@@ -327,20 +294,16 @@ def test_carve_votes_of_views_together_equal_one_view_at_a_time(seed):
     settings = [
         variants,
         [replace(c, depth_lookup="nearest") for c in variants],
-        [CarveConfig(front_spread=1.0), CarveConfig(max_spread_voxels=0.5), CarveConfig(use_depth=False),
-         CarveConfig(depth_slope_margin=0.0, depth_margin_rel=0.01, min_alpha=0.3)],
-        [CarveConfig(depth_render="first", front_spread=0.5, depth_lookup="nearest"),
-         CarveConfig(depth_render="first", max_spread_voxels=1.0, depth_lookup="nearest")],
-        [CarveConfig(depth_render="median"), CarveConfig(depth_render="median", mask_margin_px=0.7)],
-        [CarveConfig(front_extent=1.0), CarveConfig(front_extent=0.0), CarveConfig(front_extent=2.0, front_spread=1.0)],
-        [replace(c, front_extent=1.5, depth_lookup="nearest") for c in variants[:3]],
+        [CarveConfig(use_depth=False), CarveConfig(depth_slope_margin=0.0, depth_margin_rel=0.01, min_alpha=0.3)],
+        [CarveConfig(), CarveConfig(mask_margin_px=0.7), CarveConfig(min_alpha=0.8, depth_lookup="bilinear")],
+        [replace(c, depth_lookup="nearest", min_alpha=0.6) for c in variants[:3]],
     ]
     for cfgs in settings:
         want = _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=2000)
         for chunk, batch_points in ((1 << 20, None), (2000, 1), (2000, 6000), (3001, 1 << 20)):
             got = carve_votes_many(grid, views, renders, cfgs, chunk=chunk, batch_points=batch_points)
             for w, v in zip(want, got):
-                for name, a in zip(("empty", "seen", "depth_empty", "direct"), w):
+                for name, a in zip(("empty", "seen", "depth_empty"), w):
                     assert torch.equal(getattr(v, name), a), (name, cfgs, chunk, batch_points)
         assert sum(int(w[0].sum()) for w in want) > 0
     no_depth = carve_votes_many(grid, views, None, variants[:2], batch_points=1 << 20)

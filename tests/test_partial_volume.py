@@ -69,8 +69,8 @@ def test_rim_labels_and_part_volumes_give_a_share_outside_the_solid_to_a_neighbo
 def test_vote_keys_tell_apart_every_setting_that_changes_the_votes():
     base = CarveConfig()
     keys = {vote_key(c) for c in (base, replace(base, mask_margin_px=0.5), replace(base, depth_margin_voxels=1.0),
-                                  replace(base, depth_margin_rel=0.01), replace(base, front_extent=1.0))}  # fmt: skip
-    assert len(keys) == 5
+                                  replace(base, depth_margin_rel=0.01))}  # fmt: skip
+    assert len(keys) == 4
     assert vote_key(replace(base, min_votes=3, min_vote_fraction=0.25)) == vote_key(base)  # the count, not the votes
 
 
@@ -100,7 +100,7 @@ def box_render():
     means, scales, quats = box_surface((0.4, 0.3, 0.2), 0.02)
     pf = field_from(means, scales, quats, densities=[700.0], names=["oak"], thickness_m=[None])
     views = ring_views(pf, (0, 0, 0), 1.5)
-    return pf, views, render_depth(pf, views, backend="reference", depth="median")
+    return pf, views, render_depth(pf, views, backend="reference")
 
 
 @pytest.mark.parametrize(("margin", "rel"), [(0.0, 0.0), (1.0, 0.0), (-0.5, 0.0), (0.0, 0.015)])
@@ -113,7 +113,7 @@ def test_a_boundary_voxels_share_is_the_carving_of_a_finer_grid(box_render, marg
     n, h = 2, 0.03
     grid = VoxelGrid((-0.27, -0.21, -0.15), h, (18, 14, 10))
     fine = VoxelGrid(grid.origin, h / n, tuple(s * n for s in grid.shape))
-    cfg = CarveConfig(depth_render="median", depth_margin_voxels=margin, depth_margin_rel=rel)
+    cfg = CarveConfig(depth_margin_voxels=margin, depth_margin_rel=rel)
     sdf = signed_mask_distances([v.mask for v in views])
     votes = carve_votes_many(grid, views, renders, [cfg], sdf=sdf)[0]
     solid = (~carved_by_votes(votes, cfg)).reshape(grid.shape).numpy()
@@ -141,8 +141,7 @@ def in_finer_voxels(cfg: CarveConfig, n: int) -> CarveConfig:
     """``cfg`` with its lengths in the finer grid's voxels (n of them to a coarse voxel)."""
     from dataclasses import replace
 
-    return replace(cfg, depth_margin_voxels=cfg.depth_margin_voxels * n, near_band_voxels=cfg.near_band_voxels * n,
-                   mixed_depth_voxels=cfg.mixed_depth_voxels * n, max_spread_voxels=cfg.max_spread_voxels * n)
+    return replace(cfg, depth_margin_voxels=cfg.depth_margin_voxels * n, near_band_voxels=cfg.near_band_voxels * n)
 
 
 def tray_surface(outer=(0.4, 0.4, 0.2), inner=(0.28, 0.28, 0.12), spacing=0.012):

@@ -124,8 +124,8 @@ def test_lifting_views_in_one_call_match_the_reference_view_by_view():
 
 
 def test_depth_renders_of_views_in_one_call_match_one_view_at_a_time():
-    """geometry.render_depth on gsplat with both views in one call (the centres' moments as per-camera colours)
-    against gsplat one view at a time, and its depth against the reference rasterizer's."""
+    """geometry.render_depth on gsplat with both views in one call against gsplat one view at a time, and its
+    surface depth against the reference rasterizer's."""
     from types import SimpleNamespace
 
     from physgs_nerfstudio.geometry.capture import CaptureView
@@ -136,13 +136,13 @@ def test_depth_renders_of_views_in_one_call_match_one_view_at_a_time():
                          name=f"v{i}") for i in range(2)]  # fmt: skip
     g = SimpleNamespace(**{k: scene[k] for k in ("means", "quats", "scales", "opacities")})
     g_cpu = SimpleNamespace(**{k: v.cpu() for k, v in vars(g).items()})
-    batched = render_depth(g, views, backend="gsplat", spread=True)
-    single = [render_depth(g, [v], backend="gsplat", spread=True)[0] for v in views]
+    batched = render_depth(g, views, backend="gsplat")
+    single = [render_depth(g, [v], backend="gsplat")[0] for v in views]
     ref = render_depth(g_cpu, views, backend="reference")
     for a, b, r in zip(batched, single, ref):
         solid = r.alpha > 0.5
         assert int(solid.sum()) > 50
-        for x, y in ((a.alpha, b.alpha), (a.depth[solid], b.depth[solid]), (a.spread[solid], b.spread[solid])):
+        for x, y in ((a.alpha, b.alpha), (a.depth[solid], b.depth[solid])):
             torch.testing.assert_close(x, y, rtol=1e-4, atol=1e-4)
         assert _max_diff(a.alpha.cpu(), r.alpha) < 2e-3
         assert _max_diff(a.depth.cpu()[solid], r.depth[solid]) < 2e-3 * float(r.depth[solid].max())

@@ -35,7 +35,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import CaptureView, GeometryConfig, reconstruct_object
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
-from physgs_nerfstudio.geometry.carve import CarveConfig
 from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.mass import MassConfig, integrate_mass
 
@@ -117,7 +116,7 @@ def make_scene(n: int, views: int, size: int, device: str, seed: int = 0):
         c2w = torch.from_numpy(np.stack([right, up, -fwd, pos], 1)).float()  # OpenGL axes, as nerfstudio's
         cams.append(CaptureView(viewmat_from_c2w(c2w), K, size, size, torch.zeros(size, size, dtype=torch.bool),
                                 name=f"v{i:03d}"))  # fmt: skip
-    for v, r in zip(cams, render_depth(table, cams)):
+    for v, r in zip(cams, render_depth(table, cams, surface=False)):
         v.mask = (r.alpha > 0.5).cpu()
     true_kg = sum(DENSITY["oak" if m == 0 else "steel"] * float(np.prod(h - lo)) for lo, h, m in boxes)
     return pf, cams, true_kg
@@ -212,8 +211,6 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
-    ap.add_argument("--depth-render", default="expected", choices=["expected", "median", "first"],
-                    help="the carving's depth (--mass.geometry.carve.depth-render)")
     ap.add_argument("--reuse-rasterization", action="store_true",
                     help="the timed runs reuse the untimed run's lifted masks and depth renders (the same inputs "
                          "give the same outputs): the stages then time the rest, which a GPU run pays on its CPU; "
@@ -227,7 +224,7 @@ def main() -> None:
     pf, views, true_kg = make_scene(args.gaussians, args.views, args.size, device)
     print(f"scene: {pf.num_gaussians} Gaussians, {len(views)} views at {args.size} px on {device} "
           f"({time.perf_counter() - t:.1f} s to make)")  # fmt: skip
-    cfg = GeometryConfig(carve=CarveConfig(depth_render=args.depth_render))
+    cfg = GeometryConfig()
     if args.reuse_rasterization:
         _record_rasterization()
     run_once(pf, views, device, cfg)  # untimed: CUDA context, kernels, thread pools
@@ -250,7 +247,7 @@ def main() -> None:
     print(f"mass {runs[-1][1]:.2f} kg (the table's true mass {true_kg:.2f} kg; a sanity check, not an accuracy figure)")
     if args.out:
         args.out.write_text(json.dumps({"gaussians": pf.num_gaussians, "views": len(views), "size": args.size,
-                                        "device": device, "depth_render": args.depth_render,
+                                        "device": device,
                                         "reuse_rasterization": args.reuse_rasterization, "gpu": torch.cuda.get_device_name() if device == "cuda"
                                         else None, "repeats": args.repeats, "median_s": med,
                                         "runs_s": [r[0] for r in runs], "functions_s": functions, "mass_kg": runs[-1][1],

@@ -10,22 +10,13 @@ For every voxel centre ``x`` and every view ``v`` in whose image it projects (in
   ``depth_margin_rel`` of the depth: the camera sees *past* ``x`` onto a surface behind it, so ``x`` is empty
   (this carves concavities that silhouettes cannot, such as a cup's inside).
 
-Either is an *empty vote*. A view *sees* ``x`` when ``x`` projects into its image; it sees ``x`` *directly*
-when, besides, the splat is opaque there and ``x`` is not hidden behind the rendered surface (``x`` lies in
-front of it or within the depth margin of it). A voxel is carved (empty) when its empty votes reach
-``min_votes`` and either
-
-* ``min_vote_fraction`` of the views that see it (the rule for silhouettes), or
-* (off by default, see :class:`CarveConfig`) ``min_direct_fraction`` of the views that see it directly,
-  counting only the depth votes among them (the rule for space that few views can see: under an object shot
-  from above, only the few low views see that space at all, every higher view has it hidden behind the object;
-  the low views that see past it are then all the direct evidence there is).
+Either is an *empty vote*. A view *sees* ``x`` when ``x`` projects into its image. A voxel is carved (empty)
+when its empty votes reach ``min_votes`` and ``min_vote_fraction`` of the views that see it (and, for depth
+votes, the depth consensus below).
 
 A voxel that fewer than ``min_seen_fraction`` of the views have in their image at all is empty (an object-centric
 capture frames its object in every view). Otherwise it is solid, so space that no view sees past (the inside of
-a closed object) stays solid. The direct rule never lets silhouette votes alone carve (a thick part's inside is
-seen directly by no view, so two bad masks stay 2 votes out of every view that sees it). Why a vote rather than
-the classic visual hull's "any one view":
+a closed object) stays solid. Why a vote rather than the classic visual hull's "any one view":
 
 * one bad mask (a part the segmenter missed in one view) casts one wrong empty vote: with ``min_votes`` = 2 it
   cannot delete the part;
@@ -33,40 +24,17 @@ the classic visual hull's "any one view":
   depth votes; it never adds volume, because the masks of the other views still carve around the object;
 * the fraction keeps the rule meaningful when the capture has many views (60 views: 9 must agree at 0.15).
 
-First surface. A depth vote is right only if the rendered depth is the *first* surface along the pixel's ray.
-The expected depth (the blending-weighted mean of the Gaussians' depths) is that surface only when the surface is
-opaque: where the first surface lets part of the ray through (trained Gaussians on a sphere, a handle, a shoe are
-not opaque at 96 px), the mean is pulled towards the back surface, the voxels between lie "in front of the surface",
-and every view carves its front of the object away (a solid sphere of Gaussians with opacity 0.5 kept 0.60 of its
-volume with exact masks: tests/test_geometry.py). On a thin slab the front and the back surfaces are within a voxel
-and the mean is right. ``depth_render="median"`` carves with the depth at which the ray's transmittance falls to
-1/2 (the *median depth* of 3-D Gaussian surface reconstruction,
-:func:`physgs_nerfstudio.render.reference_median_depth`): a surface that stops half of the ray keeps it, whatever
-lies behind; on one thin layer of Gaussians it is that layer's depth, as the mean is, but on a layer that is
-spread in depth it lies in front of the layer's mean (the weights fall off behind the first Gaussians), which
-thickens thin walls. Two rules from the moments of the
-contributing Gaussians' depths (:func:`.gaussians.depth_spread`, the spread about a plane through them:
-``front_spread``, carve only in front of depth - k x spread; ``max_spread_voxels``, no depth vote where the spread
-is large) are kept as options: the variance is dominated by a few per cent of weight on the far surface (the
-spread of an opaque box's faces was 2-9 cm on a 40 cm box), so they withhold carving that was right. The default,
-"auto", carves with the median where the reference rasterizer renders the depth (the CPU's short, low-resolution
-trainings, whose soft surfaces let the expected depth carve compact solids thin) and with the expected depth on
-gsplat, where the 512 px trainings' surfaces are sharp, so the expected depth is the first surface and the
-median would only cost time (:func:`resolve_depth_render`; docs/architecture.md, "Mass geometry").
-
-The Gaussians' depth. A rasterizer gives every pixel that a Gaussian covers the depth of the Gaussian's *centre*,
-and a trained splat's surface Gaussians have their centres behind the surface they draw: their footprints, not
-their centres, reach the object's outline in the views that see a face edge-on. So the expected depth lies about one
-Gaussian thickness behind each face, and the depth votes carved that layer off both faces of every plate (on the
-GPU a 25 mm oak top can keep half of its volume, both faces losing 4-5 mm whatever the voxel). ``front_extent`` moves the depth that carves towards the
-camera by k times the pixel's blended *along-ray extent* (:func:`.gaussians.ray_extent`: each Gaussian's standard
-deviation along the ray through it, ``1 / sqrt(d^T Sigma^-1 d)``, rendered as a colour channel): a flat Gaussian
-lying in a face adds its thickness across the face, not its in-plane size, and a face of thin Gaussians is not moved.
-k = 2 with the expected depth (the default, gsplat's depth), 0 with the median depth (the CPU's reference
-rasterizer), which already lies in front of a layer's centres; the mass interval samples k - 1 and k + 1 as
-geometry variants, since where the surface lies within a Gaussian's extent is known only to about one extent.
-Why two: at one extent a GPU training's solids still come out a median 5-17% under their enclosed volumes (metal
-plates' faces render 0.3-0.7 voxel behind them).
+The surface depth. A depth vote is right only if the rendered depth lies at or in front of the object's surface
+along the pixel's ray: every centre in front of it is carved. A trained splat draws a surface as a soft layer of
+semi-transparent Gaussians, and a rasterizer gives every pixel a Gaussian covers the depth of the Gaussian's
+*centre*, so a depth read from inside the layer carves a shell off every face it is seen from. The depth that
+carves is where the ray's transmittance first crosses :data:`.gaussians.SURFACE_TRANSMITTANCE` (0.8: the ray has
+lost a fifth of its light; :func:`.gaussians.render_depth`, the reference compositor on every backend), the
+front of the layer; a surface that stops that much of the ray keeps it whatever lies behind. The expected depth
+(the blending-weighted mean) is pulled towards the back surface wherever the front one is not opaque, and the
+median depth (transmittance 1/2) lies halfway into the layer; both carved the path-traced development families'
+walls (docs/architecture.md, "Mass geometry", gives the comparison). A pixel whose alpha never reaches
+``1 - SURFACE_TRANSMITTANCE`` has no surface depth and does not carve by depth (``min_alpha`` is at least that).
 
 Depth consensus. The vote's fraction is low (15% of the views that frame a voxel) because most views cannot see
 a given empty voxel at all: it is hidden behind the object in them. But then a surface voxel is carved as soon as
@@ -98,18 +66,16 @@ import torch
 from torch import Tensor
 
 from .capture import CaptureView
-from .carve_config import EXPECTED_DEPTH_EXTENT, CarveConfig
+from .carve_config import CarveConfig
 from .carve_views import (
     _add_views,
     _corners,  # noqa: F401  (re-exported, as _sample: the tests' oracles import them from here)
     _Rule,
     _sample,  # noqa: F401
     _ViewBatch,
-    carve_depth,
     default_batch_points,
     depth_slack,
     mask_view_votes,
-    resolve_depth_render,
     signed_mask_distance,
     signed_mask_distances,
 )
@@ -117,18 +83,15 @@ from .gaussians import ViewRender
 from .grid import VoxelGrid
 
 __all__ = [
-    "EXPECTED_DEPTH_EXTENT",
     "CarveConfig",
     "CarveVotes",
     "VoteKey",
-    "carve_depth",
     "carve_votes",
     "carve_votes_many",
     "default_batch_points",
     "depth_slack",
     "hull_from_votes",
     "mask_view_votes",
-    "resolve_depth_render",
     "signed_mask_distance",
     "signed_mask_distances",
     "solid_from_votes",
@@ -143,12 +106,10 @@ class CarveVotes:
     """int [M]: views in whose image each voxel projects"""
     depth_empty: Tensor | None = None
     """int [M]: the empty votes cast by depth (a subset of ``empty``)"""
-    direct: Tensor | None = None
-    """int [M]: views that see each voxel directly (opaque there, not hidden behind the rendered surface)"""
     num_views: int = 0
     """views voted"""
     near: Tensor | None = None
-    """int [M]: views that see each voxel directly or within ``near_band_voxels`` behind their surface (None: not
+    """int [M]: views that see each voxel in front of or within ``near_band_voxels`` behind their surface (None: not
     counted, when no setting asks for the depth consensus)"""
 
 
@@ -167,14 +128,14 @@ def carve_votes(
     return carve_votes_many(grid, views, renders, [cfg], sdf=sdf, chunk=chunk, device=device)[0]
 
 
-VoteKey = tuple[float, float, float, float]
+VoteKey = tuple[float, float, float]
 
 
 def vote_key(cfg: CarveConfig) -> VoteKey:
     """The settings that the geometry variants and the partial-volume surface change and that the votes depend on
-    (mask margin, depth margin, absolute and relative, and the depth's move in front): settings whose keys are
-    equal, and whose other vote settings agree, share one voting pass."""
-    return cfg.mask_margin_px, cfg.depth_margin_voxels, cfg.depth_margin_rel, cfg.extent_multiple()
+    (mask margin, depth margin, absolute and relative): settings whose keys are equal, and whose other vote
+    settings agree, share one voting pass."""
+    return cfg.mask_margin_px, cfg.depth_margin_voxels, cfg.depth_margin_rel
 
 
 @torch.no_grad()
@@ -196,7 +157,7 @@ def carve_votes_many(
         batch_points = default_batch_points(device)
     M = grid.num_voxels if points is None else len(points)
     G = len(cfgs)
-    empty, depth_empty, direct = ([torch.zeros(M, dtype=torch.int32, device=device) for _ in cfgs] for _ in range(3))
+    empty, depth_empty = ([torch.zeros(M, dtype=torch.int32, device=device) for _ in cfgs] for _ in range(2))
     counts_near = renders is not None and any(c.depth_consensus > 0 and c.use_depth for c in cfgs)
     near = [torch.zeros(M, dtype=torch.int32, device=device) if c.depth_consensus > 0 else None for c in cfgs]
     seen = torch.zeros(M, dtype=torch.int32, device=device)
@@ -207,26 +168,12 @@ def carve_votes_many(
     lookup = cfgs[0].depth_lookup
     if any(c.depth_lookup != lookup for c in cfgs):
         raise ValueError("carve_votes_many: every setting must use the same depth_lookup.")
-    kind = cfgs[0].depth_render
-    if any((c.depth_render, c.mixed_depth_voxels) != (kind, cfgs[0].mixed_depth_voxels) for c in cfgs):
-        raise ValueError("carve_votes_many: every setting must use the same depth_render and mixed_depth_voxels.")
-    images = ([carve_depth(r, kind, cfgs[0].mixed_depth_voxels * grid.voxel_size).to(device) for r in renders]
-              if any_depth else [None] * len(views))  # fmt: skip
+    images = [r.depth.to(device) for r in renders] if any_depth else [None] * len(views)
     depth = ([(d, r.alpha.to(device), depth_slack(d, r.alpha.to(device), lookup=lookup) if slope else None)
               for d, r in zip(images, renders)] if any_depth else [None] * len(views))  # fmt: skip
-    use_spread = any_depth and any(c.front_spread > 0 or c.max_spread_voxels < float("inf") for c in cfgs)
-    if use_spread and any(r.spread is None for r in renders):
-        raise ValueError("carve_votes_many: front_spread / max_spread_voxels need renders with a depth spread "
-                         "(render_depth(..., spread=True)).")  # fmt: skip
-    spreads = [r.spread.to(device) for r in renders] if use_spread else [None] * len(views)
-    use_extent = any_depth and any(c.extent_multiple() > 0 for c in cfgs)
-    if use_extent and any(r.extent is None for r in renders):
-        raise ValueError("carve_votes_many: front_extent needs renders with their along-ray extent "
-                         "(render_depth(..., extent=True)).")  # fmt: skip
-    extents = [r.extent.to(device) for r in renders] if use_extent else [None] * len(views)
     shape = torch.as_tensor(grid.shape, device=device)
     rule = _Rule(cfgs, grid.voxel_size)
-    batches = _ViewBatch.group(views, cams, sdf, depth, spreads, lookup == "bilinear", extents)
+    batches = _ViewBatch.group(views, cams, sdf, depth, lookup == "bilinear")
     for s0 in range(0, M, chunk):  # voxel centres once per chunk, then every view
         flat = torch.arange(s0, min(M, s0 + chunk), device=device)
         if points is None:
@@ -236,16 +183,15 @@ def carve_votes_many(
             x = points[s0 : s0 + chunk].to(device=device, dtype=torch.float32)
         n_seen = torch.zeros(len(flat), dtype=torch.int32, device=device)
         # [G, n]: one row per setting
-        n_empty, n_depth, n_direct = (torch.zeros(G, len(flat), dtype=torch.int32, device=device) for _ in range(3))
+        n_empty, n_depth = (torch.zeros(G, len(flat), dtype=torch.int32, device=device) for _ in range(2))
         n_near = torch.zeros(G, len(flat), dtype=torch.int32, device=device) if counts_near else None
         for part in _ViewBatch.parts(batches, len(flat), batch_points):  # [B, n] per quantity
-            ok, z, dist, d, a, sl, sp, ex = part.lookup(x)
+            ok, z, dist, d, a, sl = part.lookup(x)
             if d is None:
                 vote = rule.silhouette(ok, dist)
             else:
-                vote, dvote, seen_directly, seen_near = rule.votes(ok, dist, z, d, a, sl, sp, ex)
+                vote, dvote, seen_near = rule.votes(ok, dist, z, d, a, sl)
                 _add_views(n_depth, dvote)
-                _add_views(n_direct, seen_directly)
                 if seen_near is not None and n_near is not None:
                     _add_views(n_near, seen_near)
             _add_views(n_empty, vote)
@@ -253,10 +199,10 @@ def carve_votes_many(
         sl = slice(s0, s0 + len(flat))
         seen[sl] = n_seen
         for g in range(G):
-            empty[g][sl], depth_empty[g][sl], direct[g][sl] = n_empty[g], n_depth[g], n_direct[g]
+            empty[g][sl], depth_empty[g][sl] = n_empty[g], n_depth[g]
             if n_near is not None and near[g] is not None:
                 near[g][sl] = n_near[g]
-    return [CarveVotes(empty[g], seen, depth_empty[g], direct[g], len(views), near[g] if any_depth else None)
+    return [CarveVotes(empty[g], seen, depth_empty[g], len(views), near[g] if any_depth else None)
             for g in range(G)]
 
 
@@ -271,9 +217,6 @@ def carved_by_votes(votes: CarveVotes, cfg: CarveConfig) -> Tensor:
         by_masks = (m >= cfg.min_votes) & (m >= cfg.min_vote_fraction * votes.seen.float())
         carved &= by_masks | (de >= cfg.depth_consensus * votes.near.float())
     carved |= votes.seen.float() < cfg.min_seen_fraction * votes.num_views
-    if votes.direct is not None and votes.depth_empty is not None and cfg.min_direct_fraction <= 1:
-        d = votes.direct.float()
-        carved |= (e >= cfg.min_votes) & (d > 0) & (votes.depth_empty.float() >= cfg.min_direct_fraction * d)
     return carved
 
 

@@ -7,10 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-__all__ = ["EXPECTED_DEPTH_EXTENT", "CarveConfig"]
+from .gaussians import SURFACE_TRANSMITTANCE
 
-EXPECTED_DEPTH_EXTENT = 2.0
-"""the default ``front_extent`` where the expected depth carves (gsplat): the module doc's k"""
+__all__ = ["CarveConfig"]
 
 
 @dataclass
@@ -33,31 +32,8 @@ class CarveConfig:
     """... plus this times the lookup's error bound at that pixel (:func:`depth_slack`: 0 on a plane with the
     bilinear lookup; half a pixel's depth change with the nearest); 0 = off"""
     min_alpha: float = 0.5
-    """pixels less opaque than this do not carve by depth"""
-    depth_render: Literal["auto", "expected", "median", "first"] = "auto"
-    """the rendered depth that carves (module doc, "First surface"): "expected", the blending-weighted mean of the
-    Gaussians' depths; "median", the depth where the transmittance crosses 1/2; "first", the expected depth
-    except where it lies more than ``mixed_depth_voxels`` behind the median (the pixel mixes surfaces), the
-    median there; "auto" (:func:`resolve_depth_render`): the median where the depth is rendered by the reference
-    rasterizer (CPU), the expected depth with gsplat (CUDA)"""
-    mixed_depth_voxels: float = 1.0
-    """"first": a pixel mixes surfaces when its expected depth lies this many voxels behind its median depth"""
-    front_spread: float = 0.0
-    """carve by depth only in front of depth - this times the pixel's depth spread about a plane
-    (:func:`.gaussians.depth_spread`): a front-surface estimate where a pixel mixes surfaces (module doc,
-    "First surface"); 0 = the expected depth"""
-    max_spread_voxels: float = float("inf")
-    """pixels whose depth spread exceeds this many voxels do not carve by depth (their depth is no surface)"""
-    front_extent: float | None = None
-    """carve with the rendered depth moved this many of its pixel's blended along-ray extents
-    (:func:`.gaussians.ray_extent`) towards the camera (module doc, "The Gaussians' depth"); 0 = the depth as
-    rendered; None (default): :data:`EXPECTED_DEPTH_EXTENT` (2) with the expected depth, 0 with the median and
-    "first" depths, which already lie in front of the centres (:meth:`extent_multiple`)"""
-    min_direct_fraction: float = 2.0
-    """... or at least this fraction of the views that see it directly see past it by depth (module doc);
-    > 1 (the default) switches the direct rule off: over the generated suite it carved the space under objects
-    but also thin bottoms that only a few poorly reconstructed low views see (a higher median APE with 0.5 than
-    without). 0.5 is the setting to try for a capture with views from below"""
+    """pixels less opaque than this do not carve by depth; at least ``1 - SURFACE_TRANSMITTANCE``
+    (:data:`.gaussians.SURFACE_TRANSMITTANCE`), under which a pixel has no surface depth"""
     depth_consensus: float = 0.5
     """a voxel that the silhouette votes alone do not carve is carved only when its depth votes are at least this
     fraction of the views that see it near or in front of their rendered surface (within ``near_band_voxels``
@@ -85,16 +61,9 @@ class CarveConfig:
             raise ValueError(f"CarveConfig.min_votes must be >= 1, got {self.min_votes}.")
         if not 0 <= self.min_vote_fraction <= 1:
             raise ValueError(f"CarveConfig.min_vote_fraction must be in [0, 1], got {self.min_vote_fraction}.")
-        if self.front_extent is not None and not self.front_extent >= 0:
-            raise ValueError(f"CarveConfig.front_extent must be >= 0 (or None: by the depth), got {self.front_extent}.")
+        if not 1 - SURFACE_TRANSMITTANCE <= self.min_alpha <= 1:
+            raise ValueError(f"CarveConfig.min_alpha must be in [{1 - SURFACE_TRANSMITTANCE:g}, 1] (a pixel less "
+                             f"opaque has no surface depth), got {self.min_alpha}.")
         if self.depth_margin_voxels < -1 or self.depth_margin_rel < 0:
             raise ValueError(f"CarveConfig: depth_margin_voxels must be >= -1 and depth_margin_rel >= 0, got "
                              f"{self.depth_margin_voxels} and {self.depth_margin_rel}.")
-
-    def extent_multiple(self) -> float:
-        """``front_extent`` resolved: as set, or (None) :data:`EXPECTED_DEPTH_EXTENT` where the depth that
-        carves is the expected depth, else 0 (an unresolved ``depth_render="auto"`` carves with the median
-        where the render has one)."""
-        if self.front_extent is not None:
-            return float(self.front_extent)
-        return EXPECTED_DEPTH_EXTENT if self.depth_render == "expected" else 0.0

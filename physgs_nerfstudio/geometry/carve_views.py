@@ -1,7 +1,7 @@
 """Each view's empty votes for voxel centres, the per-view half of the carving (the rule: carve.py's module
 doc). A centre is projected into every view and its signed distance to the view's mask boundary read
-bilinearly (:func:`signed_mask_distance`); the rendered depth that carves (:func:`resolve_depth_render`,
-:func:`carve_depth`) is looked up there, with its slack, the lookup's error bound (:func:`depth_slack`).
+bilinearly (:func:`signed_mask_distance`); the rendered surface depth (:func:`.gaussians.render_depth`) is looked
+up there, with its slack, the lookup's error bound (:func:`depth_slack`).
 Views of one image size are looked up together (:class:`_ViewBatch`), and :class:`_Rule` turns what they
 read into the votes of several settings at once: :func:`.carve.carve_votes_many` counts them per voxel,
 :func:`mask_view_votes` gives each view's mask votes alone.
@@ -19,17 +19,14 @@ from jaxtyping import Float
 from torch import Tensor
 
 from .capture import CaptureView
-from .gaussians import ViewRender
 
 if TYPE_CHECKING:
     from .carve_config import CarveConfig
 
 __all__ = [
-    "carve_depth",
     "default_batch_points",
     "depth_slack",
     "mask_view_votes",
-    "resolve_depth_render",
     "signed_mask_distance",
     "signed_mask_distances",
 ]
@@ -114,39 +111,6 @@ def _sample(img: Tensor, u: Tensor, v: Tensor) -> Tensor:
     return sum(img[yy, xx] * w for yy, xx, w in _corners(img.shape, u, v))
 
 
-def resolve_depth_render(kind: str, backend: str) -> str:
-    """``depth_render`` with "auto" resolved for the rasterizer ``backend`` ("gsplat" or "reference") that renders
-    the depth. Why it depends on it: the demo's and CI's short CPU trainings (16 views at 96 px, reference
-    rasterizer) leave semi-transparent surface layers whose expected depth lies behind the first surface, so
-    carving by it erodes compact solids, and the median depth is the first surface's; the GPU runs (60 views at
-    512 px, 7,000 steps) have sharp surfaces, whose expected depth already is the first surface, and the median
-    depth has no gsplat kernel (the reference compositor on CUDA costs about 2.6 s more per export at 1M
-    Gaussians)."""
-    if kind != "auto":
-        return kind
-    return "median" if backend == "reference" else "expected"
-
-
-def carve_depth(render: ViewRender, kind: str, mixed: float = 0.0) -> Tensor:
-    """float [H, W]: the depth image that carves (:class:`.carve.CarveConfig` ``depth_render``; ``mixed``: the
-    "first" rule's threshold in depth units). "median" and "first" need a render with its median depth, unless
-    the render's ``depth`` already is the median; "auto" (not resolved by :func:`resolve_depth_render`): the
-    render's median where it has one, else its depth. (``front_extent`` moves it by the looked-up extent, per
-    setting, in the vote.)"""
-    if kind == "auto":
-        kind = "median"
-    if kind == "expected" or (kind == "median" and render.median is None):
-        return render.depth
-    if render.median is None:
-        raise ValueError("carve_depth: depth_render 'first' needs renders with their median depth "
-                         "(render_depth(..., depth='both')).")  # fmt: skip
-    if kind == "median":
-        return render.median
-    if kind != "first":
-        raise ValueError(f"carve_depth: unknown depth_render {kind!r}")
-    return torch.where(render.depth - render.median > mixed, render.median, render.depth)
-
-
 def default_batch_points(device: torch.device | str) -> int:
     """(point, view) pairs looked up at once: many on a GPU (fewer kernel launches), one view at a time on the CPU
     (no faster batched there)."""
@@ -186,22 +150,17 @@ class _ViewBatch:
 
     @classmethod
     def group(cls, views: Sequence[CaptureView], cams: list[tuple[Tensor, Tensor, Tensor]], sdf: list[Tensor],
-              depth: list, spreads: list, bilinear: bool, extents: list | None = None) -> list[_ViewBatch]:  # fmt: skip
+              depth: list, bilinear: bool) -> list[_ViewBatch]:  # fmt: skip
         """The views grouped by the sizes and types of their images (in their order)."""
         groups: dict[tuple, list[int]] = {}
         per_view = []
-        extents = extents if extents is not None else [None] * len(views)
-        for i, (sd, dz, spr, ext) in enumerate(zip(sdf, depth, spreads, extents)):
+        for i, (sd, dz) in enumerate(zip(sdf, depth)):
             around = {"sdf": sd}
             held: dict[str, Tensor] = {}
             if dz is not None:
                 held = {"depth": dz[0], "alpha": dz[1]}
                 if dz[2] is not None:
                     held["slack"] = dz[2]
-                if spr is not None:
-                    held["spread"] = spr
-                if ext is not None:
-                    held["extent"] = ext
                 if bilinear:
                     around.update({k: v for k, v in held.items() if k != "slack"})
             per_view.append((around, held))
@@ -268,11 +227,10 @@ class _ViewBatch:
 
     def lookup(self, x: Tensor) -> tuple[Tensor, ...]:
         """[B, n] each, for voxel centres ``x`` [n, 3]: whether the view frames the centre, its camera depth, the mask
-        distance there (:func:`_sample`), and the depth, alpha, slack, spread and along-ray extent that the vote reads
-        (None where not rendered): the depth, the spread and the extent bilinear from the opaque pixels (alpha >= 0.5)
-        among the four around the point, their bilinear weights renormalised (the depth +inf and the others 0 where
-        none is opaque), or else
-        the pixel's own; the alpha and the slack the pixel's own."""
+        distance there (:func:`_sample`), and the depth, alpha and slack that the vote reads (None where not
+        rendered): the depth bilinear from the opaque pixels (alpha >= 0.5) among the four around the point, their
+        bilinear weights renormalised (+inf where none is opaque), or else the pixel's own; the alpha and the slack
+        the pixel's own."""
         pc = (torch.stack([x @ R.T + t for R, t, _ in self.cams]) if len(self) > 1
               else (x @ self.cams[0][0].T + self.cams[0][1])[None])  # [B, n, 3], each view's as on its own
         z = pc[..., 2]
@@ -295,7 +253,7 @@ class _ViewBatch:
         vals, weights = at["sdf"]
         dist = sum(s * cw for s, cw in zip(vals, weights))
         if not self.held:
-            return ok, z, dist, None, None, None, None, None  # type: ignore[return-value]
+            return ok, z, dist, None, None, None  # type: ignore[return-value]
         if len(self) == 1:
             ui = u.floor().long().clamp(0, self.views[0].width - 1)
             vi = v.floor().long().clamp(0, self.views[0].height - 1)
@@ -306,24 +264,18 @@ class _ViewBatch:
         for stack, shape, names in self.held:
             px.update(zip(names, self._gather(stack, shape, vi, ui)))
         d, a, sl = px["depth"], px["alpha"], px.get("slack")
-        extra = {n: px[n] for n in ("spread", "extent") if n in px}
         if self.bilinear:
             depth, weights = at["depth"]
             alpha = at["alpha"][0]
             num = torch.zeros_like(u)
             den = torch.zeros_like(u)
-            nums = {n: torch.zeros_like(u) for n in extra}
             for k, cw in enumerate(weights):
                 good = alpha[k] >= 0.5
                 cw = torch.where(good, cw, 0.0)
                 num += cw * torch.where(good, depth[k], 0.0)
-                for n, acc in nums.items():
-                    acc += cw * torch.where(good, at[n][0][k], 0.0)
                 den += cw
-            has = den > 0
-            d = torch.where(has, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
-            extra = {n: torch.where(has, acc / den.clamp_min(1e-12), torch.zeros_like(acc)) for n, acc in nums.items()}
-        return ok, z, dist, d, a, sl, extra.get("spread"), extra.get("extent")
+            d = torch.where(den > 0, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
+        return ok, z, dist, d, a, sl
 
 class _Rule:
     """The carving rule of several settings at once, as [G, n] comparisons against [G, 1] columns of the settings'
@@ -337,12 +289,8 @@ class _Rule:
             "margin_rel": [c.depth_margin_rel for c in cfgs],
             "slope": [c.depth_slope_margin for c in cfgs],
             "min_alpha": [c.min_alpha for c in cfgs],
-            "front_spread": [c.front_spread for c in cfgs],
-            "front_extent": [c.extent_multiple() for c in cfgs],
-            "max_spread": [c.max_spread_voxels * voxel_size for c in cfgs],
             "use_depth": [c.use_depth for c in cfgs],
             "has_slope": [c.depth_slope_margin > 0 for c in cfgs],
-            "has_max_spread": [c.max_spread_voxels < float("inf") for c in cfgs],
             "near_band": [c.near_band_voxels * voxel_size for c in cfgs],
             "consensus": [c.depth_consensus > 0 for c in cfgs],
             "near_inset": [c.near_inset_px for c in cfgs],
@@ -369,15 +317,12 @@ class _Rule:
         """bool [G, n]: the mask votes."""
         return ok & (dist > self.col("mask_margin", dist))
 
-    def votes(self, ok: Tensor, dist: Tensor, z: Tensor, d: Tensor, a: Tensor, sl: Tensor | None,
-              sp: Tensor | None, ex: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:  # fmt: skip
+    def votes(self, ok: Tensor, dist: Tensor, z: Tensor, d: Tensor, a: Tensor, sl: Tensor | None
+              ) -> tuple[Tensor, Tensor, Tensor | None]:  # fmt: skip
         """bool [G, n] each (or [1, n] where every setting gives the same): the empty votes, the depth votes among
-        them, whether the view sees the voxel directly, and whether near its surface (None when no setting asks
-        for the depth consensus)."""
-        like = d  # [B, n]: the columns' shape ([G, 1, 1]) whatever the depth's below
-        # the surface in front of the Gaussians' centres (carve.py's module doc, "The Gaussians' depth")
-        if ex is not None:
-            d = d - self.col("front_extent", ex) * ex
+        them, and whether the view sees the voxel near its surface (None when no setting asks for the depth
+        consensus)."""
+        like = d  # [B, n]: the columns' shape ([G, 1, 1])
         margin = self.col("margin_abs", like) + self.col("margin_rel", like) * d
         slope = self.every("has_slope")
         if sl is not None and slope is not False:
@@ -386,15 +331,7 @@ class _Rule:
         inside = ok & (dist <= self.col("mask_margin", dist)) & (a >= self.col("min_alpha", a))
         if not self.every("use_depth"):
             inside = inside & self.col("use_depth", ok, torch.bool)
-        front = d
-        if sp is not None:
-            front = d - self.col("front_spread", sp) * sp
-            capped = self.every("has_max_spread")
-            if capped:
-                inside = inside & (sp <= self.col("max_spread", sp))
-            elif capped is None:
-                inside = inside & ((sp <= self.col("max_spread", sp)) | ~self.col("has_max_spread", sp, torch.bool))
-        dvote = inside & (z < front - margin)
+        dvote = inside & (z < d - margin)
         near = None
         if self.every("consensus") is not False:
             # a view has a say about the voxel only where it could have voted: the voxel falls clearly inside its
@@ -403,7 +340,7 @@ class _Rule:
             band = self.col("near_band", like)
             deep = dist <= self.col("mask_margin", dist) - self.col("near_inset", dist)
             near = inside & deep & (z <= d + margin + band) & (margin <= band)
-        return self.silhouette(ok, dist) | dvote, dvote, inside & (z <= d + margin), near
+        return self.silhouette(ok, dist) | dvote, dvote, near
 
 
 
@@ -416,8 +353,7 @@ def mask_view_votes(x: Tensor, views: Sequence[CaptureView], sdf: Sequence[Tenso
     (:func:`.carve.carve_votes_many`), views of one image size together."""
     dev = x.device
     cams = [(v.viewmat[:3, :3].to(dev), v.viewmat[:3, 3].to(dev), v.K.to(dev)) for v in views]
-    none = [None] * len(views)
-    batches = _ViewBatch.group(views, cams, list(sdf), none, none, False)
+    batches = _ViewBatch.group(views, cams, list(sdf), [None] * len(views), False)
     framed = torch.zeros(len(views), len(x), dtype=torch.bool, device=dev)
     outside = torch.zeros_like(framed)
     points = batch_points if batch_points is not None else default_batch_points(dev)

@@ -31,9 +31,6 @@ class GeometryConfig:
     """(min_votes, min_vote_fraction) pairs"""
     depth_margin_variants: tuple[float, ...] = (-0.5, 1.0)
     """depth margins in voxels (negative: also carve up to that much behind the rendered surface)"""
-    front_extent_variants: tuple[float, ...] = (-1.0, 1.0)
-    """where the depth is moved in front by its extent (``carve.front_extent``, :meth:`CarveConfig.extent_multiple`
-    > 0): the multiple of the extent moved by these much more or less (not below 0), one variant each"""
     pad_fraction: float = 0.1
     """domain padding around the object's Gaussians, as a fraction of their extent"""
     refit_fraction: float = 0.5
@@ -73,7 +70,7 @@ class GeometryConfig:
     half"); documented range 8-9"""
     sheet_voxels: float | None = None
     """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels; None =
-    the nominal depth margin + 1, or + 2 when the median depth carves (it keeps both surfaces of a wall)"""
+    the nominal depth margin + 2 (the surface depth keeps both surfaces of a wall, in front of their Gaussians)"""
     min_plate: float = 0.25
     """a sheet face counts half only where the thin solid is a plate: the second-largest spread of its voxels is at
     least this times the largest (:func:`.parts.part_areas`; a rod's faces are its one outer side); 0 = always"""

@@ -10,146 +10,79 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal, TypeVar
+from typing import Any, TypeVar
 
 import torch
 from jaxtyping import Float
 from torch import Tensor
 
 from ..lifting import group_views, lift_views
-from ..render import rasterize, reference_median_depth
+from ..render import rasterize, reference_surface_depth
 from ..render.backend import resolve_backend
-from ..render.projection import quat_to_rotmat
 from .capture import CaptureView
 
-__all__ = ["ViewRender", "depth_spread", "lift_masks", "lift_masks_and_labels", "ray_extent", "render_depth",
+__all__ = ["SURFACE_TRANSMITTANCE", "ViewRender", "lift_masks", "lift_masks_and_labels", "render_depth",
            "surface_excess", "surface_views"]
 
 logger = logging.getLogger(__name__)
 _T = TypeVar("_T")
 
 
+SURFACE_TRANSMITTANCE = 0.8
+"""The transmittance at which a pixel's ray reaches the object's surface: the depth that carves
+(:func:`render_depth`) is the first Gaussian's along the ray at which the light that passes drops to this share
+(the ray has lost a fifth of its light), and a pixel whose alpha never reaches ``1 - SURFACE_TRANSMITTANCE`` has
+no surface depth (+inf; it does not carve by depth, :attr:`.carve_config.CarveConfig.min_alpha` >= 0.2).
+
+Physically: a trained splat draws a surface not as one opaque sheet but as a soft layer of semi-transparent
+Gaussians, a few millimetres to a centimetre deep, whose centres lie on both sides of the true surface. Every
+point of space that a view renders in front of its depth is carved, so the depth must lie at or in front of the
+true surface in every view, or each view carves a shell off the object. The *expected* depth (the blending-weighted
+mean) lies inside the layer and is pulled towards any surface behind it; the *median* depth (transmittance 1/2)
+lies halfway into the layer (on path-traced renders of the development families, about a wall's thickness behind
+the true surface at the demo's settings); a depth where the ray has lost only a little light lies at the layer's
+front. Too high a transmittance (0.9 and above) reads the depth off the first faint Gaussians (floaters, the
+layer's fringe) and carves too little, so thin gaps and concavities fill. Why 0.8: docs/architecture.md, "Which
+depth carves", gives the comparison over the development families that chose it."""
+
+
 @dataclass
 class ViewRender:
     depth: Float[Tensor, "H W"]
-    """expected depth (camera z) where alpha > 0, else +inf"""
+    """the surface depth (camera z): where the ray's transmittance first crosses :data:`SURFACE_TRANSMITTANCE`;
+    +inf where alpha never reaches ``1 - SURFACE_TRANSMITTANCE`` (from :func:`render_depth` with ``surface=False``:
+    the expected depth where alpha > 0)"""
     alpha: Float[Tensor, "H W"]
-    spread: Float[Tensor, "H W"] | None = None
-    """the depth spread that a plane does not explain (:func:`depth_spread`), camera-z units; None = not rendered"""
-    median: Float[Tensor, "H W"] | None = None
-    """median depth (the transmittance crosses 1/2) where alpha >= 1/2, the expected depth elsewhere; None = not
-    rendered"""
-    extent: Float[Tensor, "H W"] | None = None
-    """the blending-weighted mean of the contributing Gaussians' extents along their rays (:func:`ray_extent`),
-    camera-z units, 0 where nothing is rendered; None = not rendered"""
-
-
-def depth_spread(m: Tensor) -> Tensor:
-    """float [H, W] from the blending-weighted moments ``m`` [H, W, 9] of the contributing Gaussians' centres
-    (z, u, v, z^2, u^2, v^2, zu, zv, uv; z camera depth, u, v pixel coordinates, each normalised by alpha): the
-    standard deviation of their depths about the least-squares plane z = a + b u + c v through them.
-
-    A pixel's expected depth mixes every Gaussian that its ray meets, weighted by blending weight. On one plane,
-    however oblique, the centres' depths differ only by the plane's slope across their image footprint, which the
-    fit removes: the spread is 0. It is large where the weights mix surfaces at different depths (the front and
-    the back of a thin part whose front is not opaque) or a curved surface across the pixel's footprint (a
-    sphere, a handle): there the expected depth lies *behind* the first surface. By Cantelli's inequality at most
-    1 / (1 + k^2) of the pixel's weight lies more than k spreads in front of the plane (k = 1: at most half, so
-    ``depth - spread`` is not behind the weighted median of the depths)."""
-    m = m.double()
-    mz, mu, mv = m[..., 0], m[..., 1], m[..., 2]
-    vzz = m[..., 3] - mz * mz
-    vuu = m[..., 4] - mu * mu
-    vvv = m[..., 5] - mv * mv
-    czu = m[..., 6] - mz * mu
-    czv = m[..., 7] - mz * mv
-    cuv = m[..., 8] - mu * mv
-    eps = 1e-6  # px^2: a pixel whose Gaussians share one centre explains nothing by the plane
-    a, b, d = vuu.clamp_min(0) + eps, cuv, vvv.clamp_min(0) + eps
-    det = (a * d - b * b).clamp_min(eps * eps)
-    explained = (d * czu * czu - 2 * b * czu * czv + a * czv * czv) / det
-    return (vzz - explained).clamp_min(0).sqrt().float()
-
-
-def ray_extent(means: Float[Tensor, "N 3"], quats: Float[Tensor, "N 4"], scales: Float[Tensor, "N 3"],
-               viewmat: Float[Tensor, "4 4"]) -> Float[Tensor, " N"]:  # fmt: skip
-    """float [N]: each Gaussian's extent along the ray from the camera ``viewmat`` through its centre, in camera-z
-    units: the standard deviation ``1 / sqrt(d^T Sigma^-1 d)`` of its density along the ray's unit direction ``d``
-    (the Gaussian restricted to the line), times ``d``'s camera-z component.
-
-    A rasterizer gives every pixel that a Gaussian covers the depth of its *centre*. A Gaussian that draws part of a
-    surface extends in front of its centre along the ray by about this much; for a flat Gaussian lying in a face
-    seen at an angle ``theta`` to its normal it is ``sigma_normal / cos(theta)`` along the ray: the face's thickness
-    as the ray crosses it, not the Gaussian's in-plane size."""
-    return _ray_extent(means, _axes_over_scales(quats, scales), viewmat)
-
-
-def _axes_over_scales(quats: Tensor, scales: Tensor) -> Tensor:
-    """float [N, 3, 3]: each Gaussian's axes (rotation columns) divided by its scales: ``d^T Sigma^-1 d`` is the
-    squared norm of ``d`` times it (view-independent, so computed once for every view)."""
-    return quat_to_rotmat(quats) / scales.clamp_min(1e-12)[:, None, :]
-
-
-def _ray_extent(means: Tensor, axes: Tensor, viewmat: Tensor) -> Tensor:
-    """:func:`ray_extent` from :func:`_axes_over_scales`."""
-    pc = means @ viewmat[:3, :3].T + viewmat[:3, 3]
-    d = pc / pc.norm(dim=-1, keepdim=True).clamp_min(1e-12)  # the ray's direction, camera frame
-    q = ((d @ viewmat[:3, :3]).unsqueeze(1) @ axes).squeeze(1).square().sum(-1)  # |R^T d / s|^2
-    return d[:, 2] / q.sqrt().clamp_min(1e-12)
 
 
 @torch.no_grad()
-def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto", spread: bool = False,
-                 depth: Literal["expected", "median", "both"] = "expected", extent: bool = False
+def render_depth(g: Any, views: Sequence[CaptureView], *, backend: str = "auto", surface: bool = True
                  ) -> list[ViewRender]:  # fmt: skip
-    """Expected depth and alpha of the Gaussians ``g`` in every view; with ``spread`` also the depth spread
-    about a plane (:func:`depth_spread`, from the weighted moments of the Gaussians' centres rendered as colours);
-    with ``extent`` the blended extent of the Gaussians along the rays (:func:`ray_extent`, a colour channel).
-    ``depth="median"``: the depth where the transmittance crosses 1/2
-    (:func:`physgs_nerfstudio.render.reference_median_depth`, on any device) where alpha reaches 1/2, the
-    expected depth elsewhere; "both": the expected depth in ``depth`` and the median in ``median``."""
-    if depth not in ("expected", "median", "both"):
-        raise ValueError(f"render_depth: depth must be 'expected', 'median' or 'both', got {depth!r}")
+    """The surface depth and the alpha of the Gaussians ``g`` in every view. The alpha is the rasterizer's
+    (``backend``: gsplat on CUDA, the reference rasterizer on CPU); the depth is where the ray's transmittance crosses
+    :data:`SURFACE_TRANSMITTANCE`, from the reference compositor
+    (:func:`physgs_nerfstudio.render.reference_surface_depth`, on the Gaussians' device: gsplat has no such mode).
+    ``surface=False``: the rasterizer's expected depth instead (no compositor pass), for callers that use the alpha
+    only (masks) or order whole renders by depth."""
     out = []
     # each attribute read once (on a subset view of a field, every read gathers its rows again)
     means, quats, scales, opacities = g.means, g.quats, g.scales, g.opacities
     dev = means.device
-    axes = _axes_over_scales(quats, scales) if extent else None
 
     def render(group: list[CaptureView]) -> list[ViewRender]:
         vm = torch.stack([v.viewmat.to(dev) for v in group])
         K = torch.stack([v.K.to(dev) for v in group])
-        channels = [[] for _ in group]  # per view: [N, C] colour blocks
-        for i, ch in enumerate(channels):
-            if spread:
-                ch.append(_centre_moments(means, vm[i], K[i]))
-            if extent:
-                ch.append(_ray_extent(means, axes, vm[i])[:, None])
-        if channels[0]:
-            colors = torch.stack([torch.cat(ch, -1) for ch in channels])
-            colors = colors[0] if len(group) == 1 else colors
-        else:
-            colors = torch.zeros(means.shape[0], 1, device=dev)
+        colors = torch.zeros(means.shape[0], 1, device=dev)
         rgbd, alpha, _ = rasterize(means, quats, scales, opacities, colors, vm, K, group[0].width, group[0].height,
                                    render_mode="RGB+ED", packed=False, backend=backend)  # fmt: skip
         rendered = []
         for i, v in enumerate(group):
             a = alpha[i, ..., 0]
             d = rgbd[i, ..., -1]
-            sp = ext = None
-            if spread:
-                m = rgbd[i, ..., :9] / a[..., None].clamp_min(1e-10)
-                sp = torch.where(a > 1e-3, depth_spread(m), torch.zeros_like(d))
-            if extent:
-                e = rgbd[i, ..., -2] / a.clamp_min(1e-10)
-                ext = torch.where(a > 1e-3, e, torch.zeros_like(d))
-            med = None
-            if depth != "expected":
-                med = reference_median_depth(means, quats, scales, opacities, vm[i], K[i], v.width, v.height)
-                med = torch.where(a > 1e-3, torch.where(torch.isfinite(med), med.to(d.dtype), d), float("inf"))
-                if depth == "median":
-                    d, med = med, None
-            rendered.append(ViewRender(torch.where(a > 1e-3, d, torch.full_like(d, float("inf"))), a, sp, med, ext))
+            if surface:
+                d = reference_surface_depth(means, quats, scales, opacities, vm[i], K[i], v.width, v.height,
+                                            transmittance=SURFACE_TRANSMITTANCE).to(d.dtype)  # fmt: skip
+            rendered.append(ViewRender(torch.where(a > 1e-3, d, torch.full_like(d, float("inf"))), a))
         return rendered
 
     for group in _view_groups(views, _views_per_call(backend, dev, means.shape[0])):
@@ -209,18 +142,6 @@ def surface_excess(means: Float[Tensor, "N 3"], views: Sequence[CaptureView], re
     for v, r in zip(views, renders):
         out = torch.minimum(out, _view_depth_excess(x, v, r, min_alpha))
     return out
-
-
-def _centre_moments(means: Tensor, vm: Tensor, K: Tensor) -> Tensor:
-    """float [N, 9]: the colours whose blend gives a pixel's moments of the Gaussians' centres (:func:`depth_spread`)
-    in the view ``vm``, ``K``: centred (depth about the Gaussians' median, pixels about the principal point) so
-    float32 keeps the variances: the spread is a small difference of second moments."""
-    pc = means @ vm[:3, :3].T + vm[:3, 3]
-    z = pc[:, 2]
-    zc = z.clamp_min(1e-6)
-    dz = z - z.median()
-    du, dv = K[0, 0] * pc[:, 0] / zc, K[1, 1] * pc[:, 1] / zc
-    return torch.stack([dz, du, dv, dz * dz, du * du, dv * dv, dz * du, dz * dv, du * dv], -1)
 
 
 _GAUSSIAN_VIEWS_PER_CALL = 8_000_000

@@ -22,14 +22,12 @@ import numpy as np
 import torch
 
 from ..bayes.mixture import material_mixture_weights
-from ..render.backend import resolve_backend
 from .capture import CaptureView, MaskObservation
 from .carve import (
     CarveConfig,
     VoteKey,
     carve_votes_many,
     hull_from_votes,
-    resolve_depth_render,
     signed_mask_distances,
     solid_from_votes,
     vote_key,
@@ -56,7 +54,7 @@ from .parts import (
 )
 from .select import ObjectSelection, outside_mask_hull, select_object
 from .structure import PartStructure, fuse_structure
-from .support import SupportPlane, find_resting_plane, views_up
+from .support import SupportPlane, align_to_plane, find_support, support_gaussians, views_up
 
 logger = logging.getLogger(__name__)
 
@@ -147,7 +145,8 @@ class ObjectGeometry:
                 "selected_gaussians": self.selection.num_selected,
                 "object_centre_scene": [float(x) for x in self.selection.centre],
                 "rests_on_plane": self.selection.plane is not None,
-                "support_plane_in_masks": self.selection.support is not None,
+                "support_plane_in_masks": self.selection.plane_in_masks,
+                "support_found": self.selection.support_found,
                 "on_support_gaussians": self.selection.on_support, "clusters": self.selection.num_clusters,
                 "split_from_gaussians": self.selection.split_from,
                 "object_name": self.selection.object_name,
@@ -179,17 +178,14 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
     import cv2
 
     sub = _Subset(g, selection.selected)
-    spread = cfg.carve.front_spread > 0 or cfg.carve.max_spread_voxels < float("inf")
-    kind = {"expected": "expected", "median": "median"}.get(cfg.carve.depth_render, "both")
-    renders = render_depth(sub, views, backend=cfg.backend, spread=spread, depth=kind,  # type: ignore[arg-type]
-                           extent=any(c.extent_multiple() > 0 for _, c in _variants(cfg)))  # fmt: skip
+    renders = render_depth(sub, views, backend=cfg.backend)
     k = 2 * cfg.object_mask_dilate_px + 1
     kernel = np.ones((k, k), np.uint8)
     ground: list[np.ndarray | None] = [None] * len(views)
     if selection.support is not None and bool(selection.support.any()):
         # the support plane took the masks with it (select.py, step 2): its pixels around the object are not the
         # object's, though the dilated silhouette reaches them
-        plane = render_depth(_Subset(g, selection.support), views, backend=cfg.backend)
+        plane = render_depth(_Subset(g, selection.support), views, backend=cfg.backend, surface=False)
         ground = [p.alpha.cpu().numpy() > 0.5 for p in plane]
     out = []
     replaced = 0
@@ -300,24 +296,36 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
     return cut, hull & inside, beyond, solids[0]
 
 
-def _resting_plane(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
-    """Set ``selection.plane`` to the plane the object rests on when the selection found no support plane among the
-    foreground (:func:`.support.find_resting_plane`; ``cfg.select.support.cut_below`` off: no plane, no cut)."""
+def _support_under(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
+    """Where the selection found no support plane among the foreground, find the support under the object among all
+    the Gaussians (:func:`.support.find_support`) and, in place, drop the object's Gaussians on or under it, set
+    ``selection.plane`` and ``selection.support`` (its Gaussians around the object, whose pixels the masks lose)."""
     sc = cfg.select.support
-    if not sc.cut_below:
-        selection.plane = None
+    if selection.plane is not None or not sc.enabled or not bool(selection.selected.any()):
         return
-    if selection.plane is not None or not sc.enabled:
-        return
-    opaque = g.opacities.reshape(-1) >= cfg.select.min_opacity
-    keep = opaque | selection.selected
-    means = g.means[keep].double().cpu().numpy()
+    keep = (g.opacities.reshape(-1) >= cfg.select.min_opacity) | selection.selected
+    idx = torch.nonzero(keep).squeeze(1)
+    means = g.means[idx].double().cpu().numpy()
+    sel = selection.selected[idx].cpu().numpy()
     cams = np.stack([v.centre.double().cpu().numpy() for v in views])
-    plane = find_resting_plane(means, selection.selected[keep].cpu().numpy(), cams, views_up(views), sc)
-    if plane is not None:
-        logger.info("object: resting on a plane found among the Gaussians around it (%.0f%% of them on it); the "
-                    "solid ends there", 100 * plane.share)  # fmt: skip
+    plane, why = find_support(means, sel, cams, views_up(views), sc)
+    selection.support_found = why
+    if plane is None:
+        logger.info("object: no support under it (%s)", why)
+        return
+    drop = sel & plane.drops(means)
+    if int(sel.sum() - drop.sum()) < 50:  # nothing of the object would be left above it: no support
+        selection.support_found = f"no support: the level layer around its base holds {drop[sel].mean():.0%} of it"
+        logger.info("object: %s", selection.support_found)
+        return
+    dev = selection.selected.device
+    selection.selected[idx[torch.from_numpy(drop).to(dev)]] = False
+    selection.on_support += int(drop.sum())
+    selection.support = torch.zeros_like(selection.selected)
+    selection.support[idx[torch.from_numpy(support_gaussians(means, sel & ~drop, plane)).to(dev)]] = True
     selection.plane = plane
+    logger.info("object: standing on a support (%s); %d of its Gaussians on or under it dropped", why,
+                int(drop.sum()))  # fmt: skip
 
 
 def _beyond_kept(raw: np.ndarray, beyond: np.ndarray) -> np.ndarray:
@@ -423,10 +431,6 @@ def _variants(cfg: GeometryConfig) -> list[tuple[str, CarveConfig]]:
     out += [(f"mask{m:+g}px", replace(base, mask_margin_px=base.mask_margin_px + m)) for m in cfg.mask_margin_variants_px]
     out += [(f"vote{k}/{q:g}", replace(base, min_votes=k, min_vote_fraction=q)) for k, q in cfg.vote_variants]
     out += [(f"depth{d:g}vox", replace(base, depth_margin_voxels=d)) for d in cfg.depth_margin_variants]
-    k = base.extent_multiple()
-    if k > 0:  # the surface's place in front of the centres is known to about one extent (docs/architecture.md)
-        out += [(f"front{k + d:g}x", replace(base, front_extent=k + d)) for d in cfg.front_extent_variants
-                if k + d >= 0]  # fmt: skip
     return out
 
 
@@ -471,14 +475,6 @@ class _Parts:
         return int(self.parts.max()) + 1
 
 
-def _resolved(cfg: GeometryConfig, g: Any) -> GeometryConfig:
-    """``cfg`` with ``carve.depth_render="auto"`` resolved for the backend that renders ``g``."""
-    if cfg.carve.depth_render != "auto":
-        return cfg
-    kind = resolve_depth_render("auto", resolve_backend(cfg.backend, g.means.device))  # type: ignore[arg-type]
-    return replace(cfg, carve=replace(cfg.carve, depth_render=kind))
-
-
 def _views_used(views: Sequence[CaptureView], cfg: GeometryConfig) -> list[CaptureView]:
     """The views that carve: all, or ``max_views`` of them evenly spaced."""
     views = list(views)
@@ -507,7 +503,7 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
                   cfg: GeometryConfig) -> _Carving:  # fmt: skip
     """Every variant's solid: carved on the selection's domain (again on a fitted grid, :func:`_refit`), cut to the
     seen Gaussians' polytope (:mod:`.extent`) and above the support plane, less the hidden open space."""
-    grid = _domain(g, selection.selected, cfg)
+    grid = align_to_plane(_domain(g, selection.selected, cfg), selection.plane)
     sdf = signed_mask_distances([v.mask for v in views])
     variants = _variants(cfg)
     wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
@@ -531,7 +527,7 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
     solids, hull, beyond, raw_nominal = carve(grid)
     fitted = _refit(grid, solids, cfg)
     if fitted is not None:
-        grid = fitted
+        grid = align_to_plane(fitted, selection.plane)
         solids, hull, beyond, raw_nominal = carve(grid)
     before_cuts = solids[0]
     solids, hull = _cut_below(grid, solids, hull, selection.plane)
@@ -640,8 +636,7 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
 def _surfaces(cv: _Carving, pp: _Parts, cfg: GeometryConfig, pixel_voxels: float, device: Any
               ) -> list[PartGeometry]:  # fmt: skip
     """Every variant's per-part wall areas, surfaces and curvatures (:func:`.parts.part_areas`)."""
-    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else (
-        cfg.carve.depth_margin_voxels + (2.0 if cfg.carve.depth_render == "median" else 1.0))
+    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else cfg.carve.depth_margin_voxels + 2.0
     concave = concavities(cv.hull, cv.solids[0], max(2.0, cfg.concavity_px * pixel_voxels))
 
     def areas(s: np.ndarray) -> PartGeometry:
@@ -695,14 +690,14 @@ def reconstruct_object(
     ``material_weights`` the field's weighting, for ``part_materials="pooled"`` (None: "voxels");
     ``dirichlet_prior``: the model's (alpha0, lambda) for ``part_materials="observations"`` (None: (1, 4), the
     fusion's defaults). ``progress(stage: str)`` is called as stages start."""
-    cfg = _resolved(cfg or GeometryConfig(), g)
+    cfg = cfg or GeometryConfig()
     step = progress or (lambda _s: None)
     views = _views_used(views, cfg)
     step("selecting the object")
     labels = object_labels(views, observations) if cfg.select.object_names is not None else None
     selection = select_object(g, views, cfg.select, backend=cfg.backend, labels=labels)
     _within_hull(g, selection, views, cfg)
-    _resting_plane(g, selection, views, cfg)
+    _support_under(g, selection, views, cfg)
     step("rendering depth")
     obj_views, renders = _object_views(g, selection, views, cfg)
     step("carving")

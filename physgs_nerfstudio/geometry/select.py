@@ -121,8 +121,6 @@ class SelectConfig:
     `indoor_room` the chair stands 15 cm from the table and stayed in its cluster (2.5-2.8x the table's volume).
     With ``contact_band`` the split links its parts only above the band, at its own reach (floaters near the floor
     otherwise link neighbouring objects). False: the coarse clusters alone"""
-    split_in_band: bool = False
-    """True: ``split_on_plane`` links the chosen cluster's parts through the contact band too"""
     object_names: float | None = None
     """the chosen cluster's Gaussians that one other object's name claims by more than this many views' evidence
     are dropped (module doc, step 3b; :mod:`.names`: a mug standing on the table; 1 is the tested value); None,
@@ -165,10 +163,16 @@ class ObjectSelection:
     on_support: int = 0
     """foreground Gaussians dropped as the support plane's (module doc, step 2)"""
     support: Tensor | None = None
-    """bool [N]: the support plane's Gaussians (within its tolerance of it), None when there is none"""
+    """bool [N]: the support plane's Gaussians (within its tolerance of it; found around the object, those around
+    it, :func:`.support.support_gaussians`), None when there is none"""
     plane: SupportPlane | None = None
-    """the plane the object stands on: the support plane found among the foreground (step 2), or the resting plane
-    found among all the Gaussians (:func:`.support.find_resting_plane`, set by the reconstruction); None: none"""
+    """the plane the object stands on: the support plane found among the foreground (step 2), or the support found
+    in the ring around the object's base among all the Gaussians (:func:`.support.find_support`, set by the
+    reconstruction); None: none"""
+    plane_in_masks: bool = False
+    """the plane was found among the foreground (step 2: the masks took it in)"""
+    support_found: str = ""
+    """how the support under the object was found, or why none was (:func:`.support.find_support`, for the report)"""
     split_from: int = 0
     """the chosen cluster's Gaussians before ``split_on_plane`` split it (0: not split; module doc, step 2)"""
     object_name: str | None = None
@@ -315,7 +319,7 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     split_from = 0
     if height is not None and cfg.split_on_plane:
         before = int(chosen.sum())
-        chosen = split_close(m_dev, chosen, centre, cfg, height=None if cfg.split_in_band else height,
+        chosen = split_close(m_dev, chosen, centre, cfg, height=height,
                              tol=plane.tol if plane is not None else 0.0)  # fmt: skip
         split_from = before if int(chosen.sum()) < before else 0
         logger.info("object: split at its own resolution over the support plane: %d of %d Gaussians kept",
@@ -335,5 +339,6 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
                 g.means.shape[0], len(ids))  # fmt: skip
     return ObjectSelection(prob, selected, centre, len(ids), on_support=on_support, support=support,
-                           plane=plane if support is not None else None, split_from=split_from, object_name=name,
+                           plane=plane if support is not None else None, plane_in_masks=support is not None,
+                           split_from=split_from, object_name=name,
                            other_object=other)  # fmt: skip

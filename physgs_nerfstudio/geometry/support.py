@@ -21,28 +21,47 @@ object's own flat bottom (a crate's, a shoe's sole) or top (a table's) is never 
   masks (:func:`seen_under_plane`): a table's legs from the low views. A splat draws a shiny floor's reflections
   with Gaussians under it, seen only through it (the GPU's ``indoor_room`` at 512 px: 27% of the foreground near
   the floor, which was rejected, and the room's whole floor came out as the object);
-* **wider than what stands on it**: the plane's inliers reach beyond the 5-95% quantiles (``wider_quantile``) of
+* **wider than what stands on it**: the plane's inliers reach beyond the 5-95% quantiles (``WIDER_QUANTILE``) of
   the rest of the foreground above it, over and beside its footprint at any height, on all four sides, by
   ``margin`` of that extent (an object's own bottom face *is* its footprint; a lamp's base has its shade overhanging
   it; a few floaters beside a floor do not move the quantiles);
 * **substantial**: it holds at least ``min_share`` of the foreground near it.
 
-Where the masks leave the floor out, :func:`find_resting_plane` runs the same search among all the Gaussians around
-the object, and the carved solid ends at the plane it finds (``cut_below``).
-
 The plane is fitted by RANSAC with the normal constrained to be level (three points from the lowest third of the
-foreground, best inlier count), refined by least squares on its inliers. The tolerance is the inliers' own
-thickness: ``tol_sigmas`` robust standard deviations (1.4826 x MAD) of their distances to the plane, at least
-``min_tol`` of the foreground's extent, so a rug on the floor (8 mm at demo settings, where a pixel covers
+foreground, best inlier count within ``SEARCH_BAND``), refined by least squares on its inliers. The tolerance is the
+inliers' own thickness: ``tol_sigmas`` robust standard deviations (1.4826 x MAD) of their distances to the plane, at
+least ``min_tol`` of the foreground's extent, so a rug on the floor (8 mm at demo settings, where a pixel covers
 3 cm of the floor) counts with it. A plane is a thin layer: when the refinement grows the tolerance past
-``max_tol_growth`` times the search's band, it cut through a diffuse cloud (a floor's reflections, the lowest
+``MAX_TOL_GROWTH`` times the search's band, it cut through a diffuse cloud (a floor's reflections, the lowest
 third of the GPU room's foreground), and the search is made again with the three points drawn from all the
-points (``sample_quantiles``). The Gaussians within the tolerance of the plane and below it are not the
+points (``SAMPLE_QUANTILES``). The Gaussians within the tolerance of the plane and below it are not the
 object's; those above it are clustered as before.
+
+The support under the object
+----------------------------
+Where the masks leave the floor out (the usual case: perception's whole masks hold the object, spilling onto the
+floor at its base), the search above finds nothing among the foreground, but the floor or table is still in the
+splat, all around the object. :func:`find_support` looks for it there, after the object is selected: the plane
+whose normal is the views' up direction (:func:`views_up`) through the Gaussians (all of them, the object's and
+the background's) in a *ring* around the object's *base* (``BASE_SHARE`` of its height above its lowest part), from
+``RING_GAP`` to ``RING_GAP + RING_WIDTH`` of its horizontal size beyond the base's footprint and within
+``RING_HEIGHT`` of its size of the base's height. RANSAC with the normal fixed level (every ring point's height a
+hypothesis, the band ``RING_BAND`` of the object's size), then least squares (the inliers' mean height) with the
+tolerance from their spread as above, at most ``MAX_TOL_BANDS`` bands. It is a support when its inliers cover
+``MIN_RING_COVERAGE`` of the ring's ``RING_SECTORS`` angular sectors (a level layer all around the base, not a ledge
+or a few floaters) and ``min_cameras_above`` of the cameras lie above it. An object's own faces lie inside the
+base's footprint or above the ring, so they are never in it; an object standing on nothing has an empty ring.
+
+What the plane then does (:mod:`.reconstruct`): the object's Gaussians on it (within its tolerance) or below it
+are dropped; the voxel grid is placed so that a layer of voxel faces lies on it (:func:`align_to_plane`) and the
+carved solid is cut there (no voxel straddles the contact); and each view's object mask loses the pixels whose
+rendered surface is the support's (the support's Gaussians around the object, :func:`support_gaussians`, rendered
+opaque where the object's are not): the masks' spill onto the floor carves nothing.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -53,8 +72,67 @@ from .capture import CaptureView
 from .carve import mask_view_votes, signed_mask_distances
 from .grid import VoxelGrid
 
-__all__ = ["SupportConfig", "SupportPlane", "find_resting_plane", "find_support_plane", "seen_under_plane",
-           "support_plane_or_reason", "views_up"]
+__all__ = ["MAX_TOL_BANDS", "SupportConfig", "SupportPlane", "align_to_plane", "find_support", "find_support_plane",
+           "seen_under_plane", "support_gaussians", "support_plane_or_reason", "views_up"]
+
+
+# Fixed rules (module doc), each with its physical meaning; not options.
+SEARCH_BAND = 0.01
+"""the foreground search's RANSAC band, as a share of the points' extent (5-95% quantiles): the thickness of a
+floor's layer of Gaussian centres at demo settings (a few millimetres on a metre of floor)"""
+SAMPLE_QUANTILES = (1 / 3, 1.0)
+"""the foreground search draws its planes' three points from the lowest this share of the points (heights along the
+views' up), each share in turn until a plane passes the tests: the lowest third first (a floor under a table top
+that the masks took in too), then all of them (a splat puts a shiny floor's reflections under it, and they are the
+lowest third: the GPU's ``indoor_room`` at 512 px)"""
+MAX_TOL_GROWTH = 3.0
+"""a plane is a thin layer: the foreground search's refined tolerance may be at most this many times its band;
+beyond, the "plane" is a cut through a diffuse cloud, whose tolerance grows with each refinement (2 m on the GPU's
+``indoor_room`` reflections)"""
+WIDER_QUANTILE = 0.05
+""""wider than what stands on it" compares the plane's footprint with the 5-95% quantiles of everything above it in
+its neighbourhood, beside the footprint too (a lamp's shade overhangs its base); quantiles, not extremes, so that a
+few floaters beside a floor (0.4-3% of what stands on the GPU ``indoor_room``'s floor) do not reject it"""
+FOOTPRINT_CELLS = 64
+"""cells along the longer side of a plane's footprint grid (:func:`seen_under_plane`)"""
+ITERATIONS = 200
+MAX_POINTS = 200_000
+"""the foreground search's RANSAC hypotheses, and the points it looks at at most (a random subset beyond)"""
+
+BASE_SHARE = 0.1
+""":func:`find_support`: the object's *base* is its Gaussians within this share of its height above its lowest
+ones (2% quantile): the feet of a table or a chair, a mug's or a bucket's bottom rim, a lying hammer's whole
+underside. Its footprint is where the support is hidden under the object; a tenth of the height holds the lowest
+part of every development family and none of a chair's seat or a lamp's shade"""
+RING_GAP = 0.05
+"""the ring starts this share of the object's horizontal size (1-99% quantiles) beyond the base's footprint: the
+base's own Gaussians spread across their surface by about their scale (a few millimetres), and the object's walls
+rising from its base are not the support's"""
+RING_WIDTH = 0.2
+"""... and is this share wide: a table top of the benchmark's layouts reaches at least a quarter of the object's
+size beyond it on every side (its shorter side is 1.5 times the object's footprint), so the ring lies on the
+support wherever the object stands on one"""
+RING_HEIGHT = 0.15
+"""the ring's Gaussians lie within this share of the object's size (its 3-D extent, 2-98% quantiles) of the base's
+lowest height, above or below: a floor that the masks left out lies at the object's bottom, one that they took in
+is the selection's bottom (its spill around the object), and the splat's reflections under a glossy floor lie
+deeper"""
+RING_SECTORS = 16
+"""the ring is cut into this many equal angles about the base's centre; a sector is covered when at least one of the
+plane's inliers lies in it (a floor seen from around its object is reconstructed all around it; 16 sectors of a
+mug's ring are about 2 cm of arc, a few Gaussians of a demo-settings floor)"""
+MIN_RING_COVERAGE = 0.75
+"""a support covers at least this share of the ring's sectors: a level layer all around the object's base, not a
+ledge or a few floaters on one side of it. Objects that stand on nothing (the generated presets) have no Gaussian
+in their ring; those on a floor or a table cover it whole, less the sectors that the object itself hides from
+every view (a chair's or a table's legs hide none)"""
+RING_BAND = 0.01
+"""the ring's RANSAC band (a level plane through each inlier candidate, counting the ring's Gaussians within this
+share of the object's size of it): about a voxel of the object's 128-voxel grid"""
+MAX_TOL_BANDS = 3
+"""the plane's tolerance, its inliers' robust thickness (``tol_sigmas`` x 1.4826 x their distances' MAD), is at most
+this many ring bands: uncapped, a fuzzy floor's tolerance grew to 4.6 cm under a path-traced pan and cut its
+bottom away; three bands hold a floor's centres at demo settings"""
 
 
 @dataclass
@@ -64,62 +142,24 @@ class SupportConfig:
     enabled: bool = True
     """look for a support plane at all"""
     max_tilt_deg: float = 25.0
-    """largest angle between its normal and the views' mean up direction"""
+    """largest angle between its normal and the views' mean up direction (the foreground search; the ring's plane
+    is level)"""
     max_below: float = 0.02
-    """largest share of the foreground near it that may lie below it"""
+    """largest share of the foreground near it that may lie below it (a table's legs, seen past its top from the
+    low views, are a tenth of the foreground near it; a floor's own scatter a per cent)"""
     min_cameras_above: float = 0.9
-    """smallest share of the cameras that must lie above it"""
+    """smallest share of the cameras that must lie above it (an object-centric capture of something standing on a
+    support is shot from above the support)"""
     margin: float = 0.05
     """its inliers reach beyond the footprint of what stands on it by this fraction of that footprint, every side"""
     min_share: float = 0.1
     """smallest share of the foreground near it that it holds"""
     tol_sigmas: float = 3.0
-    """inlier tolerance in robust standard deviations of the inliers' distances"""
+    """inlier tolerance in robust standard deviations of the inliers' distances (a Gaussian layer's whole
+    thickness: 99.7% of a normal spread)"""
     min_tol: float = 0.002
-    """the tolerance's floor, as a fraction of the foreground's extent (5-95% quantiles)"""
-    iterations: int = 200
-    max_points: int = 200_000
-    seed: int = 0
-    cut_below: bool = True
-    """the carved solid ends at the plane the object rests on (:func:`find_resting_plane`): voxels whose centres
-    lie below it are empty"""
-    resting_points: int = 50_000
-    """:func:`find_resting_plane` looks at this many of the Gaussians around the object's bottom at most"""
-    sample_quantiles: tuple[float, ...] = (1 / 3, 1.0)
-    """RANSAC draws its planes' three points from the lowest this share of the points (heights along the views' up),
-    each share in turn until a plane passes the tests: the lowest third first (a floor under a table top that the
-    masks took in too), then all of them (a splat puts a shiny floor's reflections under it, and they are the lowest
-    third: the GPU's `indoor_room` at 512 px)"""
-    max_tol_growth: float = 3.0
-    """a plane is a thin layer: its inliers' tolerance after the refinement (``tol_sigmas`` robust deviations) may be
-    at most this many times the search's band (1% of the points' extent); beyond, the "plane" is a cut through a
-    diffuse cloud, whose tolerance grows with each refinement (2 m on the GPU's `indoor_room` reflections)"""
-    below_seen_past: bool = True
-    """where the views are given (the selection's search among the foreground), the "below everything" test counts
-    only the points under the plane that some view sees past it on its foreground mask (:func:`seen_under_plane`): a
-    table's legs, seen from the low views. A splat puts a shiny floor's reflections under it, seen only through the
-    floor (the GPU's `indoor_room` at 512 px: 27% of the foreground near the floor lay under it, and the floor was
-    rejected). False: every point under the plane counts"""
-    over_footprint: bool = True
-    """the "below everything" test (and "wider than what stands on it" where ``wider_quantile`` is None) counts only
-    the points over or under the plane's footprint (its inliers' 1-99% box), not those beside it: a table's legs
-    stand under its top, and what stands on a floor stands over it. False: every point in the plane's neighbourhood,
-    beside it too (the GPU's
-    `indoor_room`: floaters beside the floor, a fifth of the points above it, reached past its edge, and the
-    backdrop's Gaussians lay below its level beyond it)"""
-    wider_quantile: float | None = 0.05
-    """"wider than what stands on it" compares the plane's footprint with the q to 1 - q quantiles of *everything*
-    above it in its neighbourhood, beside the footprint too: a lamp's base is no floor, for the shade standing on it
-    overhangs it (otherwise a lamp's base top can be taken for a support plane). The
-    quantiles, not the extremes, so that a few floaters beside a floor (0.4-3% of what stands on the GPU
-    `indoor_room`'s floor) do not reject it. None: the 1-99% quantiles of the points over the footprint only
-    (``over_footprint``)"""
-    footprint_cells: int = 64
-    """cells along the longer side of the plane's footprint grid (:func:`seen_under_plane`)"""
-
-    def __post_init__(self) -> None:
-        if self.wider_quantile is not None and not 0 <= self.wider_quantile < 0.5:
-            raise ValueError(f"SupportConfig.wider_quantile must be in [0, 0.5) or None, got {self.wider_quantile}.")
+    """the tolerance's floor, as a fraction of the foreground's extent (5-95% quantiles): the flatness of a
+    perfect splat's layer"""
 
 
 @dataclass
@@ -184,21 +224,21 @@ def support_plane_or_reason(means: np.ndarray, cameras: np.ndarray, up: np.ndarr
                             views: Sequence[CaptureView] | None = None) -> tuple[SupportPlane | None, str]:  # fmt: skip
     """:func:`find_support_plane`, with the test that the best plane failed when there is none (for the log).
     ``views`` (their cameras are ``cameras``): "below everything" counts only the points under the plane that some view
-    sees past it on its mask (``cfg.below_seen_past``, :func:`seen_under_plane`); None: every point under it."""
+    sees past it on its mask (:func:`seen_under_plane`); None: every point under it."""
     cfg = cfg or SupportConfig()
     if not cfg.enabled:
         return None, "off"
     if len(means) < 50:
         return None, f"{len(means)} points"
-    rng = np.random.default_rng(cfg.seed)
-    x = means[rng.permutation(len(means))[: cfg.max_points]] if len(means) > cfg.max_points else means
+    rng = np.random.default_rng(0)
+    x = means[rng.permutation(len(means))[:MAX_POINTS]] if len(means) > MAX_POINTS else means
     x = np.asarray(x, dtype=np.float64)
     up = np.asarray(up, dtype=np.float64) / max(np.linalg.norm(up), 1e-12)
     ext = float(np.max(np.quantile(x, 0.95, axis=0) - np.quantile(x, 0.05, axis=0)))
     if ext <= 0:
         return None, "no extent"
     why = []
-    for q in cfg.sample_quantiles:
+    for q in SAMPLE_QUANTILES:
         plane, reason = _search(x, cameras, up, ext, q, cfg, views, rng)
         if plane is not None:
             return plane, ""
@@ -211,11 +251,11 @@ def _search(x: np.ndarray, cameras: np.ndarray, up: np.ndarray, ext: float, quan
     """One RANSAC search with its planes' points drawn from the lowest ``quantile`` of ``x`` (module doc), and the
     acceptance tests; (the plane, "") or (None, the test the best plane failed)."""
     h = x @ up
-    tol0 = 0.01 * ext
+    tol0 = SEARCH_BAND * ext
     low = np.flatnonzero(h <= np.quantile(h, quantile))
     cos_max = np.cos(np.deg2rad(cfg.max_tilt_deg))
     best, best_n, best_d = -1, up, float(np.quantile(h, 0.01))
-    tri = low[rng.integers(0, len(low), size=(cfg.iterations, 3))]
+    tri = low[rng.integers(0, len(low), size=(ITERATIONS, 3))]
     p0, p1, p2 = x[tri[:, 0]], x[tri[:, 1]], x[tri[:, 2]]
     nrm = np.cross(p1 - p0, p2 - p0)
     ln = np.linalg.norm(nrm, axis=1)
@@ -223,7 +263,7 @@ def _search(x: np.ndarray, cameras: np.ndarray, up: np.ndarray, ext: float, quan
     nrm[ok] /= ln[ok, None]
     nrm *= np.sign(nrm @ up)[:, None]
     ok &= nrm @ up >= cos_max
-    for i in np.flatnonzero(ok):  # (at most ``iterations`` hypotheses, each one product over the points)
+    for i in np.flatnonzero(ok):  # (at most ``ITERATIONS`` hypotheses, each one product over the points)
         d = float(p0[i] @ nrm[i])
         cnt = int((np.abs(x @ nrm[i] - d) <= tol0).sum())
         if cnt > best:
@@ -241,7 +281,7 @@ def _search(x: np.ndarray, cameras: np.ndarray, up: np.ndarray, ext: float, quan
         r = x @ n - d
         mad = float(np.median(np.abs(r[np.abs(r) <= tol])))
         tol = max(cfg.tol_sigmas * 1.4826 * mad, cfg.min_tol * ext)
-    if tol > cfg.max_tol_growth * tol0:
+    if tol > MAX_TOL_GROWTH * tol0:
         return None, f"no thin layer (its inliers' spread grew to {tol / tol0:.0f}x the search's band)"
     r = x @ n - d
     on = np.abs(r) <= tol
@@ -254,10 +294,10 @@ def _search(x: np.ndarray, cameras: np.ndarray, up: np.ndarray, ext: float, quan
     beside = np.all((uv >= lo_on - 0.5 * size) & (uv <= hi_on + 0.5 * size), 1)  # over or beside it, any height
     near = beside & (np.abs(r) <= size)
     plane = SupportPlane(n, d, tol, float(on.sum() / max(near.sum(), 1)), size)
-    over = np.all((uv >= lo_on) & (uv <= hi_on), 1) if cfg.over_footprint else np.ones(len(uv), dtype=bool)
+    over = np.all((uv >= lo_on) & (uv <= hi_on), 1)
     under = near & (r < -tol) & over
-    if views is not None and cfg.below_seen_past and under.any():
-        under[under] = seen_under_plane(x[under], uv[on], n, d, tol, views, cfg.footprint_cells)
+    if views is not None and under.any():
+        under[under] = seen_under_plane(x[under], uv[on], n, d, tol, views, FOOTPRINT_CELLS)
     below = float(under.sum() / max(near.sum(), 1))
     if plane.share < cfg.min_share:
         return None, f"holds {plane.share:.1%} of the foreground near it (min_share {cfg.min_share:.0%})"
@@ -266,12 +306,10 @@ def _search(x: np.ndarray, cameras: np.ndarray, up: np.ndarray, ext: float, quan
     above = float((np.asarray(cameras, dtype=np.float64) @ n - d > tol).mean()) if len(cameras) else 1.0
     if above < cfg.min_cameras_above:
         return None, f"{above:.0%} of the cameras above it (min_cameras_above {cfg.min_cameras_above:.0%})"
-    rest = (near & over) if cfg.wider_quantile is None else beside
-    rest = rest & (r > tol)
+    rest = beside & (r > tol)
     if rest.sum() < 10:
         return None, "nothing stands on it"
-    q = 0.01 if cfg.wider_quantile is None else cfg.wider_quantile
-    lo_r, hi_r = np.quantile(uv[rest], q, axis=0), np.quantile(uv[rest], 1 - q, axis=0)
+    lo_r, hi_r = np.quantile(uv[rest], WIDER_QUANTILE, axis=0), np.quantile(uv[rest], 1 - WIDER_QUANTILE, axis=0)
     grow = cfg.margin * float(np.max(hi_r - lo_r))
     if np.any(lo_on > lo_r - grow) or np.any(hi_on < hi_r + grow):
         return None, "not wider than what stands on it"
@@ -325,37 +363,106 @@ def seen_under_plane(points: np.ndarray, inliers_uv: np.ndarray, n: np.ndarray, 
     return (n_on >= 2) & (2 * n_on >= n_past)
 
 
-def find_resting_plane(means: np.ndarray, selected: np.ndarray, cameras: np.ndarray, up: np.ndarray,
-                       cfg: SupportConfig | None = None) -> SupportPlane | None:  # fmt: skip
-    """The plane the object rests on, searched among *all* the Gaussians around it, or None.
+def _base_ring(p: np.ndarray, selected: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float, float] | None:
+    """The ring around the object's base (module doc, "The support under the object"), in the frame ``p`` [N, 3]
+    (horizontal, horizontal, up) of every Gaussian: (the ring's points' indices, their sector, the base's lowest
+    height, the object's size, its horizontal size), or None when the object has no extent."""
+    from scipy.spatial import cKDTree
 
-    The support plane of :func:`find_support_plane` is searched among the foreground only, for the case where the
-    masks took the floor in. Where they did not (perception's masks hold the object alone, the usual case), the
-    floor or table under the object is background, but it is still there in the splat, and it says where the object
-    ends below: nothing of the object lies under the surface it stands on, while the carving cannot tell, since no
-    view sees past the underside (the generated objects, which stand on no floor, keep about a voxel layer under
-    their bottoms: the lamp's steel base came out 1.3x its volume). ``means`` [N, 3]: every Gaussian's centre
-    (opaque enough to count); ``selected`` bool [N]: the object's. The points are the object's and every Gaussian
-    within the object's footprint grown by its size on each side and from half that size under its bottom up to
-    its top; the plane must pass all the tests of :func:`find_support_plane` on them (level, below everything,
-    wider than the object, substantial)."""
+    obj = p[selected]
+    lo3, hi3 = np.quantile(obj, 0.02, axis=0), np.quantile(obj, 0.98, axis=0)
+    size = float(np.max(hi3 - lo3))
+    if not size > 0:
+        return None
+    h0 = float(lo3[2])
+    base = obj[obj[:, 2] <= h0 + BASE_SHARE * (hi3[2] - lo3[2])]
+    if len(base) < 3:
+        return None
+    wide = float(np.max(np.quantile(obj[:, :2], 0.99, axis=0) - np.quantile(obj[:, :2], 0.01, axis=0)))
+    gap, width = RING_GAP * wide, RING_WIDTH * wide
+    blo, bhi = base[:, :2].min(0) - gap - width, base[:, :2].max(0) + gap + width
+    near = np.all((p[:, :2] >= blo) & (p[:, :2] <= bhi), 1) & (np.abs(p[:, 2] - h0) <= RING_HEIGHT * size)
+    idx = np.flatnonzero(near)
+    dist = cKDTree(base[:, :2]).query(p[idx, :2], k=1)[0]
+    ring = (dist > gap) & (dist <= gap + width)
+    idx = idx[ring]
+    c = base[:, :2].mean(0)
+    ang = np.arctan2(p[idx, 1] - c[1], p[idx, 0] - c[0])
+    sector = np.minimum(((ang + np.pi) / (2 * np.pi) * RING_SECTORS).astype(int), RING_SECTORS - 1)
+    return idx, sector, h0, size, wide
+
+
+def find_support(means: np.ndarray, selected: np.ndarray, cameras: np.ndarray, up: np.ndarray,
+                 cfg: SupportConfig | None = None) -> tuple[SupportPlane | None, str]:  # fmt: skip
+    """The support under the object (module doc, "The support under the object"): a level layer of Gaussians in a
+    ring around the object's base, or None, with the reason (for the log). ``means`` [N, 3]: every Gaussian's
+    centre (opaque enough to count); ``selected`` bool [N]: the object's; ``cameras`` [V, 3]: the camera centres;
+    ``up``: the views' up direction (:func:`views_up`), the plane's normal."""
     cfg = cfg or SupportConfig()
     means = np.asarray(means, dtype=np.float64)
-    obj = means[selected]
-    if not cfg.enabled or len(obj) < 50:
-        return None
+    if not cfg.enabled:
+        return None, "off"
+    if int(selected.sum()) < 50:
+        return None, f"{int(selected.sum())} object Gaussians"
     up = np.asarray(up, dtype=np.float64) / max(float(np.linalg.norm(up)), 1e-12)
-    frame = np.column_stack([_in_plane(up), up])  # horizontal, horizontal, up
-    p_obj = obj @ frame
-    lo, hi = np.quantile(p_obj, 0.01, axis=0), np.quantile(p_obj, 0.99, axis=0)
-    size = float(np.max(hi[:2] - lo[:2]))
-    if size <= 0:
-        return None
-    p = means @ frame
-    near = np.all((p[:, :2] >= lo[:2] - size) & (p[:, :2] <= hi[:2] + size), 1)
-    near &= (p[:, 2] >= lo[2] - 0.5 * size) & (p[:, 2] <= hi[2])
-    near |= selected
-    pts = means[near]
-    if len(pts) > cfg.resting_points:
-        pts = pts[np.random.default_rng(cfg.seed).permutation(len(pts))[: cfg.resting_points]]
-    return find_support_plane(pts, cameras, up, cfg)
+    p = means @ np.column_stack([_in_plane(up), up])  # horizontal, horizontal, up
+    found = _base_ring(p, selected)
+    if found is None:
+        return None, "no extent"
+    idx, sector, h0, size, wide = found
+    if len(idx) < RING_SECTORS:
+        return None, f"{len(idx)} Gaussians in the ring around its base"
+    h = p[idx, 2]
+    band = RING_BAND * size
+    hs = np.sort(h)  # RANSAC with a level normal, every ring point a hypothesis: the densest band of heights
+    counts = np.searchsorted(hs, hs + band, side="right") - np.searchsorted(hs, hs - band, side="left")
+    d, tol = float(hs[int(np.argmax(counts))]), band
+    for _ in range(20):  # least squares (the normal fixed level: the inliers' mean height), the tolerance their
+        # spread, until the layer stops moving (on a fuzzy floor the densest band is a noisy estimate of its middle)
+        d0, d = d, float(h[np.abs(h - d) <= tol].mean())
+        mad = float(np.median(np.abs(h[np.abs(h - d) <= tol] - d)))
+        tol = min(max(cfg.tol_sigmas * 1.4826 * mad, band), MAX_TOL_BANDS * band)
+        if abs(d - d0) < 1e-3 * band:
+            break
+    on = np.abs(h - d) <= tol
+    covered = len(np.unique(sector[on])) / RING_SECTORS
+    if covered < MIN_RING_COVERAGE:
+        return None, (f"its level layer covers {covered:.0%} of the ring around its base (min "
+                      f"{MIN_RING_COVERAGE:.0%}; {len(idx)} Gaussians in the ring)")  # fmt: skip
+    above = float((np.asarray(cameras, dtype=np.float64) @ up - d > tol).mean()) if len(cameras) else 1.0
+    if above < cfg.min_cameras_above:
+        return None, f"{above:.0%} of the cameras above it (min_cameras_above {cfg.min_cameras_above:.0%})"
+    plane = SupportPlane(up.copy(), d, tol, float(on.mean()), wide + 2 * (RING_GAP + RING_WIDTH) * wide)
+    return plane, (f"{covered:.0%} of the ring's sectors, {on.mean():.0%} of its {len(idx)} Gaussians, "
+                   f"{d - h0:+.3g} above the base, tolerance {tol:.3g}")  # fmt: skip
+
+
+def support_gaussians(means: np.ndarray, selected: np.ndarray, plane: SupportPlane) -> np.ndarray:
+    """bool [N]: the Gaussians of the support around the object, for the masks' trim: within ``plane``'s tolerance
+    of it, under the object's footprint grown by the ring (:func:`find_support`), the object's own excepted."""
+    means = np.asarray(means, dtype=np.float64)
+    B = _in_plane(plane.normal)
+    uv = means @ B
+    obj = uv[selected]
+    grow = (RING_GAP + RING_WIDTH) * float(np.max(obj.max(0) - obj.min(0))) if len(obj) else 0.0
+    box = np.all((uv >= obj.min(0) - grow) & (uv <= obj.max(0) + grow), 1) if len(obj) else np.zeros(len(uv), bool)
+    return box & (np.abs(plane.height(means)) <= plane.tol) & ~selected
+
+
+def align_to_plane(grid: VoxelGrid, plane: SupportPlane | None) -> VoxelGrid:
+    """``grid`` moved down by less than a voxel (and one voxel taller) along the axis nearest the plane's normal so
+    that a layer of its voxel faces lies on ``plane`` at the grid's centre: the solid's cut at the plane then
+    falls between voxels, and no voxel straddles the contact (exact when the normal is the axis; None: unchanged)."""
+    if plane is None:
+        return grid
+    n = np.asarray(plane.normal, dtype=np.float64)
+    a = int(np.argmax(np.abs(n)))
+    origin = np.asarray(grid.origin, dtype=np.float64)
+    centre = origin + 0.5 * grid.voxel_size * np.asarray(grid.shape)
+    others = [i for i in range(3) if i != a]
+    at = (plane.offset - sum(n[i] * centre[i] for i in others)) / n[a]  # the plane's coordinate along the axis
+    shift = (origin[a] - at) / grid.voxel_size
+    origin[a] -= (shift - math.floor(shift)) * grid.voxel_size
+    shape = list(grid.shape)
+    shape[a] += 1
+    return VoxelGrid(tuple(float(v) for v in origin), grid.voxel_size, tuple(shape))  # type: ignore[arg-type]

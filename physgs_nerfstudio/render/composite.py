@@ -326,12 +326,13 @@ def crossing_depth_image(
     level: float = 0.5,
     tile_size: int = 16,
     chunk_pairs: int | None = None,
+    values: Float[Tensor, " M"] | None = None,
 ) -> Float[Tensor, "H W"]:
     """Per pixel, the depth of the Gaussian at which the transmittance first drops to ``level`` or below, with
     :func:`composite_image`'s compositing (same pairs, order and termination); +inf where it never does. With
     ``level`` 0.5 this is the *median depth* of 3DGS surface reconstruction: the depth where the ray has
     accumulated half its opacity, which, unlike the expected depth, a semi-transparent layer behind does not
-    move."""
+    move. ``values``: that Gaussian's value instead of its depth (its index, as float64 ``arange(M)``)."""
     n_pix = width * height
     if chunk_pairs is None:
         chunk_pairs = max(16 * n_pix, 1 << 14)
@@ -347,7 +348,8 @@ def crossing_depth_image(
     params = torch.cat([means2d, conics, opacities[:, None].to(means2d.dtype)], dim=-1)
     log_t = torch.zeros(n_pix, dtype=torch.float64, device=means2d.device)
     done = torch.zeros(n_pix, dtype=torch.bool, device=means2d.device)
-    out = torch.full((n_pix,), float("inf"), dtype=depths.dtype, device=depths.device)
+    values = depths if values is None else values
+    out = torch.full((n_pix,), float("inf"), dtype=values.dtype, device=depths.device)
     for lo, hi in itertools.pairwise(bounds):
         if hi <= lo:
             continue
@@ -357,7 +359,7 @@ def crossing_depth_image(
         log_1m, log_t_excl, included = _transmittance_before(pairs, log_t)
         # the included pairs are a prefix of each pixel's (the transmittance only falls): at most one crosses
         cross = included & (log_t_excl > log_level) & (log_t_excl + log_1m <= log_level)
-        out[pix[cross]] = depths[ids][gid[cross]]
+        out[pix[cross]] = values[ids][gid[cross]]
         done[pix[~included]] = True
         log_t = log_t.index_add(0, pix[included], log_1m[included])
     return out.reshape(height, width)

@@ -15,7 +15,7 @@ from jaxtyping import Float
 from torch import Tensor
 
 from .composite import composite_image, crossing_depth_image
-from .projection import covariance_3d, project_gaussians
+from .projection import covariance_3d, project_gaussians, quat_to_rotmat
 from .sh import eval_sh_colors
 
 RENDER_MODES = ("RGB", "D", "ED", "RGB+D", "RGB+ED")
@@ -217,7 +217,7 @@ def reference_rasterization(
 
 
 @torch.no_grad()
-def reference_median_depth(
+def reference_surface_depth(
     means: Float[Tensor, "N 3"],
     quats: Float[Tensor, "N 4"],
     scales: Float[Tensor, "N 3"],
@@ -227,14 +227,53 @@ def reference_median_depth(
     width: int,
     height: int,
     *,
-    level: float = 0.5,
+    transmittance: float,
     near_plane: float = 0.01,
     eps2d: float = 0.3,
 ) -> Float[Tensor, "H W"]:
-    """Per pixel the depth (camera z of the Gaussian's centre) at which the transmittance first drops to ``level``
-    (:func:`.composite.crossing_depth_image`; +inf where it never does), with the projection and compositing of
-    :func:`reference_rasterization` (classic mode). Runs on any device; gsplat has no such render mode."""
-    proj = project_gaussians(means, covariance_3d(quats, scales), viewmat[None], K[None], width, height, eps2d=eps2d,
+    """Per pixel the depth (camera z) at which the ray's transmittance first drops to ``transmittance`` or below, with
+    the projection and compositing of :func:`reference_rasterization` (classic mode): the depth of the densest
+    point along the pixel's ray of the Gaussian at which it does (:func:`.composite.crossing_depth_image` finds
+    that Gaussian; :func:`ray_peak_depth`); +inf where it never does, i.e. where the pixel's alpha stays under
+    ``1 - transmittance``. 0.5 is the *median depth* of 3-D Gaussian surface reconstruction. Why the ray's point,
+    not the Gaussian's centre: a pixel takes its light from Gaussians whose centres lie beside its ray, and on a face
+    seen at an angle the centres nearer the camera lie in front of the face where the ray meets it; the lower the
+    transmittance's level, the more it is set by such a Gaussian's fringe. Runs on any device; gsplat has no such
+    render mode."""
+    if not 0 < transmittance < 1:
+        raise ValueError(f"reference_surface_depth: transmittance must be in (0, 1), got {transmittance}")
+    cov = covariance_3d(quats, scales)
+    proj = project_gaussians(means, cov, viewmat[None], K[None], width, height, eps2d=eps2d,
                              near_plane=near_plane, far_plane=1e10, radius_clip=0.0, calc_compensations=False)  # fmt: skip
-    return crossing_depth_image(proj.means2d[0], proj.conics[0], opacities, proj.depths[0], proj.radii[0],
-                                proj.covars2d[0], width, height, level=level)  # fmt: skip
+    index = torch.arange(len(means), dtype=torch.float64, device=means.device)
+    hit = crossing_depth_image(proj.means2d[0], proj.conics[0], opacities, proj.depths[0], proj.radii[0],
+                               proj.covars2d[0], width, height, level=transmittance, values=index)  # fmt: skip
+    out = torch.full((height, width), float("inf"), dtype=means.dtype, device=means.device)
+    rows, cols = torch.nonzero(torch.isfinite(hit), as_tuple=True)
+    if len(rows):
+        gid = hit[rows, cols].long()
+        out[rows, cols] = ray_peak_depth(means[gid], quats[gid], scales[gid], viewmat, K, cols, rows).to(out.dtype)
+    return out
+
+
+def ray_peak_depth(means: Float[Tensor, "P 3"], quats: Float[Tensor, "P 4"], scales: Float[Tensor, "P 3"],
+                   viewmat: Float[Tensor, "4 4"], K: Float[Tensor, "3 3"], cols: Tensor, rows: Tensor
+                   ) -> Float[Tensor, " P"]:  # fmt: skip
+    """float64 [P]: the camera z of the densest point of Gaussian p (world ``means``, ``quats``, activated ``scales``)
+    along the ray through the centre of pixel (``rows[p]``, ``cols[p]``): with ``d`` the ray's direction scaled to
+    z = 1 and ``mu``, ``A`` the mean and inverse covariance in the camera frame, ``z = d^T A mu / d^T A d`` (the
+    density restricted to the line is a 1-D Gaussian with that mean), clamped to within 3 standard deviations of the
+    centre's depth (a ray that grazes a long Gaussian far from its centre)."""
+    R, t = viewmat[:3, :3].double(), viewmat[:3, 3].double()
+    mu = means.double() @ R.T + t
+    rot = R @ quat_to_rotmat(quats.double())  # the Gaussians' axes in the camera frame
+    s = scales.double().clamp_min(1e-12)
+    axes = rot / s[:, None, :]
+    A = axes @ axes.transpose(-1, -2)  # the inverse covariance
+    Kd = K.double()
+    d = torch.stack([(cols.double() + 0.5 - Kd[0, 2]) / Kd[0, 0], (rows.double() + 0.5 - Kd[1, 2]) / Kd[1, 1],
+                     torch.ones_like(cols, dtype=torch.float64)], -1)  # fmt: skip
+    Ad = (A @ d[:, :, None])[..., 0]
+    z = (Ad * mu).sum(-1) / (Ad * d).sum(-1).clamp_min(1e-300)
+    sd = (rot[:, 2, :] * s).norm(dim=-1)  # the density's standard deviation in camera z
+    return torch.minimum(torch.maximum(z, mu[:, 2] - 3 * sd), mu[:, 2] + 3 * sd)
