@@ -57,15 +57,16 @@ def test_box_volume_from_carving(box):
 def test_unselected_boundary_gaussians_still_block_the_depth(box):
     """A strict selection (object probability >= 0.9) leaves out the box's Gaussians whose footprints straddle the
     masks' edges, as a coarse segmentation leaves out an object's rim (benchmarks/README.md, session 25). Rendered
-    alone (the default), the selected ones are see-through where those are missing, and the depth carves the box
-    away; with the others of probability >= 0.2 rendered as occluders (``occluder_min_prob``) the box keeps its
-    volume, and the selection is the same."""
+    alone (the default), the selected ones are partly see-through where those are missing; at the median depth the
+    depth carved the box away there (under 0.9x), but the surface depth (transmittance 0.8) needs only a fifth of
+    the ray stopped, so the box keeps its volume alone (0.97x) as with the others of probability >= 0.2 rendered
+    as occluders (``occluder_min_prob``), and the selection is the same."""
     pf, views = box
     strict = _select(min_prob=0.9)
     alone = geometry_of(pf, views, select=strict)
     occluded = geometry_of(pf, views, select=strict, occluder_min_prob=0.2)
     assert int(alone.selection.selected.sum()) == int(occluded.selection.selected.sum()) < 0.9 * len(pf.means)
-    assert alone.volumes[0].sum() < 0.9 * 0.024
+    assert 0.95 * 0.024 <= alone.volumes[0].sum() <= 1.1 * 0.024
     assert 0.95 * 0.024 <= occluded.volumes[0].sum() <= 1.1 * 0.024
 
 
