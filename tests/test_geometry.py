@@ -61,6 +61,19 @@ def test_box_volume_from_carving(box):
     assert np.all(np.abs(geo.volumes.sum(1) / v - 1) < 0.25)
 
 
+def test_unselected_boundary_gaussians_still_block_the_depth(box):
+    """A strict selection (object probability >= 0.9) leaves out the box's Gaussians whose footprints straddle the
+    masks' edges, as a coarse segmentation leaves out an object's rim. Rendered
+    alone, the selected ones are partly see-through where those are missing; at the median depth the depth carved
+    the box away there (under 0.9x), but the surface depth (transmittance 0.8) needs only a fifth of the ray
+    stopped, so the box keeps its volume (0.97x)."""
+    pf, views = box
+    strict = _select(min_prob=0.9)
+    alone = geometry_of(pf, views, select=strict)
+    assert int(alone.selection.selected.sum()) < 0.9 * len(pf.means)
+    assert 0.95 * 0.024 <= alone.volumes[0].sum() <= 1.1 * 0.024
+
+
 def test_lifting_falls_back_to_one_view_per_call_when_a_group_runs_out_of_gpu_memory(box, monkeypatch, caplog):
     """A group of views in one rasterizer call that runs out of GPU memory is lifted again view by view: the same
     evidence, and a warning instead of a failed export."""
