@@ -9,7 +9,7 @@ import math
 
 import pytest
 import torch
-from helpers.shapes import flat_gaussians, geometry_of, ring_views
+from helpers.shapes import flat_gaussians, geometry_of, ring_views, whole_voxel_volume
 
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import CarveConfig
@@ -59,8 +59,8 @@ def sphere():
 
 def _volume_ratio(pf, views) -> float:
     # whole voxels: the depth rule's carving alone, without partial volume's shares
-    geo = geometry_of(pf, views, resolution=48, variants=False, boundary_subsamples=1, carve=CarveConfig())
-    return float(geo.volumes[0].sum()) / (4 / 3 * math.pi * RADIUS**3)
+    geo = geometry_of(pf, views, resolution=48, variants=False, carve=CarveConfig())
+    return whole_voxel_volume(geo) / (4 / 3 * math.pi * RADIUS**3)
 
 
 def test_the_surface_depth_keeps_a_soft_layers_solid(sphere):
