@@ -14,6 +14,7 @@ from helpers.shapes import (
     box_surface,
     flat_gaussians,
     geometry_of,
+    pixel_rays,
     ring_views,
     whole_voxel_volume,
 )
@@ -185,7 +186,7 @@ def test_the_support_around_the_object_ends_the_solid_between_voxels():
     from physgs_nerfstudio.geometry.select import SelectConfig
     from physgs_nerfstudio.geometry.support import SupportConfig
 
-    pf, only_obj, obj = box_on_floor()
+    pf, only_obj, _ = box_on_floor()
     views = ring_views(pf, (0, 0, 0.15), 1.6, elevations=(15.0, 40.0, 70.0), mask_pf=only_obj)
     geo = geometry_of(pf, views, resolution=40)
     plane = geo.selection.plane
@@ -568,12 +569,7 @@ def exact_capsule_masks(views, length, radius):
     seg = torch.zeros(101, 3, dtype=torch.float64)
     seg[:, 2] = torch.linspace(-length / 2, length / 2, 101, dtype=torch.float64)
     for v in views:
-        R, t, K = v.viewmat[:3, :3].double(), v.viewmat[:3, 3].double(), v.K.double()
-        c = -R.T @ t
-        ys, xs = torch.meshgrid(torch.arange(v.height, dtype=torch.float64) + 0.5,
-                                torch.arange(v.width, dtype=torch.float64) + 0.5, indexing="ij")  # fmt: skip
-        d = torch.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], torch.ones_like(xs)], -1) @ R
-        d = d / d.norm(dim=-1, keepdim=True)
+        c, d = pixel_rays(v)
         best = torch.full((v.height, v.width), float("inf"), dtype=torch.float64)
         for p in seg:
             w = p - c

@@ -9,7 +9,7 @@ import math
 
 import pytest
 import torch
-from helpers.shapes import flat_gaussians, geometry_of, ring_views, whole_voxel_volume
+from helpers.shapes import flat_gaussians, geometry_of, pixel_rays, ring_views, whole_voxel_volume
 
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import CarveConfig
@@ -41,12 +41,7 @@ def soft_sphere(opacity: float = 0.12):
     pf = field_from(means, scales, quats, densities=[1000.0], names=["c"], thickness_m=[None], opacity=opacity)
     views = ring_views(pf, (0, 0, 0), 0.9, n=8, elevations=(-30.0, 10.0, 45.0))
     for v in views:  # pixel-centre rays that pass within RADIUS of the centre
-        R, t, K = v.viewmat[:3, :3].double(), v.viewmat[:3, 3].double(), v.K.double()
-        c = -R.T @ t
-        ys, xs = torch.meshgrid(torch.arange(v.height, dtype=torch.float64) + 0.5,
-                                torch.arange(v.width, dtype=torch.float64) + 0.5, indexing="ij")  # fmt: skip
-        d = torch.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], torch.ones_like(xs)], -1) @ R
-        d = d / d.norm(dim=-1, keepdim=True)
+        c, d = pixel_rays(v)
         s = (d @ -c).clamp_min(0)
         v.mask = (c + s[..., None] * d).norm(dim=-1) <= RADIUS
     return pf, views

@@ -141,3 +141,12 @@ def whole_voxel_volume(geo) -> float:
     space at half, without partial volume's shares (geometry/partial.py)."""
     edge = 0 if geo.hidden_edge is None else int(geo.hidden_edge.sum())
     return (int(geo.solid.sum()) - 0.5 * edge) * geo.grid.voxel_size**3
+
+
+def pixel_rays(v):
+    """A view's camera centre [3] and the unit directions [H, W, 3] of its pixel-centre rays (float64)."""
+    R, t, K = v.viewmat[:3, :3].double(), v.viewmat[:3, 3].double(), v.K.double()
+    ys, xs = torch.meshgrid(torch.arange(v.height, dtype=torch.float64) + 0.5,
+                            torch.arange(v.width, dtype=torch.float64) + 0.5, indexing="ij")  # fmt: skip
+    d = torch.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], torch.ones_like(xs)], -1) @ R
+    return -R.T @ t, d / d.norm(dim=-1, keepdim=True)
