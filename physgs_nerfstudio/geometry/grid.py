@@ -136,7 +136,7 @@ def splat(
     means: Float[Tensor, "n 3"],
     quats: Float[Tensor, "n 4"],
     scales: Float[Tensor, "n 3"],
-    opacities: Float[Tensor, n],
+    opacities: Float[Tensor, " n"],
     values: Float[Tensor, "n c"] | None = None,
     *,
     filter_sigma: float = 0.0,
