@@ -23,7 +23,7 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   volume unchanged (no part below 0). Which side of a seam holds the volume decides its density and whether it
   weighs at all (the inside of a hollow part does not), so this moves the mass where parts of unlike weight meet
   and not elsewhere.
-* **Unseen boundary** (``GeometryConfig.hidden_boundary`` "half", the default): the kept voxels on the boundary
+* **Unseen boundary** (:func:`physgs_nerfstudio.geometry.hidden.hidden_boundary`): the kept voxels on the boundary
   with the hidden open space (a top's unseen underside: :mod:`physgs_nerfstudio.geometry.hidden`, "The boundary with
   hidden open space") hold the object's surface somewhere inside them, or just past them. ``V_p`` counts them at
   half a voxel; each sample draws their occupancy ``o ~ U(0, 1)``, one for every such voxel of the object (one
