@@ -10,7 +10,7 @@ The robotics answer is the tabletop one: find the support plane and drop it, the
 the plane is searched among the foreground Gaussians' means, and only accepted when it is a support, so that an
 object's own flat bottom (a crate's, a shoe's sole) or top (a table's) is never taken for one:
 
-* **level**: its normal is within ``max_tilt_deg`` of the views' mean up direction (an object-centric capture is
+* **level**: its normal is within ``max_tilt_deg`` of the views' up direction (:func:`views_up`; an object-centric capture is
   shot from around and above its object);
 * **below everything**: at most ``max_below`` of the foreground near the plane (within half its size of its
   inliers' footprint, in the plane and in height: far floaters and background are other clusters) lies more than
@@ -191,11 +191,24 @@ class SupportPlane:
 
 
 def views_up(views: Sequence[CaptureView]) -> np.ndarray:
-    """The views' mean up direction in world coordinates (OpenCV cameras: image up is camera -y)."""
+    """The world's up direction seen by the views: the direction perpendicular to every camera's image x axis
+    (a camera held upright, at any pitch and heading, has a level image x axis), oriented along their mean image up
+    (OpenCV cameras: image up is camera -y). Exact for cameras without roll and a least-squares estimate under a
+    small random roll, where the mean image up is tilted towards the side the cameras look from (every camera that
+    looks down at an object tilts its up towards it). Views whose x axes are all parallel (a single camera or a
+    straight track) leave it undetermined: then the mean image up."""
+    rights = np.stack([v.viewmat[0, :3].double().cpu().numpy() for v in views])
     ups = np.stack([-v.viewmat[1, :3].double().cpu().numpy() for v in views])
-    up = ups.mean(0)
-    n = np.linalg.norm(up)
-    return up / n if n > 1e-9 else np.array([0.0, 0.0, 1.0])
+    mean_up = ups.mean(0)
+    n = np.linalg.norm(mean_up)
+    mean_up = mean_up / n if n > 1e-9 else np.array([0.0, 0.0, 1.0])
+    if len(views) < 2:
+        return mean_up
+    _u, s, vt = np.linalg.svd(rights, full_matrices=False)
+    if s[1] < 0.1 * s[0]:  # the x axes span no plane: the level direction is not determined
+        return mean_up
+    level = vt[-1] if len(s) == 3 else np.cross(vt[0], vt[1])
+    return level if level @ mean_up >= 0 else -level
 
 
 def _fit(x: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float]:
