@@ -26,7 +26,6 @@ class GeometryConfig:
     structure: StructureConfig = field(default_factory=StructureConfig)
     variants: bool = True
     """sample the geometry in the mass interval (module doc); False: the nominal carving only"""
-    mask_margin_variants_px: tuple[float, ...] = (-0.5, 0.5)
     vote_variants: tuple[tuple[int, float], ...] = ((1, 0.1), (3, 0.25))
     """(min_votes, min_vote_fraction) pairs"""
     depth_margin_variants: tuple[float, ...] = (-0.5, 1.0)

@@ -1,8 +1,8 @@
-"""The object's geometry from a splat and its views: selection -> carving (several variants) -> parts ->
-per-part volume, wall area and structure. One public entry: :func:`reconstruct_object`.
+"""The object's geometry from a splat and its views: selection -> carving of the views' free space (several variants,
+:mod:`.fusion`) -> parts -> per-part volume, wall area and structure. One public entry: :func:`reconstruct_object`.
 
-Geometric uncertainty: the carving is redone under perturbed settings (``variants``: mask erosion and
-dilation, a looser and a tighter vote, a smaller and a larger depth margin). The mass's Monte Carlo draws one
+Geometric uncertainty: the carving is redone under perturbed settings (``variants``: a looser and a tighter
+vote, a smaller and a larger depth margin). The mass's Monte Carlo draws one
 variant per sample, so the interval carries the geometry's uncertainty alongside the materials', densities',
 structure and thickness (:mod:`physgs_nerfstudio.mass`). Parts are defined once, on the union of the variants'
 solids, so a part keeps its identity across variants.
@@ -35,6 +35,7 @@ from .carve import (
 from .config import GeometryConfig
 from .errors import GeometryError
 from .extent import support_excess
+from .fusion import free_space_views, seeded_components
 from .gaussians import ViewRender, render_depth, surface_excess, surface_views
 from .grid import VoxelGrid
 from .hidden import HIDDEN_PASSES, gaussian_samples, hidden_boundary, skin_centred, without_hidden_space_many
@@ -257,17 +258,16 @@ class _Subset:
         return getattr(self.g, name)[self.idx]
 
 
-def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[ViewRender],
+def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[ViewRender], hull: np.ndarray,
                     variants: list[tuple[str, CarveConfig]], sdf: list[torch.Tensor], device: Any,
                     means: torch.Tensor | None = None, extent_pad_voxels: float | None = None,
                     extent_variant_voxels: float | None = None, scales: torch.Tensor | None = None,
                     quats: torch.Tensor | None = None, extent_skip: int = 0,
                     ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:  # fmt: skip
-    """The solid of every variant, from one voting pass per distinct (mask margin, depth margin), cut to the
+    """The solid of every variant, from one voting pass per distinct depth margin, cut to the
     support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
-    that much more, as one more variant; the first variant's visual hull (:func:`.carve.hull_from_votes`); the
-    voxels that the views kept (in a solid or the hull) and the polytope cut (None without a cut); and the first
+    that much more, as one more variant; the masks' visual ``hull`` cut the same way; the voxels that the views kept (in a solid or the hull) and the polytope cut (None without a cut); and the first
     variant's solid before the cut. ``scales`` and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids
     (:func:`.extent.support_heights`)."""
     by_key: dict[VoteKey, CarveConfig] = {}
@@ -275,7 +275,6 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
         by_key.setdefault(vote_key(cc), cc)
     votes = carve_votes_many(grid, views, renders, list(by_key.values()), sdf=sdf, device=device)
     cache = dict(zip(by_key, votes))
-    hull = hull_from_votes(cache[vote_key(variants[0][1])], grid, variants[0][1])
     solids = [solid_from_votes(cache[vote_key(cc)], grid, cc) for _, cc in variants]
     if means is None or extent_pad_voxels is None:
         return solids, hull, None, solids[0]
@@ -294,6 +293,13 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
         cut.append(solids[0] & wider)
     beyond = candidates & ~inside
     return cut, hull & inside, beyond, solids[0]
+
+
+def _mask_hull(grid: VoxelGrid, views: Sequence[CaptureView], cfg: CarveConfig, device: Any) -> np.ndarray:
+    """The object masks' visual hull (:func:`.carve.hull_from_votes`, their silhouette votes alone): the space
+    outside the solid but inside it is the object's concavities (:func:`.parts.concavities`)."""
+    votes = carve_votes_many(grid, views, None, [cfg], device=device)[0]
+    return hull_from_votes(votes, grid, cfg)
 
 
 def _support_under(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
@@ -428,7 +434,6 @@ def _variants(cfg: GeometryConfig) -> list[tuple[str, CarveConfig]]:
     out = [("nominal", base)]
     if not cfg.variants:
         return out
-    out += [(f"mask{m:+g}px", replace(base, mask_margin_px=base.mask_margin_px + m)) for m in cfg.mask_margin_variants_px]
     out += [(f"vote{k}/{q:g}", replace(base, min_votes=k, min_vote_fraction=q)) for k, q in cfg.vote_variants]
     out += [(f"depth{d:g}vox", replace(base, depth_margin_voxels=d)) for d in cfg.depth_margin_variants]
     return out
@@ -504,6 +509,8 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
     """Every variant's solid: carved on the selection's domain (again on a fitted grid, :func:`_refit`), cut to the
     seen Gaussians' polytope (:mod:`.extent`) and above the support plane, less the hidden open space."""
     grid = align_to_plane(_domain(g, selection.selected, cfg), selection.plane)
+    mask_views = views
+    views, renders = free_space_views(g, views, cfg.backend)
     sdf = signed_mask_distances([v.mask for v in views])
     variants = _variants(cfg)
     wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
@@ -521,7 +528,8 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
            "extent_skip": int(cfg.extent_outlier_fraction * selection.num_selected)}  # fmt: skip
 
     def carve(on: VoxelGrid) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:
-        return _carve_variants(on, views, renders, variants, sdf, g.means.device, g.means[ext_idx],
+        hull = _mask_hull(on, mask_views, variants[0][1], g.means.device)
+        return _carve_variants(on, views, renders, hull, variants, sdf, g.means.device, g.means[ext_idx],
                                cfg.extent_pad_voxels, wider, **ext)  # fmt: skip
 
     solids, hull, beyond, raw_nominal = carve(grid)
@@ -531,6 +539,8 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
         solids, hull, beyond, raw_nominal = carve(grid)
     before_cuts = solids[0]
     solids, hull = _cut_below(grid, solids, hull, selection.plane)
+    seeds = g.means[selection.selected]
+    solids = [seeded_components(grid, s, seeds) for s in solids]
     removed, edges = None, None
     if cfg.hidden_skin_voxels is not None:
         solids, removed, edges = _without_hidden(g, selection, views, renders, excess, grid, solids, beyond, cfg)
@@ -707,7 +717,7 @@ def reconstruct_object(
                          dirichlet_prior)  # fmt: skip
     pixel_voxels = _pixel_voxels(obj_views, cv.grid) if obj_views else 1.0
     step("partial volume")
-    fills = boundary_fill(cv.grid, cv.solids, cv.cfgs, obj_views, renders, sdf=cv.sdf, subsamples=BOUNDARY_SUBSAMPLES,
+    fills = boundary_fill(cv.grid, cv.solids, cv.cfgs, cv.views, cv.renders, sdf=cv.sdf, subsamples=BOUNDARY_SUBSAMPLES,
                           device=g.means.device)  # fmt: skip
     geos = _surfaces(cv, pp, cfg, pixel_voxels, g.means.device)
     step("structure")
