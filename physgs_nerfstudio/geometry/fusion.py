@@ -9,7 +9,8 @@ view's surface). The object masks do not carve: the built-in segmenter's whole-o
 incomplete (on the 16 path-traced development families, one scene each, the families' median precision is 0.91 and
 median recall 0.80, and in 11 of them some views hold less than half the object, up to 15 of 16 views), and a part
 that a few views' masks miss is carved away by a silhouette vote, while the splat renders it in every view. A floater
-blocks only the rays that pass it, and the vote's fraction (:class:`.carve_config.CarveConfig`) keeps the space it hides from a few views empty.
+blocks only the rays that pass it, and the vote's fraction (:class:`.carve_config.CarveConfig`) keeps the space it
+hides from a few views empty.
 
 **Which of it is the object.** The space the views leave holds the object, its support (cut at the support plane,
 :mod:`.support`) and whatever else stands in the grid's box. The object is the connected components of it that hold
