@@ -20,14 +20,11 @@
    camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
    the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
    restricts the candidates first.
-   3b. **Another object's** (``object_names``, below; off by default). Perception's answers
-   name the whole object of each part; a chosen Gaussian that one other name claims, by more than ``object_names``
-   views' evidence over the object's own name (the name with the most evidence over the cluster), is dropped. Meant
-   for the mug and the bottle standing on the `indoor_room` table, which share its cluster and its ``whole``
-   masks. With the built-in segmenter it misses them: its part masks isolate the mug in few views (8-20 answer
-   records name it, 141-172 the table), while the chair's, the crate's and the lamp's masks bleed onto the table,
-   so it drops some of the table's own Gaussians and keeps the mug. Tested on synthetic masks that isolate each object
-   (tests/test_object_names.py); not measured with SAM's masks.
+   3b. **Another object's** (``object_names``, below; off by default). A chosen Gaussian that one other name in
+   perception's answers claims, by more than ``object_names`` views' evidence over the object's own name, is
+   dropped. With the built-in segmenter's masks it drops some of the `indoor_room` table's own Gaussians and
+   keeps the mug on it (the chair's, crate's and lamp's masks bleed onto the table); tested on synthetic masks
+   that isolate each object (tests/test_object_names.py).
 4. **Inside the masks' hull** (:func:`outside_mask_hull`, applied by :func:`.reconstruct.reconstruct_object`). A
    selected Gaussian is dropped when its centre projects outside the views' foreground masks (by more than
    ``hull_margin_px``) in at least ``hull_min_votes`` views and ``hull_vote_fraction`` (a majority) of the views
