@@ -1,4 +1,4 @@
-"""The solid cut to its Gaussians' support polytope (geometry.extent) and the concavity rule of the wall area
+"""The solid cut to its Gaussians' support polytope (geometry.gaussians) and the concavity rule of the wall area
 (geometry.parts.concavities / part_areas(concave=...)), against independent oracles: scipy's Delaunay point
 location for the convex hull, and the analytic areas of a cup."""
 
@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
-from physgs_nerfstudio.geometry.extent import (
+from physgs_nerfstudio.geometry.gaussians import (
     support_directions,
     support_excess,
     support_heights,

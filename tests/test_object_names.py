@@ -1,4 +1,4 @@
-"""Which object perception names each part (physgs_nerfstudio.geometry.names, perception's ``object`` answer): a
+"""Which object perception names each part (physgs_nerfstudio.geometry.select, perception's ``object`` answer): a
 box standing on a larger one, masked together at the ``whole`` level and apart at the ``part`` level, keeps the
 large box's Gaussians and drops the small one's; a wrong answer or two does not drop anything."""
 
@@ -12,7 +12,7 @@ from helpers.shapes import box_surface, ring_views
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import GeometryConfig, MaskObservation, SelectConfig, reconstruct_object
 from physgs_nerfstudio.geometry.gaussians import render_depth
-from physgs_nerfstudio.geometry.names import object_labels, other_object
+from physgs_nerfstudio.geometry.select import object_labels, other_object
 from physgs_nerfstudio.perception.validate import Validator, object_name
 
 

@@ -4,8 +4,7 @@ geometry"). Pure geometry on tensors and arrays: no nerfstudio imports."""
 
 from .capture import CaptureView, MaskObservation, load_capture, load_observations
 from .carve import CarveConfig
-from .errors import GeometryError
-from .grid import VoxelGrid
+from .grid import GeometryError, VoxelGrid
 from .reconstruct import GeometryConfig, ObjectGeometry, reconstruct_object
 from .select import SelectConfig
 from .structure import StructureConfig

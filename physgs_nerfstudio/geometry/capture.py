@@ -23,7 +23,7 @@ import logging
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -261,10 +261,3 @@ def load_observations(data_dir: Path) -> list[MaskObservation]:
         logger.info("%d observations without a readable mask were not used for the part structure", missing)
     return out
 
-
-@dataclass
-class Capture:
-    """Views plus perception's per-mask answers (for :func:`physgs_nerfstudio.geometry.reconstruct_object`)."""
-
-    views: list[CaptureView]
-    observations: list[MaskObservation] = field(default_factory=list)

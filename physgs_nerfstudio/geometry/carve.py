@@ -10,7 +10,7 @@ For every voxel centre ``x`` and every view ``v`` in whose image it projects (in
   ``depth_margin_rel`` of the depth: the camera sees *past* ``x`` onto a surface behind it, so ``x`` is empty
   (this carves concavities that silhouettes cannot, such as a cup's inside).
 
-Either is an *empty vote*. The object's carving (:mod:`.fusion`) gives every view a mask that holds every pixel and
+Either is an *empty vote*. The object's carving (:mod:`.free_space`) gives every view a mask that holds every pixel and
 the whole splat's surface depth, so that only the views' free space carves; the silhouette votes alone make the
 object masks' visual hull (:func:`hull_from_votes`). A view *sees* ``x`` when ``x`` projects into its image. A voxel is carved (empty)
 when its empty votes reach ``min_votes`` and ``min_vote_fraction`` of the views that see it (and, for depth

@@ -37,11 +37,12 @@ class GeometryConfig:
     the solid (outliers of the selection stretched the domain and coarsened the voxels)"""
     extent_pad_voxels: float | None = 0.0
     """the solid is cut to the support polytope of the object's seen Gaussians grown by this many voxels
-    (:mod:`.extent`: space under an object that no view sees past is not the object); None = no cut. 0: the
-    outermost Gaussians lie on or, by their scatter, beyond the surface, and a voxel counts when its centre is in"""
+    (the object's extent, :mod:`.gaussians`: space under an object that no view sees past is not the object);
+    None = no cut. 0: the outermost Gaussians lie on or, by their scatter, beyond the surface, and a voxel counts
+    when its centre is in"""
     extent_outlier_fraction: float = 0.001
-    """along each direction the polytope skips this share of the outermost Gaussians (:func:`.extent.support_heights`),
-    so that a few strays under an unseen bottom face do not set where the solid ends; documented range 0-0.003"""
+    """along each direction the polytope skips this share of the outermost Gaussians
+    (:func:`.gaussians.support_heights`), so that a few strays under an unseen bottom face do not set where the solid ends; documented range 0-0.003"""
     extent_variant_voxels: float | None = 1.0
     """the interval also samples the nominal carving cut to the polytope grown by this many voxels (where the
     polytope ends the solid, a few Gaussians' scatter places the surface to about a voxel); None = no such variant"""

@@ -26,7 +26,9 @@ from jaxtyping import Float
 from torch import Tensor
 from tqdm.auto import tqdm
 
-__all__ = ["VoxelGrid", "gaussian_boxes", "inverse_covariance6", "splat"]
+from ..errors import PhysGSError
+
+__all__ = ["GeometryError", "VoxelGrid", "gaussian_boxes", "inverse_covariance6", "splat"]
 
 
 @dataclass(frozen=True)
@@ -317,3 +319,7 @@ def _splat_small(grid, means, inv6, opacities, values, lo, dims, cutoff, lut, we
                     if weighted is not None:
                         weighted.index_add_(0, row, w.unsqueeze(1) * val[idx])  # type: ignore[index]
     bar.close()
+
+
+class GeometryError(PhysGSError, ValueError):
+    """No object to measure: no Gaussian on the masks, no training view, or carving left no solid voxel."""

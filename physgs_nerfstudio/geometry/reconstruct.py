@@ -1,5 +1,5 @@
 """The object's geometry from a splat and its views: selection -> carving of the views' free space (several variants,
-:mod:`.fusion`) -> parts -> per-part volume, wall area and structure. One public entry: :func:`reconstruct_object`.
+:mod:`.free_space`) -> parts -> per-part volume, wall area and structure. One public entry: :func:`reconstruct_object`.
 
 Geometric uncertainty: the carving is redone under perturbed settings (``variants``: a looser and a tighter
 vote, a smaller and a larger depth margin). The mass's Monte Carlo draws one
@@ -33,13 +33,10 @@ from .carve import (
     vote_key,
 )
 from .config import GeometryConfig
-from .errors import GeometryError
-from .extent import support_excess
-from .fusion import free_space_views, seeded_components
-from .gaussians import ViewRender, render_depth, surface_excess, surface_views
-from .grid import VoxelGrid
+from .free_space import free_space_views, seeded_components
+from .gaussians import ViewRender, render_depth, support_excess, surface_excess, surface_views
+from .grid import GeometryError, VoxelGrid
 from .hidden import HIDDEN_PASSES, gaussian_samples, hidden_boundary, skin_centred, without_hidden_space_many
-from .names import object_labels
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .partial import BOUNDARY_SUBSAMPLES, boundary_fill, part_volumes
 from .parts import (
@@ -53,7 +50,7 @@ from .parts import (
     sum_rows,
     voxel_mixture,
 )
-from .select import ObjectSelection, outside_mask_hull, select_object
+from .select import ObjectSelection, object_labels, outside_mask_hull, select_object
 from .structure import PartStructure, fuse_structure
 from .support import SupportPlane, align_to_plane, find_support, support_gaussians, views_up
 
@@ -265,11 +262,12 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
                     quats: torch.Tensor | None = None, extent_skip: int = 0,
                     ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:  # fmt: skip
     """The solid of every variant, from one voting pass per distinct depth margin, cut to the
-    support polytope of ``means`` (:mod:`.extent`) unless ``extent_pad_voxels`` is None, then (unless
+    support polytope of ``means`` (:mod:`.gaussians`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
-    that much more, as one more variant; the masks' visual ``hull`` cut the same way; the voxels that the views kept (in a solid or the hull) and the polytope cut (None without a cut); and the first
-    variant's solid before the cut. ``scales`` and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids
-    (:func:`.extent.support_heights`)."""
+    that much more, as one more variant; the masks' visual ``hull`` cut the same way; the voxels that the views kept
+    (in a solid or the hull) and the polytope cut (None without a cut); and the first variant's solid before the
+    cut. ``scales`` and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids
+    (:func:`.gaussians.support_heights`)."""
     by_key: dict[VoteKey, CarveConfig] = {}
     for _, cc in variants:
         by_key.setdefault(vote_key(cc), cc)
@@ -507,7 +505,7 @@ def _refit(grid: VoxelGrid, solids: list[np.ndarray], cfg: GeometryConfig) -> Vo
 def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], renders: list[ViewRender],
                   cfg: GeometryConfig) -> _Carving:  # fmt: skip
     """Every variant's solid: carved on the selection's domain (again on a fitted grid, :func:`_refit`), cut to the
-    seen Gaussians' polytope (:mod:`.extent`) and above the support plane, less the hidden open space."""
+    seen Gaussians' polytope (:mod:`.gaussians`) and above the support plane, less the hidden open space."""
     grid = align_to_plane(_domain(g, selection.selected, cfg), selection.plane)
     mask_views = views
     views, renders = free_space_views(g, views, cfg.backend)
