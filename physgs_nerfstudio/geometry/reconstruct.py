@@ -507,7 +507,7 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
     """Every variant's solid: carved on the selection's domain (again on a fitted grid, :func:`_refit`), cut to the
     seen Gaussians' polytope (:mod:`.gaussians`) and above the support plane, less the hidden open space."""
     grid = align_to_plane(_domain(g, selection.selected, cfg), selection.plane)
-    mask_views = views
+    mask_views, own = views, renders  # the object's masks and its Gaussians' own render: what lies on its surface
     views, renders = free_space_views(g, views, cfg.backend)
     sdf = signed_mask_distances([v.mask for v in views])
     variants = _variants(cfg)
@@ -515,7 +515,7 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
     ext_idx = torch.nonzero(selection.selected).squeeze(1)
     # each selected Gaussian's smallest depth behind a view's rendered surface: the extent's, the material evidence's
     # and the skin's sets are those within their bands of it (one pass over the views)
-    excess = surface_excess(g.means[ext_idx], views, renders)
+    excess = surface_excess(g.means[ext_idx], mask_views, own)
     seen = excess <= grid.voxel_size
     if int(seen.sum()) >= 50:
         logger.info("object extent: %d of %d selected Gaussians are seen by a view; the unseen ones "
@@ -541,7 +541,7 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
     solids = [seeded_components(grid, s, seeds) for s in solids]
     removed, edges = None, None
     if cfg.hidden_skin_voxels is not None:
-        solids, removed, edges = _without_hidden(g, selection, views, renders, excess, grid, solids, beyond, cfg)
+        solids, removed, edges = _without_hidden(g, selection, mask_views, own, excess, grid, solids, beyond, cfg)
     if not solids[0].any():
         raise GeometryError("carving left no solid voxel: the object masks and the views disagree (check poses and "
                             "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
