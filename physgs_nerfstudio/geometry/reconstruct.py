@@ -166,13 +166,12 @@ def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
 
 def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig
                   ) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
-    """The object's own depth and alpha (its Gaussians rendered alone: a thin part's expected depth is not
-    pulled back by the background behind it), and the foreground masks cut down to this object (foreground
-    AND the dilated silhouette of its Gaussians). A view whose cut mask agrees with the silhouette at IoU below
-    ``min_mask_agreement`` (its segmentation merged the object into the background, or found nothing) carves
-    with the dilated silhouette instead: the silhouette is the consensus of every view's masks, lifted onto the
-    Gaussians (:mod:`.select`) and rendered back, so one view's failed segmentation cannot carve the object
-    away, which the vote alone cannot prevent once several views fail."""
+    """The object's own depth and alpha (its Gaussians rendered alone: which of them lie on its seen surface,
+    :func:`.gaussians.surface_excess`), and the foreground masks cut down to this object (foreground AND the dilated
+    silhouette of its Gaussians), for the masks' visual hull (the concavities; the masks do not carve,
+    :mod:`.free_space`). A view whose cut mask agrees with the silhouette at IoU below ``min_mask_agreement`` (its
+    segmentation merged the object into the background, or found nothing) takes the dilated silhouette instead: the
+    consensus of every view's masks, lifted onto the Gaussians (:mod:`.select`) and rendered back."""
     import cv2
 
     sub = _Subset(g, selection.selected)
@@ -294,8 +293,8 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
 
 
 def _mask_hull(grid: VoxelGrid, views: Sequence[CaptureView], cfg: CarveConfig, device: Any) -> np.ndarray:
-    """The object masks' visual hull (:func:`.carve.hull_from_votes`, their silhouette votes alone): the space
-    outside the solid but inside it is the object's concavities (:func:`.parts.concavities`)."""
+    """The object masks' visual hull (:func:`.carve.hull_from_votes`, their silhouette votes alone): the empty space
+    inside it, outside the solid, is the object's concavities (:func:`.parts.concavities`)."""
     votes = carve_votes_many(grid, views, None, [cfg], device=device)[0]
     return hull_from_votes(votes, grid, cfg)
 
