@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-
 from helpers.shapes import box_on_floor, geometry_of, ring_views, whole_voxel_volume
-from physgs_nerfstudio.geometry.free_space import SEES_THROUGH, free_space_views, seeded_components
+
+from physgs_nerfstudio.geometry.free_space import SEES_THROUGH, free_space_depths, seeded_components
+from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.geometry.grid import VoxelGrid
 
 
@@ -30,15 +31,16 @@ def test_seeded_components_keep_the_components_that_hold_the_seeds() -> None:
     assert (seeded_components(grid, solid, outside) == solid).all()
 
 
-def test_a_view_with_no_surface_sees_through_and_every_mask_holds_every_pixel() -> None:
+def test_a_view_with_no_surface_sees_through() -> None:
+    """The free-space depth is the whole splat's surface depth where a ray has one, and SEES_THROUGH where it has
+    none (the rays over the floor's edge), where no object mask holds a pixel."""
     pf, _only_obj, _ = box_on_floor()
     views = ring_views(pf, (0, 0, 0.15), 1.6, n=4, elevations=(30.0,))
-    fv, renders = free_space_views(pf, views, backend="reference")
-    assert all(bool(v.mask.all()) for v in fv)
-    assert all(bool((r.alpha == 1).all()) for r in renders)
-    sky = [r.depth == SEES_THROUGH for r in renders]  # the rays over the floor's edge
+    depths = free_space_depths(pf, views, backend="reference")
+    sky = [d == SEES_THROUGH for d in depths]
     assert any(bool(s.any()) for s in sky) and not all(bool(s.all()) for s in sky)
-    for v, r, s in zip(views, renders, sky):
+    for v, d, s, r in zip(views, depths, sky, render_depth(pf, views, backend="reference")):
+        assert torch.equal(s, ~torch.isfinite(r.depth)) and torch.equal(d[~s], r.depth[~s])
         assert not bool(v.mask[s].any())  # no object where a ray sees through
 
 

@@ -188,77 +188,53 @@ def test_solid_from_votes_on_the_bounding_box_equals_the_whole_grid():
         np.testing.assert_array_equal(got, want)
 
 
-def _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=1 << 20):
-    """The carving votes as computed before the views were voted on together (carve_votes_many at 95953ad, one view
-    and one setting at a time, 2-D indexing of each image): the oracle of the batched vote."""
-    from physgs_nerfstudio.geometry.carve import _corners, _sample, depth_slack, signed_mask_distances
-
-    def sample_opaque(depth, alpha, u, v, min_alpha):
-        num, den = torch.zeros_like(u), torch.zeros_like(u)
-        for yy, xx, w in _corners(depth.shape, u, v):
-            ok = alpha[yy, xx] >= min_alpha
-            w = torch.where(ok, w, 0.0)
-            num += w * torch.where(ok, depth[yy, xx], 0.0)
-            den += w
-        return torch.where(den > 0, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
+def _carve_votes_one_view_at_a_time(grid, views, depths, cfgs, chunk=1 << 20):
+    """The free-space votes one view and one setting at a time, with 2-D indexing of each image (the loop that the
+    batched vote replaced): the oracle of the batched vote."""
+    from physgs_nerfstudio.geometry.carve import _corners, depth_slack
 
     M, G = grid.num_voxels, len(cfgs)
-    empty, depth_empty = ([torch.zeros(M, dtype=torch.int32) for _ in cfgs] for _ in range(2))
+    free, near = ([torch.zeros(M, dtype=torch.int32) for _ in cfgs] for _ in range(2))
     seen = torch.zeros(M, dtype=torch.int32)
-    sdf = signed_mask_distances([v.mask for v in views])
-    cams = [(v.viewmat[:3, :3], v.viewmat[:3, 3], v.K) for v in views]
-    any_depth = renders is not None and any(c.use_depth for c in cfgs)
-    slope = any(c.depth_slope_margin > 0 for c in cfgs)
-    lookup = cfgs[0].depth_lookup
-    depth = ([(r.depth, r.alpha, depth_slack(r.depth, r.alpha, lookup=lookup) if slope else None)
-              for r in renders] if any_depth else [None] * len(views))  # fmt: skip
     shape = torch.as_tensor(grid.shape)
     for s0 in range(0, M, chunk):
         flat = torch.arange(s0, min(M, s0 + chunk))
         ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
         x = grid.centres(ijk)
-        n_seen = torch.zeros(len(flat), dtype=torch.int32)
-        n_empty, n_depth = ([torch.zeros_like(n_seen) for _ in range(G)] for _ in range(2))
-        for view, (R, t, K), sd, dz in zip(views, cams, sdf, depth):
+        sl = slice(s0, s0 + len(flat))
+        for view, depth in zip(views, depths):
+            R, t, K = view.viewmat[:3, :3], view.viewmat[:3, 3], view.K
             pc = x @ R.T + t
             z = pc[:, 2]
             u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-9) + K[0, 2]
             w = K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + K[1, 2]
             ok = (z > 1e-6) & (u >= 0) & (u < view.width) & (w >= 0) & (w < view.height)
-            dist = _sample(sd, u.clamp(0, view.width), w.clamp(0, view.height))
-            if dz is not None:
-                ui = u.floor().long().clamp(0, view.width - 1)
-                vi = w.floor().long().clamp(0, view.height - 1)
-                d, a = dz[0][vi, ui], dz[1][vi, ui]
-                sl = dz[2][vi, ui] if dz[2] is not None else None
-                if lookup == "bilinear":
-                    d = sample_opaque(dz[0], dz[1], u.clamp(0, view.width), w.clamp(0, view.height), 0.5)
+            ui = u.floor().long().clamp(0, view.width - 1)
+            vi = w.floor().long().clamp(0, view.height - 1)
+            slack = depth_slack(depth)[vi, ui]
+            corners = _corners(depth.shape, u.clamp(0, view.width), w.clamp(0, view.height))
+            num, den = torch.zeros_like(u), torch.zeros_like(u)
+            for yy, xx, cw in corners:
+                num += cw * depth[yy, xx]
+                den += cw
+            d = num / den
             for g, cfg in enumerate(cfgs):
-                vote = ok & (dist > cfg.mask_margin_px)
-                if dz is not None and cfg.use_depth:
-                    margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_margin_rel * d
-                    if sl is not None and cfg.depth_slope_margin > 0:
-                        margin = margin + cfg.depth_slope_margin * sl
-                    inside = ok & (dist <= cfg.mask_margin_px) & (a >= cfg.min_alpha)
-                    dvote = inside & (z < d - margin)
-                    vote |= dvote
-                    n_depth[g] += dvote.int()
-                n_empty[g] += vote.int()
-            n_seen += ok.int()
-        sl = slice(s0, s0 + len(flat))
-        seen[sl] = n_seen
-        for g in range(G):
-            empty[g][sl], depth_empty[g][sl] = n_empty[g], n_depth[g]
-    return [(empty[g], seen, depth_empty[g]) for g in range(G)]
+                margin = cfg.depth_margin_voxels * grid.voxel_size + cfg.depth_slope_margin * slack
+                band = cfg.near_band_voxels * grid.voxel_size
+                free[g][sl] += (ok & (z < d - margin)).int()
+                near[g][sl] += (ok & (z <= d + margin + band) & (margin <= band)).int()
+            seen[sl] += ok.int()
+    return [(free[g], seen, near[g]) for g in range(G)]
 
 
 def _carving_scene(seed, sizes=((40, 32), (40, 32), (36, 30), (40, 32), (40, 32))):
-    """Views of a box of random opaque and translucent depth around a grid, some of another image size."""
+    """Views of random masks and random surface depths around a grid, some pixels seeing through, some views of
+    another image size."""
     from physgs_nerfstudio.geometry.capture import CaptureView
-    from physgs_nerfstudio.geometry.gaussians import ViewRender
+    from physgs_nerfstudio.geometry.free_space import SEES_THROUGH
 
     g = torch.Generator().manual_seed(seed)
-    views, renders = [], []
+    views, depths = [], []
     for i, (W, H) in enumerate(sizes):
         a = 2 * np.pi * i / len(sizes) + 0.3
         eye = np.array([2.5 * np.cos(a), 2.5 * np.sin(a), 0.4 + 0.3 * i])
@@ -271,44 +247,35 @@ def _carving_scene(seed, sizes=((40, 32), (40, 32), (36, 30), (40, 32), (40, 32)
         K = torch.tensor([[0.9 * W, 0, W / 2], [0, 0.9 * W, H / 2], [0, 0, 1]])
         mask = torch.from_numpy(ndimage.gaussian_filter(torch.rand(H, W, generator=g).numpy(), 2) > 0.5)
         depth = 2.0 + torch.rand(H, W, generator=g)
-        alpha = torch.rand(H, W, generator=g)
-        depth[alpha < 0.1] = float("inf")
-        renders.append(ViewRender(depth=depth, alpha=alpha))
+        depth[torch.rand(H, W, generator=g) < 0.1] = SEES_THROUGH
+        depths.append(depth)
         views.append(CaptureView(torch.tensor(vm, dtype=torch.float32), K, W, H, mask, name=f"v{i}"))
     grid = VoxelGrid.from_bounds(np.array([-0.6, -0.5, -0.4]), np.array([0.6, 0.5, 0.45]), 22)
-    return grid, views, renders
+    return grid, views, depths
 
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_carve_votes_of_views_together_equal_one_view_at_a_time(seed):
-    """The votes of views batched (stacked images, [G, B, n] comparisons) equal, count for count, those of the
-    one-view-at-a-time loop they replace, under the reconstruction's variants and the other options, for any
-    batch size and chunk."""
-    from dataclasses import replace
-
+    """The free-space votes of views batched (stacked images, [G, B, n] comparisons) equal, count for count, those
+    of the one-view-at-a-time loop, under the reconstruction's variants and the other options, for any batch size
+    and chunk."""
     from physgs_nerfstudio.geometry.carve import CarveConfig, carve_votes_many
     from physgs_nerfstudio.geometry.reconstruct import GeometryConfig, _variants
 
-    grid, views, renders = _carving_scene(seed)
+    grid, views, depths = _carving_scene(seed)
     variants = [c for _, c in _variants(GeometryConfig())]
     settings = [
         variants,
-        [replace(c, depth_lookup="nearest") for c in variants],
-        [CarveConfig(use_depth=False), CarveConfig(depth_slope_margin=0.0, depth_margin_rel=0.01, min_alpha=0.3)],
-        [CarveConfig(), CarveConfig(mask_margin_px=0.7), CarveConfig(min_alpha=0.8, depth_lookup="bilinear")],
-        [replace(c, depth_lookup="nearest", min_alpha=0.6) for c in variants[:3]],
+        [CarveConfig(depth_slope_margin=0.0), CarveConfig(depth_margin_voxels=0.5, near_band_voxels=2.0)],
     ]
     for cfgs in settings:
-        want = _carve_votes_one_view_at_a_time(grid, views, renders, cfgs, chunk=2000)
+        want = _carve_votes_one_view_at_a_time(grid, views, depths, cfgs, chunk=2000)
         for chunk, batch_points in ((1 << 20, None), (2000, 1), (2000, 6000), (3001, 1 << 20)):
-            got = carve_votes_many(grid, views, renders, cfgs, chunk=chunk, batch_points=batch_points)
+            got = carve_votes_many(grid, views, depths, cfgs, chunk=chunk, batch_points=batch_points)
             for w, v in zip(want, got):
-                for name, a in zip(("empty", "seen", "depth_empty"), w):
+                for name, a in zip(("free", "seen", "near"), w):
                     assert torch.equal(getattr(v, name), a), (name, cfgs, chunk, batch_points)
         assert sum(int(w[0].sum()) for w in want) > 0
-    no_depth = carve_votes_many(grid, views, None, variants[:2], batch_points=1 << 20)
-    for w, v in zip(_carve_votes_one_view_at_a_time(grid, views, None, variants[:2]), no_depth):
-        assert torch.equal(v.empty, w[0]) and torch.equal(v.seen, w[1])
 
 
 def test_fill_holes_equals_scipy():

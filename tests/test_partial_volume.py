@@ -13,18 +13,12 @@ from helpers.shapes import box_surface, flat_gaussians, geometry_of, ring_views
 
 from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import CarveConfig, VoxelGrid
-from physgs_nerfstudio.geometry.carve import (
-    carve_votes_many,
-    carved_by_votes,
-    signed_mask_distances,
-    vote_key,
-)
-from physgs_nerfstudio.geometry.gaussians import render_depth
+from physgs_nerfstudio.geometry.carve import carve_votes_many, carved_by_votes
+from physgs_nerfstudio.geometry.free_space import free_space_depths
 from physgs_nerfstudio.geometry.partial import (
     boundary_fill,
     boundary_layers,
     boundary_voxels,
-    far_depth_voxels,
     outer_rim,
     part_volumes,
     rim_labels,
@@ -66,27 +60,28 @@ def test_rim_labels_and_part_volumes_give_a_share_outside_the_solid_to_a_neighbo
     assert np.allclose(part_volumes(fill, labels, 2, 0.1), np.array([4.25, 2.5]) * 1e-3)
 
 
-def test_vote_keys_tell_apart_every_setting_that_changes_the_votes():
-    base = CarveConfig()
-    keys = {vote_key(c) for c in (base, replace(base, mask_margin_px=0.5), replace(base, depth_margin_voxels=1.0),
-                                  replace(base, depth_margin_rel=0.01))}  # fmt: skip
-    assert len(keys) == 4
-    assert vote_key(replace(base, min_votes=3, min_vote_fraction=0.25)) == vote_key(base)  # the count, not the votes
-
-
-def test_a_relative_margin_reaches_as_many_layers_as_it_keeps():
-    assert boundary_layers(CarveConfig(depth_margin_rel=0.01), far_voxels=150.0) == 3  # 1.5 voxels kept in front
-    assert boundary_layers(CarveConfig(depth_margin_voxels=-0.5, depth_margin_rel=0.01), far_voxels=50.0) == 1
-
-
-def test_the_farthest_depth_bounds_every_voxel_centres_distance(box_render):
-    _, views, _ = box_render
+def test_settings_that_vote_alike_share_their_counts_and_the_others_do_not(box_render):
+    """The votes of settings that differ only in their counts (min_votes, the fraction, the consensus) are one
+    count; those that differ in the margin, the slope margin or the band each get their own, equal to a pass of
+    their own (the per-voxel oracle of the vote: tests/test_carve_many.py)."""
+    _, views, depths = box_render
     grid = VoxelGrid((-0.27, -0.21, -0.15), 0.03, (18, 14, 10))
-    idx = np.argwhere(np.ones(grid.shape, bool))
-    centres = grid.centres(torch.from_numpy(idx)).double().numpy()
-    cams = np.stack([v.centre.double().numpy() for v in views])
-    far = np.sqrt(((cams[:, None] - centres[None]) ** 2).sum(-1)).max() / grid.voxel_size
-    assert far <= far_depth_voxels(grid, views) <= far + np.sqrt(3) / 2 + 1e-6  # a centre lies half a diagonal in
+    base = CarveConfig()
+    cfgs = [base, replace(base, min_votes=3, min_vote_fraction=0.25, depth_consensus=0.0),
+            replace(base, depth_margin_voxels=1.0), replace(base, depth_slope_margin=0.0),
+            replace(base, near_band_voxels=3.0)]  # fmt: skip
+    many = carve_votes_many(grid, views, depths, cfgs)
+    assert torch.equal(many[0].free, many[1].free) and torch.equal(many[0].near, many[1].near)
+    for i, cfg in enumerate(cfgs[2:], 2):
+        alone = carve_votes_many(grid, views, depths, [cfg])[0]
+        assert torch.equal(alone.free, many[i].free) and torch.equal(alone.near, many[i].near)
+        assert not (torch.equal(many[i].free, many[0].free) and torch.equal(many[i].near, many[0].near)), cfg
+
+
+def test_a_margin_reaches_as_many_layers_as_it_keeps():
+    assert boundary_layers(CarveConfig(depth_margin_voxels=1.5)) == 3  # 1.5 voxels kept in front: 2 more layers
+    assert boundary_layers(CarveConfig(depth_margin_voxels=1.0)) == 2
+    assert boundary_layers(CarveConfig(depth_margin_voxels=-0.5)) == 1
 
 
 def test_surface_config_keeps_a_negative_margin_and_drops_a_tolerance():
@@ -100,30 +95,28 @@ def box_render():
     means, scales, quats = box_surface((0.4, 0.3, 0.2), 0.02)
     pf = field_from(means, scales, quats, densities=[700.0], names=["oak"], thickness_m=[None])
     views = ring_views(pf, (0, 0, 0), 1.5)
-    return pf, views, render_depth(pf, views, backend="reference")
+    return pf, views, free_space_depths(pf, views, backend="reference")
 
 
-@pytest.mark.parametrize(("margin", "rel"), [(0.0, 0.0), (1.0, 0.0), (-0.5, 0.0), (0.0, 0.015)])
-def test_a_boundary_voxels_share_is_the_carving_of_a_finer_grid(box_render, margin, rel):
+@pytest.mark.parametrize("margin", [0.0, 1.0, -0.5])
+def test_a_boundary_voxels_share_is_the_carving_of_a_finer_grid(box_render, margin):
     """The share of each boundary voxel (its n^3 sub-points voted on as points) against the carving of the grid n
     times finer, whose voxel centres are those sub-points (the grid's path of ``carve_votes_many``), at the
-    surface's setting. A relative margin (``rel``: 1.5% of a depth of about 1.5 m, most of a voxel) is a tolerance
-    as the absolute one is."""
-    _, views, renders = box_render
+    surface's setting."""
+    _, views, depths = box_render
     n, h = 2, 0.03
     grid = VoxelGrid((-0.27, -0.21, -0.15), h, (18, 14, 10))
     fine = VoxelGrid(grid.origin, h / n, tuple(s * n for s in grid.shape))
-    cfg = CarveConfig(depth_margin_voxels=margin, depth_margin_rel=rel)
-    sdf = signed_mask_distances([v.mask for v in views])
-    votes = carve_votes_many(grid, views, renders, [cfg], sdf=sdf)[0]
+    cfg = CarveConfig(depth_margin_voxels=margin)
+    votes = carve_votes_many(grid, views, depths, [cfg])[0]
     solid = (~carved_by_votes(votes, cfg)).reshape(grid.shape).numpy()
-    fill = boundary_fill(grid, [solid], [cfg], views, renders, sdf=sdf, subsamples=n)[0]
+    fill = boundary_fill(grid, [solid], [cfg], views, depths, subsamples=n)[0]
     surf = surface_config(cfg)
     # (the settings in voxels are the coarse grid's: the sub-points vote in coarse voxels)
-    fine_votes = carve_votes_many(fine, views, renders, [in_finer_voxels(surf, n)], sdf=sdf)[0]
+    fine_votes = carve_votes_many(fine, views, depths, [in_finer_voxels(surf, n)])[0]
     kept = (~carved_by_votes(fine_votes, surf)).reshape(fine.shape).numpy()
     share = kept.reshape(grid.shape[0], n, grid.shape[1], n, grid.shape[2], n).mean((1, 3, 5))
-    edge = boundary_voxels(solid, boundary_layers(cfg, far_depth_voxels(grid, views)))
+    edge = boundary_voxels(solid, boundary_layers(cfg))
     rim = outer_rim(solid)  # every voxel outside this solid is carved by the vote
     assert edge.sum() > 100 and rim.sum() > 100
     for where in (edge, rim):
@@ -131,9 +124,9 @@ def test_a_boundary_voxels_share_is_the_carving_of_a_finer_grid(box_render, marg
         assert np.mean(diff > 1e-6) < 0.01  # a sub-point exactly on a surface may round either way
     assert np.array_equal(fill[solid & ~edge], np.ones(int((solid & ~edge).sum()), np.float32))
     assert not fill[~solid & ~rim].any()
-    if margin <= 0 and rel == 0:  # the surface cuts voxels whose centres lie in front of it (beyond a tolerance: none)
+    if margin <= 0:  # the surface cuts voxels whose centres lie in front of it (beyond a tolerance: none)
         assert fill[rim].sum() > 0
-    if margin > 0 or rel > 0:  # voxels that the tolerance alone keeps count less than whole
+    if margin > 0:  # voxels that the tolerance alone keeps count less than whole
         assert fill[edge].mean() < 1.0
 
 

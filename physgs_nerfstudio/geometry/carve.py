@@ -1,33 +1,32 @@
-"""Space carving: the object's volume from many views' masks and rendered depth, with a robust vote (each
-view's votes, its mask and depth looked up at the voxel centres: :mod:`.carve_views`).
+"""Space carving: the object's volume from many views' free space, with a robust vote, and the object masks' visual
+hull (each view's surface depth and mask looked up at the voxel centres: :mod:`.carve_views`).
 
-For every voxel centre ``x`` and every view ``v`` in whose image it projects (in front of the camera):
+Two rules, each a vote of the views over the voxel centres ``x``; a view *sees* ``x`` when ``x`` projects into its
+image, in front of the camera.
 
-* **seen outside**: ``x`` projects outside the view's object mask, by more than ``mask_margin_px`` pixels
-  (signed distance to the mask boundary; a negative margin erodes the mask, a positive one dilates it);
-* **seen in front**: ``x`` projects inside the mask, the splat is opaque there (alpha >= ``min_alpha``), and
-  ``x`` lies in front of the rendered surface by more than ``depth_margin_voxels`` voxels plus
-  ``depth_margin_rel`` of the depth: the camera sees *past* ``x`` onto a surface behind it, so ``x`` is empty
-  (this carves concavities that silhouettes cannot, such as a cup's inside).
+* **The free-space vote** (:func:`carve_votes_many`, :func:`solid_from_votes`): a view *sees through* ``x`` when
+  ``x`` lies in front of the view's surface depth there by more than ``depth_margin_voxels`` voxels (plus the
+  lookup's slack, below): the camera sees past ``x`` onto a surface behind it, or along a ray that meets no surface
+  (:mod:`.free_space`: the whole splat's depth, the object masks do not carve). A voxel is carved (empty) when the
+  views that see through it reach ``min_votes`` and ``min_vote_fraction`` of the views that see it, and pass the
+  depth consensus below.
+* **The silhouette vote** (:func:`mask_hull`): a view votes ``x`` empty when ``x`` projects outside its object mask
+  (the mask's signed distance there is positive). The voxels that the same counts leave are the masks' *visual
+  hull*; its empty voxels outside the solid are the object's concavities, which only depth carves (a cup's inside):
+  :func:`.parts.part_areas` does not count the walls that face them twice.
 
-Either is an *empty vote*. The object's carving (:mod:`.free_space`) gives every view a mask that holds every pixel and
-the whole splat's surface depth, so that only the views' free space carves; the silhouette votes alone make the
-object masks' visual hull (:func:`hull_from_votes`). A view *sees* ``x`` when ``x`` projects into its image. A voxel is carved (empty)
-when its empty votes reach ``min_votes`` and ``min_vote_fraction`` of the views that see it (and, for depth
-votes, the depth consensus below).
+In both, a voxel that fewer than ``min_seen_fraction`` of the views have in their image at all is empty (an
+object-centric capture frames its object in every view). Otherwise it is solid, so space that no view sees through
+(the inside of a closed object) stays solid. Why a vote rather than the classic visual hull's "any one view":
 
-A voxel that fewer than ``min_seen_fraction`` of the views have in their image at all is empty (an object-centric
-capture frames its object in every view). Otherwise it is solid, so space that no view sees past (the inside of
-a closed object) stays solid. Why a vote rather than the classic visual hull's "any one view":
-
-* one bad mask (a part the segmenter missed in one view) casts one wrong empty vote: with ``min_votes`` = 2 it
-  cannot delete the part;
-* a floater in front of a surface only *lowers* the rendered depth in the views that see it, which withholds
-  depth votes; it never adds volume, because the masks of the other views still carve around the object;
+* one bad view (a depth rendered too deep, a part one mask missed) casts one wrong empty vote: with ``min_votes`` = 2
+  it cannot delete the part;
+* a floater in front of a surface only *lowers* the rendered depth in the views that see it, which withholds free
+  votes; it never adds volume, because the other views still see through the space around the object;
 * the fraction keeps the rule meaningful when the capture has many views (60 views: 9 must agree at 0.15).
 
-The surface depth. A depth vote is right only if the rendered depth lies at or in front of the object's surface
-along the pixel's ray: every centre in front of it is carved. A trained splat draws a surface as a soft layer of
+The surface depth. A free vote is right only if the rendered depth lies at or in front of the object's surface along
+the pixel's ray: every centre in front of it is carved. A trained splat draws a surface as a soft layer of
 semi-transparent Gaussians, and a rasterizer gives every pixel a Gaussian covers the depth of the Gaussian's
 *centre*, so a depth read from inside the layer carves a shell off every face it is seen from. The depth that
 carves is where the ray's transmittance first crosses :data:`.gaussians.SURFACE_TRANSMITTANCE` (0.8: the ray has
@@ -35,26 +34,25 @@ lost a fifth of its light; :func:`.gaussians.render_depth`, the reference compos
 front of the layer; a surface that stops that much of the ray keeps it whatever lies behind. The expected depth
 (the blending-weighted mean) is pulled towards the back surface wherever the front one is not opaque, and the
 median depth (transmittance 1/2) lies halfway into the layer; both carved the path-traced development families'
-walls (docs/architecture.md, "Mass geometry", gives the comparison). A pixel whose alpha never reaches
-``1 - SURFACE_TRANSMITTANCE`` has no surface depth and does not carve by depth (``min_alpha`` is at least that).
+walls (docs/architecture.md, "Mass geometry", gives the comparison). A ray that never loses that much light has no
+surface and sees through every point on it (:data:`.free_space.SEES_THROUGH`). The depth is read bilinearly between
+the four pixels around a centre's projection, and the margin grows by ``depth_slope_margin`` times that lookup's
+error bound (:func:`.carve_views.depth_slack`: 0 on a plane, so a slab is not thickened).
 
 Depth consensus. The vote's fraction is low (15% of the views that frame a voxel) because most views cannot see
-a given empty voxel at all: it is hidden behind the object in them. But then a surface voxel is carved as soon as
-15% of the views render the surface behind it, so the carved surface follows the *most* biased views, not the
-typical one: a surface rendered a little too deep in a few views shaves a layer off a flat face (the GPU suite's
-compact solids came out 0.72-0.9x of their volume). So a voxel that the silhouette votes alone do not carve is
-carved only when its depth votes are also at least ``depth_consensus`` (0.5: a majority) of the views that see it
-near their rendered surface (no more than ``near_band_voxels`` behind it) or in front of it: the views that have
-evidence about it. A cup's inside passes (the views that look into it see past it; the views that have it hidden
-behind the wall have no say); a face that most views render where it is keeps its layer. A view has a say ("near") only
-where it could have voted: the voxel projects at least ``near_inset_px`` inside its mask (not onto the silhouette's
-edge pixels, whose depth is the edge's) and the lookup's slack there is within the band. Without that, an exact
-box (tests/test_geometry.py) keeps a rim of voxels along its edges (1.104x; with it 1.099x, as the vote alone).
+through a given empty voxel at all: it is hidden behind the object in them. But then a surface voxel is carved as
+soon as 15% of the views render the surface behind it, so the carved surface follows the *most* biased views, not
+the typical one: a surface rendered a little too deep in a few views shaves a layer off a flat face (the GPU suite's
+compact solids came out 0.72-0.9x of their volume). So a voxel is carved only when its free votes are also at least
+``depth_consensus`` (0.5: a majority) of the views that see it near their surface (no more than
+``near_band_voxels`` behind it, where the lookup's slack is within the band) or in front of it: the views that have
+evidence about it. A cup's inside passes (the views that look into it see through it; the views that have it hidden
+behind the wall have no say); a face that most views render where it is keeps its layer.
 
 The centre test makes the recovered volume unbiased to first order in the voxel size (a boundary voxel is
 counted when its centre is inside). The solid's small disconnected specks (below ``min_component`` of the
 largest component's volume) are dropped, and cavities that the solid encloses completely are filled: a view
-can only see past a voxel along a ray of empty space, so an enclosed empty pocket was carved by wrong
+can only see through a voxel along a ray of empty space, so an enclosed empty pocket was carved by wrong
 evidence (a depth rendered too deep through a semi-transparent wall), never seen.
 """
 
@@ -71,6 +69,7 @@ from .capture import CaptureView
 from .carve_config import CarveConfig
 from .carve_views import (
     _add_views,
+    _bilinear,
     _corners,  # noqa: F401  (re-exported, as _sample: the tests' oracles import them from here)
     _Rule,
     _sample,  # noqa: F401
@@ -81,145 +80,116 @@ from .carve_views import (
     signed_mask_distance,
     signed_mask_distances,
 )
-from .gaussians import ViewRender
 from .grid import VoxelGrid
 
 __all__ = [
     "CarveConfig",
     "CarveVotes",
-    "VoteKey",
-    "carve_votes",
     "carve_votes_many",
+    "carved_by_votes",
     "default_batch_points",
     "depth_slack",
-    "hull_from_votes",
+    "mask_hull",
     "mask_view_votes",
     "signed_mask_distance",
     "signed_mask_distances",
     "solid_from_votes",
-    "vote_key",
 ]
+
 
 @dataclass
 class CarveVotes:
-    empty: Tensor
-    """int [M]: views that see past each voxel"""
+    free: Tensor
+    """int [M]: views that see through each voxel"""
     seen: Tensor
     """int [M]: views in whose image each voxel projects"""
-    depth_empty: Tensor | None = None
-    """int [M]: the empty votes cast by depth (a subset of ``empty``)"""
-    num_views: int = 0
+    near: Tensor
+    """int [M]: views that see each voxel in front of or within ``near_band_voxels`` behind their surface"""
+    num_views: int
     """views voted"""
-    near: Tensor | None = None
-    """int [M]: views that see each voxel in front of or within ``near_band_voxels`` behind their surface (None: not
-    counted, when no setting asks for the depth consensus)"""
 
 
-@torch.no_grad()
-def carve_votes(
-    grid: VoxelGrid,
-    views: Sequence[CaptureView],
-    renders: Sequence[ViewRender] | None,
-    cfg: CarveConfig,
-    *,
-    sdf: Sequence[Tensor] | None = None,
-    chunk: int = 1 << 20,
-    device: torch.device | str = "cpu",
-) -> CarveVotes:
-    """Empty and seen votes for every voxel of ``grid`` (flattened C order)."""
-    return carve_votes_many(grid, views, renders, [cfg], sdf=sdf, chunk=chunk, device=device)[0]
-
-
-VoteKey = tuple[float, float, float]
-
-
-def vote_key(cfg: CarveConfig) -> VoteKey:
-    """The settings that the geometry variants and the partial-volume surface change and that the votes depend on
-    (mask margin, depth margin, absolute and relative): settings whose keys are equal, and whose other vote
-    settings agree, share one voting pass."""
-    return cfg.mask_margin_px, cfg.depth_margin_voxels, cfg.depth_margin_rel
+def _centres(grid: VoxelGrid, s0: int, n: int, device: torch.device | str) -> Tensor:
+    """float32 [n, 3]: the centres of voxels ``s0 .. s0 + n - 1`` of ``grid`` (flattened C order)."""
+    shape = torch.as_tensor(grid.shape, device=device)
+    flat = torch.arange(s0, s0 + n, device=device)
+    ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
+    return grid.centres(ijk)
 
 
 @torch.no_grad()
 def carve_votes_many(
     grid: VoxelGrid,
     views: Sequence[CaptureView],
-    renders: Sequence[ViewRender] | None,
+    depths: Sequence[Tensor],
     cfgs: Sequence[CarveConfig],
     *,
-    sdf: Sequence[Tensor] | None = None,
     chunk: int = 1 << 20,
     batch_points: int | None = None,
     device: torch.device | str = "cpu",
     points: Tensor | None = None,
 ) -> list[CarveVotes]:
-    """:func:`carve_votes` under several settings, the same votes as a call each: every voxel centre, or each of
-    ``points`` [M, 3], is looked up once per view (``batch_points`` pairs at a time: :func:`default_batch_points`)."""
+    """The free-space votes (module doc) of every voxel centre of ``grid`` (flattened C order), or of each of
+    ``points`` [M, 3], under each of ``cfgs``: ``views`` give the cameras, ``depths`` [H, W] their surface depths
+    (finite: :func:`.free_space.free_space_depths`). Every point is looked up once per view (``batch_points`` pairs
+    at a time: :func:`default_batch_points`), and settings that vote alike (the same margin, slope and band) share
+    one count."""
     if batch_points is None:
         batch_points = default_batch_points(device)
+    keys = [(c.depth_margin_voxels, c.depth_slope_margin, c.near_band_voxels) for c in cfgs]
+    unique = list(dict.fromkeys(keys))
+    rule = _Rule([cfgs[keys.index(k)] for k in unique], grid.voxel_size)
     M = grid.num_voxels if points is None else len(points)
-    G = len(cfgs)
-    empty, depth_empty = ([torch.zeros(M, dtype=torch.int32, device=device) for _ in cfgs] for _ in range(2))
-    counts_near = renders is not None and any(c.depth_consensus > 0 and c.use_depth for c in cfgs)
-    near = [torch.zeros(M, dtype=torch.int32, device=device) if c.depth_consensus > 0 else None for c in cfgs]
+    free, near = (torch.zeros(len(unique), M, dtype=torch.int32, device=device) for _ in range(2))
     seen = torch.zeros(M, dtype=torch.int32, device=device)
-    sdf = [t.to(device) for t in (sdf if sdf is not None else signed_mask_distances([v.mask for v in views]))]
-    cams = [(v.viewmat[:3, :3].to(device), v.viewmat[:3, 3].to(device), v.K.to(device)) for v in views]
-    any_depth = renders is not None and any(c.use_depth for c in cfgs)
-    slope = any(c.depth_slope_margin > 0 for c in cfgs)
-    lookup = cfgs[0].depth_lookup
-    if any(c.depth_lookup != lookup for c in cfgs):
-        raise ValueError("carve_votes_many: every setting must use the same depth_lookup.")
-    images = [r.depth.to(device) for r in renders] if any_depth else [None] * len(views)
-    depth = ([(d, r.alpha.to(device), depth_slack(d, r.alpha.to(device), lookup=lookup) if slope else None)
-              for d, r in zip(images, renders)] if any_depth else [None] * len(views))  # fmt: skip
-    shape = torch.as_tensor(grid.shape, device=device)
-    rule = _Rule(cfgs, grid.voxel_size)
-    batches = _ViewBatch.group(views, cams, sdf, depth, lookup == "bilinear")
+    depths = [d.to(device) for d in depths]
+    batches = _ViewBatch.group(views, [{"depth": d} for d in depths], [{"slack": depth_slack(d)} for d in depths])
     for s0 in range(0, M, chunk):  # voxel centres once per chunk, then every view
-        flat = torch.arange(s0, min(M, s0 + chunk), device=device)
-        if points is None:
-            ijk = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], -1)
-            x = grid.centres(ijk)
-        else:
-            x = points[s0 : s0 + chunk].to(device=device, dtype=torch.float32)
-        n_seen = torch.zeros(len(flat), dtype=torch.int32, device=device)
-        # [G, n]: one row per setting
-        n_empty, n_depth = (torch.zeros(G, len(flat), dtype=torch.int32, device=device) for _ in range(2))
-        n_near = torch.zeros(G, len(flat), dtype=torch.int32, device=device) if counts_near else None
-        for part in _ViewBatch.parts(batches, len(flat), batch_points):  # [B, n] per quantity
-            ok, z, dist, d, a, sl = part.lookup(x)
-            if d is None:
-                vote = rule.silhouette(ok, dist)
-            else:
-                vote, dvote, seen_near = rule.votes(ok, dist, z, d, a, sl)
-                _add_views(n_depth, dvote)
-                if seen_near is not None and n_near is not None:
-                    _add_views(n_near, seen_near)
-            _add_views(n_empty, vote)
-            _add_views(n_seen, ok)
-        sl = slice(s0, s0 + len(flat))
-        seen[sl] = n_seen
-        for g in range(G):
-            empty[g][sl], depth_empty[g][sl] = n_empty[g], n_depth[g]
-            if n_near is not None and near[g] is not None:
-                near[g][sl] = n_near[g]
-    return [CarveVotes(empty[g], seen, depth_empty[g], len(views), near[g] if any_depth else None)
-            for g in range(G)]
+        n = min(M - s0, chunk)
+        x = (_centres(grid, s0, n, device) if points is None
+             else points[s0 : s0 + n].to(device=device, dtype=torch.float32))  # fmt: skip
+        sl = slice(s0, s0 + n)
+        for part in _ViewBatch.parts(batches, n, batch_points):  # [B, n] per quantity
+            ok, z, at, px = part.lookup(x)
+            vals, weights = at["depth"]
+            d = sum(dk * cw for dk, cw in zip(vals, weights)) / sum(weights)
+            through, by = rule.votes(ok, z, d, px["slack"])
+            _add_views(free[:, sl], through)
+            _add_views(near[:, sl], by)
+            _add_views(seen[sl], ok)
+    return [CarveVotes(free[unique.index(k)], seen, near[unique.index(k)], len(views)) for k in keys]
 
 
 def carved_by_votes(votes: CarveVotes, cfg: CarveConfig) -> Tensor:
-    """bool [M]: the points that the vote carves (module doc), point by point (no specks dropped, no cavity
-    filled: :func:`solid_from_votes` does that on the grid)."""
-    e = votes.empty.float()
-    carved = (e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * votes.seen.float())
-    if cfg.depth_consensus > 0 and votes.near is not None and votes.depth_empty is not None:
-        de = votes.depth_empty.float()
-        m = e - de  # the silhouette votes
-        by_masks = (m >= cfg.min_votes) & (m >= cfg.min_vote_fraction * votes.seen.float())
-        carved &= by_masks | (de >= cfg.depth_consensus * votes.near.float())
+    """bool [M]: the points that the free-space vote carves (module doc), point by point (no specks dropped, no
+    cavity filled: :func:`solid_from_votes` does that on the grid)."""
+    f = votes.free.float()
+    carved = (f >= cfg.min_votes) & (f >= cfg.min_vote_fraction * votes.seen.float())
+    if cfg.depth_consensus > 0:
+        carved &= f >= cfg.depth_consensus * votes.near.float()
     carved |= votes.seen.float() < cfg.min_seen_fraction * votes.num_views
     return carved
+
+
+@torch.no_grad()
+def mask_hull(grid: VoxelGrid, views: Sequence[CaptureView], cfg: CarveConfig, *, chunk: int = 1 << 20,
+              batch_points: int | None = None, device: torch.device | str = "cpu") -> np.ndarray:  # fmt: skip
+    """bool [X, Y, Z]: the object masks' visual hull, the voxels that the silhouette vote (module doc) under
+    ``cfg``'s counts leaves."""
+    sdf = [t.to(device) for t in signed_mask_distances([v.mask for v in views])]
+    batches = _ViewBatch.group(views, [{"sdf": s} for s in sdf])
+    outside, seen = (torch.zeros(grid.num_voxels, dtype=torch.int32, device=device) for _ in range(2))
+    for s0 in range(0, grid.num_voxels, chunk):
+        n = min(grid.num_voxels - s0, chunk)
+        x = _centres(grid, s0, n, device)
+        for part in _ViewBatch.parts(batches, n, batch_points or default_batch_points(device)):
+            ok, _, at, _ = part.lookup(x)
+            _add_views(outside[s0 : s0 + n], ok & (_bilinear(at["sdf"]) > 0))
+            _add_views(seen[s0 : s0 + n], ok)
+    e = outside.float()
+    carved = (e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * seen.float())
+    carved |= seen.float() < cfg.min_seen_fraction * len(views)
+    return (~carved).reshape(grid.shape).cpu().numpy()
 
 
 def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
@@ -243,18 +213,6 @@ def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np
     out = np.zeros_like(full)
     out[crop] = solid
     return out
-
-
-def hull_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
-    """bool [X, Y, Z]: the *visual hull* of the vote, the voxels that the silhouette votes alone leave (the depth
-    votes withheld). Its empty voxels outside the solid are the object's concavities, which only depth carves (a
-    cup's inside): :func:`physgs_nerfstudio.geometry.parts.part_areas` does not count the walls that face them
-    twice."""
-    e = votes.empty if votes.depth_empty is None else votes.empty - votes.depth_empty
-    e = e.float()
-    carved = (e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * votes.seen.float())
-    carved |= votes.seen.float() < cfg.min_seen_fraction * votes.num_views
-    return (~carved).reshape(grid.shape).cpu().numpy()
 
 
 def fill_holes(solid: np.ndarray) -> np.ndarray:

@@ -1,10 +1,10 @@
-"""Each view's empty votes for voxel centres, the per-view half of the carving (the rule: carve.py's module
-doc). A centre is projected into every view and its signed distance to the view's mask boundary read
-bilinearly (:func:`signed_mask_distance`); the rendered surface depth (:func:`.gaussians.render_depth`) is looked
-up there, with its slack, the lookup's error bound (:func:`depth_slack`).
-Views of one image size are looked up together (:class:`_ViewBatch`), and :class:`_Rule` turns what they
-read into the votes of several settings at once: :func:`.carve.carve_votes_many` counts them per voxel,
-:func:`mask_view_votes` gives each view's mask votes alone.
+"""Each view's votes for points, the per-view half of the carving (the rules: carve.py's module doc). A point is
+projected into every view; the free-space vote reads the view's surface depth there, bilinear between the four pixels
+around the projection, and the depth's slack, the lookup's error bound (:func:`depth_slack`), at the pixel that holds
+it; the silhouette vote reads the object mask's signed distance (:func:`signed_mask_distance`), bilinear too.
+Views of one image size are looked up together (:class:`_ViewBatch`), and :class:`_Rule` turns the depths they read
+into the free-space votes of several settings at once: :func:`.carve.carve_votes_many` counts them per voxel,
+:func:`mask_view_votes` gives each view's silhouette votes.
 """
 
 from __future__ import annotations
@@ -71,25 +71,19 @@ def _shift(t: Tensor, dim: int, step: int, fill: float | bool) -> Tensor:
     return torch.cat([pad, body] if step > 0 else [body, pad], dim)
 
 
-def depth_slack(depth: Tensor, alpha: Tensor, min_alpha: float = 0.5, lookup: str = "bilinear") -> Tensor:
-    """float [H, W]: a bound on the error of the depth looked up at a point inside each pixel, from the depth's
-    differences to opaque neighbours (alpha >= ``min_alpha``), summed over the two image axes:
-
-    * ``lookup="nearest"`` (the pixel's own depth): half a pixel's first difference, the larger one-sided one;
-    * ``lookup="bilinear"``: where both neighbours along an axis are opaque, linear interpolation's error bound
-      |second difference| / 8, zero on a plane however obliquely it is seen; next to a transparent neighbour
-      (the interpolation falls back to the opaque side) half the one-sided first difference.
-    """
-    op = alpha >= min_alpha
-    d = torch.where(op, depth, torch.zeros_like(depth))
-    out = torch.zeros_like(d)
+def depth_slack(depth: Tensor) -> Tensor:
+    """float [H, W]: a bound on the error of the depth looked up bilinearly at a point inside each pixel, summed over
+    the two image axes: where both neighbours along an axis lie in the image, linear interpolation's error bound
+    |second difference| / 8, zero on a plane however obliquely it is seen; on the image's edge (the lookup clamps to
+    the edge pixel) half the first difference to the neighbour inside."""
+    out = torch.zeros_like(depth)
+    inside = torch.ones_like(depth, dtype=torch.bool)
     for dim in (0, 1):
-        prev, nxt = _shift(d, dim, 1, 0.0), _shift(d, dim, -1, 0.0)
-        p_ok, n_ok = _shift(op, dim, 1, False) & op, _shift(op, dim, -1, False) & op
-        first = 0.5 * torch.maximum(torch.where(p_ok, (d - prev).abs(), 0.0), torch.where(n_ok, (nxt - d).abs(), 0.0))
-        if lookup == "bilinear":
-            first = torch.where(p_ok & n_ok, (prev - 2 * d + nxt).abs() / 8, first)
-        out += first
+        prev, nxt = _shift(depth, dim, 1, 0.0), _shift(depth, dim, -1, 0.0)
+        p_ok, n_ok = _shift(inside, dim, 1, False), _shift(inside, dim, -1, False)
+        first = 0.5 * torch.maximum(torch.where(p_ok, (depth - prev).abs(), 0.0),
+                                    torch.where(n_ok, (nxt - depth).abs(), 0.0))  # fmt: skip
+        out += torch.where(p_ok & n_ok, (prev - 2 * depth + nxt).abs() / 8, first)
     return out
 
 
@@ -109,6 +103,12 @@ def _corners(shape: tuple[int, ...], u: Tensor, v: Tensor) -> list[tuple[Tensor,
 def _sample(img: Tensor, u: Tensor, v: Tensor) -> Tensor:
     """Bilinear sample of ``img`` [H, W] at continuous pixel coordinates (pixel i covers [i, i+1))."""
     return sum(img[yy, xx] * w for yy, xx, w in _corners(img.shape, u, v))
+
+
+def _bilinear(read: tuple[list[Tensor], list[Tensor]]) -> Tensor:
+    """An image's bilinear sample from its values at the four pixels around a point and their weights
+    (:meth:`_ViewBatch.lookup`), as :func:`_sample` computes it."""
+    return sum(s * cw for s, cw in zip(*read))  # type: ignore[return-value]
 
 
 def default_batch_points(device: torch.device | str) -> int:
@@ -131,9 +131,9 @@ class _ViewBatch:
     is, pair for pair, the one that a view on its own gets (:func:`.carve.carve_votes_many`)."""
 
     def __init__(self, views: list[CaptureView], cams: list[tuple[Tensor, Tensor, Tensor]],
-                 around: dict[str, list[Tensor]], held: dict[str, list[Tensor]], bilinear: bool,
-                 index: list[int] | None = None) -> None:  # fmt: skip
-        self.views, self.cams, self.bilinear = views, cams, bilinear
+                 around: dict[str, list[Tensor]], held: dict[str, list[Tensor]], index: list[int] | None = None
+                 ) -> None:  # fmt: skip
+        self.views, self.cams = views, cams
         self.index = index if index is not None else list(range(len(views)))
         """each view's position in the views the batches were grouped from (:meth:`group`)"""
         self._around, self._held = around, held
@@ -149,30 +149,23 @@ class _ViewBatch:
         return len(self.views)
 
     @classmethod
-    def group(cls, views: Sequence[CaptureView], cams: list[tuple[Tensor, Tensor, Tensor]], sdf: list[Tensor],
-              depth: list, bilinear: bool) -> list[_ViewBatch]:  # fmt: skip
-        """The views grouped by the sizes and types of their images (in their order)."""
+    def group(cls, views: Sequence[CaptureView], around: list[dict[str, Tensor]],
+              held: list[dict[str, Tensor]] | None = None) -> list[_ViewBatch]:  # fmt: skip
+        """The views grouped by the sizes and types of their images (in their order): per view, the images read
+        bilinearly around a point (``around``) and those read at the pixel that holds it (``held``), all on the
+        device of the batches."""
+        if not views:
+            return []
+        held = held if held is not None else [{} for _ in views]
+        dev = next(iter(around[0].values())).device
+        cams = [(v.viewmat[:3, :3].to(dev), v.viewmat[:3, 3].to(dev), v.K.to(dev)) for v in views]
         groups: dict[tuple, list[int]] = {}
-        per_view = []
-        for i, (sd, dz) in enumerate(zip(sdf, depth)):
-            around = {"sdf": sd}
-            held: dict[str, Tensor] = {}
-            if dz is not None:
-                held = {"depth": dz[0], "alpha": dz[1]}
-                if dz[2] is not None:
-                    held["slack"] = dz[2]
-                if bilinear:
-                    around.update({k: v for k, v in held.items() if k != "slack"})
-            per_view.append((around, held))
-            key = tuple((k, tuple(v.shape), v.dtype) for d in (around, held) for k, v in d.items())
-            key += (cams[i][0].dtype, cams[i][2].dtype)
-            groups.setdefault(key, []).append(i)
-        out = []
-        for idx in groups.values():
-            around = {k: [per_view[i][0][k] for i in idx] for k in per_view[idx[0]][0]}
-            held = {k: [per_view[i][1][k] for i in idx] for k in per_view[idx[0]][1]}
-            out.append(cls([views[i] for i in idx], [cams[i] for i in idx], around, held, bilinear, idx))
-        return out
+        for i in range(len(views)):
+            key = tuple((k, tuple(v.shape), v.dtype) for d in (around[i], held[i]) for k, v in d.items())
+            groups.setdefault(key + (cams[i][0].dtype, cams[i][2].dtype), []).append(i)
+        stacked = lambda per_view, idx: {k: [per_view[i][k] for i in idx] for k in per_view[idx[0]]}
+        return [cls([views[i] for i in idx], [cams[i] for i in idx], stacked(around, idx), stacked(held, idx), idx)
+                for idx in groups.values()]  # fmt: skip
 
     @staticmethod
     def parts(batches: list[_ViewBatch], n: int, batch_points: int) -> Iterator[_ViewBatch]:
@@ -188,23 +181,16 @@ class _ViewBatch:
         if (b0, b1) in self._parts:  # (the next chunk of voxels)
             return self._parts[(b0, b1)]
         sub = lambda d: {k: v[b0:b1] for k, v in d.items()}
-        part = _ViewBatch(self.views[b0:b1], self.cams[b0:b1], sub(self._around), sub(self._held), self.bilinear,
-                          self.index[b0:b1])  # fmt: skip
+        part = _ViewBatch(self.views[b0:b1], self.cams[b0:b1], sub(self._around), sub(self._held), self.index[b0:b1])
         self._parts[(b0, b1)] = part
         return part
 
     @property
-    def around(self) -> list[tuple[Tensor, tuple[int, ...], list[str]]]:
-        """The stacks of the images read at the four pixels around a point."""
+    def stacks(self) -> tuple[list, list]:
+        """The stacks of the images read around a point and of those read at the pixel that holds it."""
         if self._stacked is None:
             self._stacked = (self._stacks(self._around), self._stacks(self._held))
-        return self._stacked[0]
-
-    @property
-    def held(self) -> list[tuple[Tensor, tuple[int, ...], list[str]]]:
-        """The stacks of the images read at the pixel that holds a point."""
-        self.around  # noqa: B018  (stacks both)
-        return self._stacked[1]  # type: ignore[index]
+        return self._stacked
 
     @staticmethod
     def _stacks(images: dict[str, list[Tensor]]) -> list[tuple[Tensor, tuple[int, ...], list[str]]]:
@@ -225,12 +211,11 @@ class _ViewBatch:
             flat = flat + torch.arange(len(self), device=flat.device)[:, None] * (shape[0] * shape[1])
         return stack.index_select(0, flat.reshape(-1)).T.reshape(stack.shape[1], *rows.shape)
 
-    def lookup(self, x: Tensor) -> tuple[Tensor, ...]:
-        """[B, n] each, for voxel centres ``x`` [n, 3]: whether the view frames the centre, its camera depth, the mask
-        distance there (:func:`_sample`), and the depth, alpha and slack that the vote reads (None where not
-        rendered): the depth bilinear from the opaque pixels (alpha >= 0.5) among the four around the point, their
-        bilinear weights renormalised (+inf where none is opaque), or else the pixel's own; the alpha and the slack
-        the pixel's own."""
+    def lookup(self, x: Tensor) -> tuple[Tensor, Tensor, dict[str, tuple[list[Tensor], list[Tensor]]],
+                                         dict[str, Tensor]]:  # fmt: skip
+        """For points ``x`` [n, 3], [B, n] each: whether the view frames the point and its camera depth; each image
+        read around it (its values at the four pixels around the point and their bilinear weights, :func:`_corners`);
+        each image read at the pixel that holds it."""
         pc = (torch.stack([x @ R.T + t for R, t, _ in self.cams]) if len(self) > 1
               else (x @ self.cams[0][0].T + self.cams[0][1])[None])  # [B, n, 3], each view's as on its own
         z = pc[..., 2]
@@ -244,104 +229,57 @@ class _ViewBatch:
             W, H = self.width.to(u.dtype), self.height.to(u.dtype)
             ok = (z > 1e-6) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
             uc, vc = u.clamp_min(0).minimum(W), v.clamp_min(0).minimum(H)
-        at: dict[str, tuple[list[Tensor], list[Tensor]]] = {}  # name: (values at the four corners, their weights)
-        for stack, shape, names in self.around:
+        around, held = self.stacks
+        at: dict[str, tuple[list[Tensor], list[Tensor]]] = {}
+        for stack, shape, names in around:
             corners = _corners(shape, uc, vc)  # type: ignore[arg-type]
             got = [self._gather(stack, shape, yy, xx) for yy, xx, _ in corners]
-            for i, n in enumerate(names):
-                at[n] = ([g[i] for g in got], [cw for _, _, cw in corners])
-        vals, weights = at["sdf"]
-        dist = sum(s * cw for s, cw in zip(vals, weights))
-        if not self.held:
-            return ok, z, dist, None, None, None  # type: ignore[return-value]
-        if len(self) == 1:
-            ui = u.floor().long().clamp(0, self.views[0].width - 1)
-            vi = v.floor().long().clamp(0, self.views[0].height - 1)
-        else:
-            ui = u.floor().long().clamp_min(0).minimum(self.width - 1)
-            vi = v.floor().long().clamp_min(0).minimum(self.height - 1)
+            for i, name in enumerate(names):
+                at[name] = ([g[i] for g in got], [cw for _, _, cw in corners])
         px: dict[str, Tensor] = {}
-        for stack, shape, names in self.held:
-            px.update(zip(names, self._gather(stack, shape, vi, ui)))
-        d, a, sl = px["depth"], px["alpha"], px.get("slack")
-        if self.bilinear:
-            depth, weights = at["depth"]
-            alpha = at["alpha"][0]
-            num = torch.zeros_like(u)
-            den = torch.zeros_like(u)
-            for k, cw in enumerate(weights):
-                good = alpha[k] >= 0.5
-                cw = torch.where(good, cw, 0.0)
-                num += cw * torch.where(good, depth[k], 0.0)
-                den += cw
-            d = torch.where(den > 0, num / den.clamp_min(1e-12), torch.full_like(num, float("inf")))
-        return ok, z, dist, d, a, sl
+        if held:
+            if len(self) == 1:
+                ui = u.floor().long().clamp(0, self.views[0].width - 1)
+                vi = v.floor().long().clamp(0, self.views[0].height - 1)
+            else:
+                ui = u.floor().long().clamp_min(0).minimum(self.width - 1)
+                vi = v.floor().long().clamp_min(0).minimum(self.height - 1)
+            for stack, shape, names in held:
+                px.update(zip(names, self._gather(stack, shape, vi, ui)))
+        return ok, z, at, px
+
 
 class _Rule:
-    """The carving rule of several settings at once, as [G, n] comparisons against [G, 1] columns of the settings'
-    thresholds: row g is, value for value, what the rule of setting g alone computes (the same operations, the
-    thresholds rounded to the compared tensor's type as a Python number would be)."""
+    """The free-space vote of several settings at once, as [G, n] comparisons against [G, 1] columns of the
+    settings' thresholds: row g is, value for value, what the rule of setting g alone computes (the same operations,
+    the thresholds rounded to the compared tensor's type as a Python number would be)."""
 
     def __init__(self, cfgs: Sequence[CarveConfig], voxel_size: float) -> None:
         self.values: dict[str, list] = {
-            "mask_margin": [c.mask_margin_px for c in cfgs],
-            "margin_abs": [c.depth_margin_voxels * voxel_size for c in cfgs],
-            "margin_rel": [c.depth_margin_rel for c in cfgs],
+            "margin": [c.depth_margin_voxels * voxel_size for c in cfgs],
             "slope": [c.depth_slope_margin for c in cfgs],
-            "min_alpha": [c.min_alpha for c in cfgs],
-            "use_depth": [c.use_depth for c in cfgs],
-            "has_slope": [c.depth_slope_margin > 0 for c in cfgs],
             "near_band": [c.near_band_voxels * voxel_size for c in cfgs],
-            "consensus": [c.depth_consensus > 0 for c in cfgs],
-            "near_inset": [c.near_inset_px for c in cfgs],
         }
         self._cols: dict[tuple, Tensor] = {}
 
-    def col(self, name: str, like: Tensor, dtype: torch.dtype | None = None) -> Tensor:
-        """[G, 1, ...]: the settings' values of ``name``, in ``like``'s type (or ``dtype``), to broadcast against
-        ``like``; [1, 1, ...] when every setting has the same value (the operation then runs once, not G times)."""
-        dtype = dtype or like.dtype
-        key = (name, dtype, like.dim(), like.device)
+    def col(self, name: str, like: Tensor) -> Tensor:
+        """[G, 1, ...]: the settings' values of ``name``, in ``like``'s type, to broadcast against ``like``;
+        [1, 1, ...] when every setting has the same value (the operation then runs once, not G times)."""
+        key = (name, like.dtype, like.dim(), like.device)
         if key not in self._cols:
             vals = self.values[name]
             vals = vals[:1] if all(v == vals[0] for v in vals) else vals
-            self._cols[key] = torch.tensor(vals, dtype=dtype, device=like.device).reshape(-1, *([1] * like.dim()))
+            self._cols[key] = torch.tensor(vals, dtype=like.dtype, device=like.device).reshape(-1, *([1] * like.dim()))
         return self._cols[key]
 
-    def every(self, name: str) -> bool | None:
-        """True (False) when the flag ``name`` is set (unset) for every setting, None when it differs."""
-        vals = self.values[name]
-        return bool(vals[0]) if all(v == vals[0] for v in vals) else None
-
-    def silhouette(self, ok: Tensor, dist: Tensor) -> Tensor:
-        """bool [G, n]: the mask votes."""
-        return ok & (dist > self.col("mask_margin", dist))
-
-    def votes(self, ok: Tensor, dist: Tensor, z: Tensor, d: Tensor, a: Tensor, sl: Tensor | None
-              ) -> tuple[Tensor, Tensor, Tensor | None]:  # fmt: skip
-        """bool [G, n] each (or [1, n] where every setting gives the same): the empty votes, the depth votes among
-        them, and whether the view sees the voxel near its surface (None when no setting asks for the depth
-        consensus)."""
-        like = d  # [B, n]: the columns' shape ([G, 1, 1])
-        margin = self.col("margin_abs", like) + self.col("margin_rel", like) * d
-        slope = self.every("has_slope")
-        if sl is not None and slope is not False:
-            sloped = margin + self.col("slope", sl) * sl
-            margin = sloped if slope else torch.where(self.col("has_slope", sl, torch.bool), sloped, margin)
-        inside = ok & (dist <= self.col("mask_margin", dist)) & (a >= self.col("min_alpha", a))
-        if not self.every("use_depth"):
-            inside = inside & self.col("use_depth", ok, torch.bool)
-        dvote = inside & (z < d - margin)
-        near = None
-        if self.every("consensus") is not False:
-            # a view has a say about the voxel only where it could have voted: the voxel falls clearly inside its
-            # mask (not on the silhouette's edge pixels, whose depth is the edge's) and its depth is sharp there
-            # (the lookup's slack no wider than the band)
-            band = self.col("near_band", like)
-            deep = dist <= self.col("mask_margin", dist) - self.col("near_inset", dist)
-            near = inside & deep & (z <= d + margin + band) & (margin <= band)
-        return self.silhouette(ok, dist) | dvote, dvote, near
-
+    def votes(self, ok: Tensor, z: Tensor, d: Tensor, slack: Tensor) -> tuple[Tensor, Tensor]:
+        """bool [G, n] each (or [1, n] where every setting gives the same), for points framed (``ok``) at camera
+        depth ``z`` where the view's surface depth is ``d`` with slack ``slack``: whether the view sees through the
+        point (nearer than the surface by more than the margin), and whether it sees the point near its surface
+        (in front of it or at most the band behind it, where the depth is sharp: its margin within the band)."""
+        margin = self.col("margin", d) + self.col("slope", slack) * slack
+        band = self.col("near_band", d)
+        return ok & (z < d - margin), ok & (z <= d + margin + band) & (margin <= band)
 
 
 def mask_view_votes(x: Tensor, views: Sequence[CaptureView], sdf: Sequence[Tensor], margin_px: float,
@@ -349,17 +287,16 @@ def mask_view_votes(x: Tensor, views: Sequence[CaptureView], sdf: Sequence[Tenso
     """bool [V, n] each, for points ``x`` [n, 3] (float32, on the views' device), in the order of ``views``: whether
     each view frames each point (in front of the camera, inside the image), and whether it frames it and the point
     lies outside its mask by more than ``margin_px`` (``sdf``: the masks' signed distances,
-    :func:`signed_mask_distances`, on that device); the carving's projection and mask lookup
-    (:func:`.carve.carve_votes_many`), views of one image size together."""
+    :func:`signed_mask_distances`, on that device); the carving's projection (:func:`.carve.carve_votes_many`), views
+    of one image size together."""
     dev = x.device
-    cams = [(v.viewmat[:3, :3].to(dev), v.viewmat[:3, 3].to(dev), v.K.to(dev)) for v in views]
-    batches = _ViewBatch.group(views, cams, list(sdf), [None] * len(views), False)
+    batches = _ViewBatch.group(views, [{"sdf": s} for s in sdf])
     framed = torch.zeros(len(views), len(x), dtype=torch.bool, device=dev)
     outside = torch.zeros_like(framed)
     points = batch_points if batch_points is not None else default_batch_points(dev)
     for part in _ViewBatch.parts(batches, len(x), points):
-        ok, _, dist, *_ = part.lookup(x)
+        ok, _, at, _ = part.lookup(x)
         rows = torch.tensor(part.index, device=dev)
         framed[rows] = ok
-        outside[rows] = ok & (dist > margin_px)
+        outside[rows] = ok & (_bilinear(at["sdf"]) > margin_px)
     return framed, outside

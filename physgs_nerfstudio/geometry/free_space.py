@@ -21,7 +21,6 @@ says *where* it ends): a component holding at least :data:`MIN_SEED_SHARE` of th
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -29,10 +28,10 @@ import torch
 from torch import Tensor
 
 from .capture import CaptureView
-from .gaussians import ViewRender, render_depth
+from .gaussians import render_depth
 from .grid import VoxelGrid
 
-__all__ = ["MIN_SEED_SHARE", "free_space_views", "seeded_components"]
+__all__ = ["MIN_SEED_SHARE", "SEES_THROUGH", "free_space_depths", "seeded_components"]
 
 SEES_THROUGH = 1e30
 """the depth given to a pixel whose ray never reaches the surface transmittance: every point along it is free"""
@@ -44,18 +43,13 @@ component in, while an object's separate parts (a lid, a wheel) each hold far mo
 
 
 @torch.no_grad()
-def free_space_views(g: Any, views: Sequence[CaptureView], backend: str = "auto"
-                     ) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
-    """The views as the carving reads them (module doc): each with a mask that holds every pixel (no silhouette
-    vote), and the whole splat's surface depth, where a pixel with no surface sees through (at :data:`SEES_THROUGH`,
-    so that every point on its ray is in front of it); every pixel is opaque to the vote (alpha 1), since every pixel
-    either has a surface (its ray lost a fifth of its light there) or sees through."""
+def free_space_depths(g: Any, views: Sequence[CaptureView], backend: str = "auto") -> list[Tensor]:
+    """float [H, W] per view: the whole splat's surface depth as the carving reads it (module doc), where a pixel with
+    no surface sees through (at :data:`SEES_THROUGH`, so that every point on its ray is in front of it)."""
     out = []
     for r in render_depth(g, views, backend=backend):
-        through = ~torch.isfinite(r.depth)
-        out.append(ViewRender(torch.where(through, torch.full_like(r.depth, SEES_THROUGH), r.depth),
-                              torch.ones_like(r.alpha)))  # fmt: skip
-    return [replace(v, mask=torch.ones_like(v.mask)) for v in views], out
+        out.append(torch.where(torch.isfinite(r.depth), r.depth, torch.full_like(r.depth, SEES_THROUGH)))
+    return out
 
 
 def seeded_components(grid: VoxelGrid, solid: np.ndarray, seeds: Tensor) -> np.ndarray:

@@ -46,7 +46,7 @@ SURFACE_TRANSMITTANCE = 0.8
 """The transmittance at which a pixel's ray reaches the object's surface: the depth that carves
 (:func:`render_depth`) is the first Gaussian's along the ray at which the light that passes drops to this share
 (the ray has lost a fifth of its light), and a pixel whose alpha never reaches ``1 - SURFACE_TRANSMITTANCE`` has
-no surface depth (+inf; it does not carve by depth, :attr:`.carve_config.CarveConfig.min_alpha` >= 0.2).
+no surface depth (+inf; the carving sees through it, :data:`.free_space.SEES_THROUGH`).
 
 Physically: a trained splat draws a surface not as one opaque sheet but as a soft layer of semi-transparent
 Gaussians, a few millimetres to a centimetre deep, whose centres lie on both sides of the true surface. Every

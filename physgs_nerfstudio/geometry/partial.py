@@ -1,8 +1,8 @@
 """Partial volume: how much of each boundary voxel the carving's surface keeps.
 
 The carving (:mod:`.carve`) decides each voxel by its centre, so a voxel on the solid's boundary counts whole or
-not at all. Where the rule's surface is the object's that is unbiased, but the depth vote carves a voxel only when
-it lies in front of the rendered surface by more than ``depth_margin_voxels``: a tolerance against noisy depth that,
+not at all. Where the rule's surface is the object's that is unbiased, but the free-space vote carves a voxel only
+when it lies in front of the rendered surface by more than ``depth_margin_voxels``: a tolerance against noisy depth that,
 counted by centres, would become a layer of volume on every face that only the depth places (on the demo's renders
 the depth places most of a chair's faces, and the +1 voxel margin variant added about a quarter of its volume).
 
@@ -33,12 +33,11 @@ from jaxtyping import Float
 from torch import Tensor
 
 from .capture import CaptureView
-from .carve import CarveConfig, VoteKey, carve_votes_many, carved_by_votes, vote_key
-from .gaussians import ViewRender
+from .carve import CarveConfig, carve_votes_many, carved_by_votes
 from .grid import VoxelGrid
 
-__all__ = ["BOUNDARY_SUBSAMPLES", "boundary_fill", "boundary_layers", "boundary_voxels", "far_depth_voxels",
-           "outer_rim", "part_volumes", "rim_labels", "sub_offsets", "surface_config"]
+__all__ = ["BOUNDARY_SUBSAMPLES", "boundary_fill", "boundary_layers", "boundary_voxels", "outer_rim", "part_volumes",
+           "rim_labels", "sub_offsets", "surface_config"]
 
 BOUNDARY_SUBSAMPLES = 2
 """sub-points per axis of a boundary voxel (2 x 2 x 2): the centre rule at half the voxel's step. Finer sampling
@@ -49,7 +48,7 @@ converges: 3 per axis moved the CPU demo table's and chair's masses by 0.1% and 
 def surface_config(cfg: CarveConfig) -> CarveConfig:
     """The setting whose vote places the surface that a boundary voxel's share is measured against: ``cfg`` with its
     depth margin no wider than 0 (module doc)."""
-    return replace(cfg, depth_margin_voxels=min(cfg.depth_margin_voxels, 0.0), depth_margin_rel=0.0)
+    return replace(cfg, depth_margin_voxels=min(cfg.depth_margin_voxels, 0.0))
 
 
 def boundary_voxels(solid: np.ndarray, layers: int = 1) -> np.ndarray:
@@ -62,25 +61,10 @@ def boundary_voxels(solid: np.ndarray, layers: int = 1) -> np.ndarray:
     return solid & ~inner
 
 
-def boundary_layers(cfg: CarveConfig, far_voxels: float = 0.0) -> int:
+def boundary_layers(cfg: CarveConfig) -> int:
     """How deep the voxels whose share is measured reach into the solid: one layer, plus the layers that a positive
-    depth margin keeps in front of the surface (under them lies the layer that the surface cuts; module doc). A
-    relative margin (``depth_margin_rel``) counts at ``far_voxels``, the farthest depth in voxels that a view has
-    on the grid (:func:`far_depth_voxels`)."""
-    margin = cfg.depth_margin_voxels + cfg.depth_margin_rel * far_voxels
-    return 1 + math.ceil(max(margin, 0.0) - 1e-9)
-
-
-def far_depth_voxels(grid: VoxelGrid, views: Sequence[CaptureView]) -> float:
-    """The largest distance from a view's camera to a corner of ``grid``, in voxels: no voxel lies deeper in any
-    view."""
-    lo = torch.tensor(grid.origin, dtype=torch.float64)
-    size = torch.tensor(grid.shape, dtype=torch.float64) * grid.voxel_size
-    unit = torch.tensor([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=torch.float64)
-    corners = lo + unit * size
-    centres = (torch.stack([v.centre.double().cpu() for v in views]) if views
-               else torch.zeros(1, 3, dtype=torch.float64))  # fmt: skip
-    return float(torch.cdist(centres, corners).max()) / grid.voxel_size
+    depth margin keeps in front of the surface (under them lies the layer that the surface cuts; module doc)."""
+    return 1 + math.ceil(max(cfg.depth_margin_voxels, 0.0) - 1e-9)
 
 
 def sub_offsets(n: int) -> Float[Tensor, "S 3"]:
@@ -128,25 +112,23 @@ def boundary_fill(
     solids: Sequence[np.ndarray],
     cfgs: Sequence[CarveConfig],
     views: Sequence[CaptureView],
-    renders: Sequence[ViewRender] | None,
+    depths: Sequence[Tensor],
     *,
-    sdf: Sequence[Tensor],
     subsamples: int = BOUNDARY_SUBSAMPLES,
     device: torch.device | str = "cpu",
 ) -> list[np.ndarray]:
     """float32 [X, Y, Z] per solid: the share of each voxel that the volume counts (module doc): 1 inside
     ``solids[i]``; on its boundary (:func:`boundary_voxels`, :func:`boundary_layers`) the share of the voxel's
-    ``subsamples^3`` sub-points that ``cfgs[i]``'s vote keeps at the rendered surface (:func:`surface_config`); the
-    same share on the voxels just outside it whose centres ``cfgs[i]``'s own vote carves (:func:`outer_rim`; not
-    those that other rules removed); 0 elsewhere. The voxels are voted on once, under every distinct vote;
-    ``subsamples`` <= 1: the solids as they are (whole voxels)."""
+    ``subsamples^3`` sub-points that ``cfgs[i]``'s free-space vote (``views``' cameras, ``depths`` their surface
+    depths: :func:`.carve.carve_votes_many`) keeps at the rendered surface (:func:`surface_config`); the same share
+    on the voxels just outside it whose centres ``cfgs[i]``'s own vote carves (:func:`outer_rim`; not those that
+    other rules removed); 0 elsewhere. ``subsamples`` <= 1: the solids as they are (whole voxels)."""
     fills = [np.asarray(s, dtype=np.float32) for s in solids]
     if subsamples <= 1 or not solids:
         return fills
     if len(cfgs) != len(solids):
         raise ValueError(f"boundary_fill: {len(solids)} solids but {len(cfgs)} carving settings.")
-    far = far_depth_voxels(grid, views) if any(c.depth_margin_rel > 0 for c in cfgs) else 0.0
-    edges = [boundary_voxels(s, boundary_layers(c, far)) for s, c in zip(solids, cfgs)]
+    edges = [boundary_voxels(s, boundary_layers(c)) for s, c in zip(solids, cfgs)]
     rims = [outer_rim(s) for s in solids]
     idx = np.argwhere(np.logical_or.reduce(edges) | np.logical_or.reduce(rims))
     if not len(idx):
@@ -157,25 +139,16 @@ def boundary_fill(
     offsets = torch.cat([sub_offsets(subsamples), torch.zeros(1, 3)]).to(centres)  # the sub-points, then the centre
     points = (centres[:, None, :] + offsets * grid.voxel_size).reshape(-1, 3)
     surface = [surface_config(c) for c in cfgs]
-
-    by_key: dict[VoteKey, CarveConfig] = {}
-    for c in surface:
-        by_key.setdefault(vote_key(c), c)
-    votes = dict(zip(by_key, carve_votes_many(grid, views, renders, list(by_key.values()), sdf=sdf, device=device,
-                                              points=points)))  # fmt: skip
+    votes = carve_votes_many(grid, views, depths, surface, device=device, points=points)
     # the rim's centres under the variants' own votes where those differ from the surface's (a positive margin):
     # one point per voxel
-    own: dict[VoteKey, CarveConfig] = {}
-    for c in cfgs:
-        if vote_key(c) not in by_key:
-            own.setdefault(vote_key(c), c)
-    if own:
-        votes.update(zip(own, carve_votes_many(grid, views, renders, list(own.values()), sdf=sdf, device=device,
-                                               points=centres)))  # fmt: skip
-    for fill, edge, rim, c, sc in zip(fills, edges, rims, cfgs, surface):
-        kept = ~carved_by_votes(votes[vote_key(sc)], sc).reshape(len(idx), -1)
+    wider = [i for i, c in enumerate(cfgs) if c.depth_margin_voxels > 0]
+    own = dict(zip(wider, carve_votes_many(grid, views, depths, [cfgs[i] for i in wider], device=device,
+                                           points=centres))) if wider else {}  # fmt: skip
+    for i, (fill, edge, rim) in enumerate(zip(fills, edges, rims)):
+        kept = ~carved_by_votes(votes[i], surface[i]).reshape(len(idx), -1)
         share = kept[:, :-1].float().mean(1).cpu().numpy()
-        carved = (carved_by_votes(votes[vote_key(c)], c) if vote_key(c) in own else ~kept[:, -1]).cpu().numpy()
+        carved = (carved_by_votes(own[i], cfgs[i]) if i in own else ~kept[:, -1]).cpu().numpy()
         rim = rim & carved[np.maximum(row, 0)]  # (row >= 0 on every rim voxel)
         fill[edge] = share[row[edge]]
         fill[rim] = share[row[rim]]

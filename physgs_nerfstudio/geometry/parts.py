@@ -212,7 +212,7 @@ class PartGeometry:
 
 def concavities(hull: np.ndarray, solid: np.ndarray, depth_voxels: float = 2.0) -> np.ndarray:
     """bool [X, Y, Z]: the object's concavities (a cup's inside): the empty voxels of ``solid`` that lie more than
-    ``depth_voxels`` inside the visual ``hull`` (:func:`physgs_nerfstudio.geometry.carve.hull_from_votes`: space
+    ``depth_voxels`` inside the visual ``hull`` (:func:`physgs_nerfstudio.geometry.carve.mask_hull`: space
     that no silhouette carves, only depth) and that the solid surrounds, with solid on both sides of them along
     some grid axis. The depth keeps out the layer between the hull and the solid that the masks' blur leaves around
     any object; the surrounding keeps out a layer that depth carved off a flat face (a closed box's top), which

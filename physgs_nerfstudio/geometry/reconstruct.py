@@ -23,17 +23,9 @@ import torch
 
 from ..bayes.mixture import material_mixture_weights
 from .capture import CaptureView, MaskObservation
-from .carve import (
-    CarveConfig,
-    VoteKey,
-    carve_votes_many,
-    hull_from_votes,
-    signed_mask_distances,
-    solid_from_votes,
-    vote_key,
-)
+from .carve import CarveConfig, carve_votes_many, mask_hull, solid_from_votes
 from .config import GeometryConfig
-from .free_space import free_space_views, seeded_components
+from .free_space import free_space_depths, seeded_components
 from .gaussians import ViewRender, render_depth, support_excess, surface_excess, surface_views
 from .grid import GeometryError, VoxelGrid
 from .hidden import HIDDEN_PASSES, gaussian_samples, hidden_boundary, skin_centred, without_hidden_space_many
@@ -254,25 +246,21 @@ class _Subset:
         return getattr(self.g, name)[self.idx]
 
 
-def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[ViewRender], hull: np.ndarray,
-                    variants: list[tuple[str, CarveConfig]], sdf: list[torch.Tensor], device: Any,
+def _carve_variants(grid: VoxelGrid, views: list[CaptureView], depths: list[torch.Tensor], hull: np.ndarray,
+                    variants: list[tuple[str, CarveConfig]], device: Any,
                     means: torch.Tensor | None = None, extent_pad_voxels: float | None = None,
                     extent_variant_voxels: float | None = None, scales: torch.Tensor | None = None,
                     quats: torch.Tensor | None = None, extent_skip: int = 0,
                     ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:  # fmt: skip
-    """The solid of every variant, from one voting pass per distinct depth margin, cut to the
+    """The solid of every variant, from one free-space voting pass (:func:`.carve.carve_votes_many`), cut to the
     support polytope of ``means`` (:mod:`.gaussians`) unless ``extent_pad_voxels`` is None, then (unless
     ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
     that much more, as one more variant; the masks' visual ``hull`` cut the same way; the voxels that the views kept
     (in a solid or the hull) and the polytope cut (None without a cut); and the first variant's solid before the
     cut. ``scales`` and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids
     (:func:`.gaussians.support_heights`)."""
-    by_key: dict[VoteKey, CarveConfig] = {}
-    for _, cc in variants:
-        by_key.setdefault(vote_key(cc), cc)
-    votes = carve_votes_many(grid, views, renders, list(by_key.values()), sdf=sdf, device=device)
-    cache = dict(zip(by_key, votes))
-    solids = [solid_from_votes(cache[vote_key(cc)], grid, cc) for _, cc in variants]
+    votes = carve_votes_many(grid, views, depths, [cc for _, cc in variants], device=device)
+    solids = [solid_from_votes(v, grid, cc) for v, (_, cc) in zip(votes, variants)]
     if means is None or extent_pad_voxels is None:
         return solids, hull, None, solids[0]
     candidates = np.logical_or.reduce(solids) | hull
@@ -290,13 +278,6 @@ def _carve_variants(grid: VoxelGrid, views: list[CaptureView], renders: list[Vie
         cut.append(solids[0] & wider)
     beyond = candidates & ~inside
     return cut, hull & inside, beyond, solids[0]
-
-
-def _mask_hull(grid: VoxelGrid, views: Sequence[CaptureView], cfg: CarveConfig, device: Any) -> np.ndarray:
-    """The object masks' visual hull (:func:`.carve.hull_from_votes`, their silhouette votes alone): the empty space
-    inside it, outside the solid, is the object's concavities (:func:`.parts.concavities`)."""
-    votes = carve_votes_many(grid, views, None, [cfg], device=device)[0]
-    return hull_from_votes(votes, grid, cfg)
 
 
 def _support_under(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
@@ -439,10 +420,11 @@ def _variants(cfg: GeometryConfig) -> list[tuple[str, CarveConfig]]:
 @dataclass
 class _Carving:
     """The carved object (:func:`_carve_object`): its grid, the variants' names and carving settings, their solids
-    (the nominal first) after every cut, the nominal visual hull, the views and renders that carved and their masks'
-    signed distances, each selected Gaussian's depth behind the rendered surface nearest it (``excess``,
-    :func:`.gaussians.surface_excess`), the space no view placed (:func:`unseen_face_share`), the hidden open space
-    removed and each variant's boundary with it (:mod:`.hidden`), and how many Gaussians the extent used."""
+    (the nominal first) after every cut, the nominal visual hull, the views and their surface depths that carved
+    (:func:`.free_space.free_space_depths`), each selected Gaussian's depth behind the rendered surface nearest it
+    (``excess``, :func:`.gaussians.surface_excess`), the space no view placed (:func:`unseen_face_share`), the hidden
+    open space removed and each variant's boundary with it (:mod:`.hidden`), and how many Gaussians the extent
+    used."""
 
     grid: VoxelGrid
     names: list[str]
@@ -450,8 +432,7 @@ class _Carving:
     solids: list[np.ndarray]
     hull: np.ndarray
     views: list[CaptureView]
-    renders: list[ViewRender]
-    sdf: list[torch.Tensor]
+    depths: list[torch.Tensor]
     excess: torch.Tensor
     unseen: np.ndarray
     extent_gaussians: int
@@ -504,17 +485,16 @@ def _refit(grid: VoxelGrid, solids: list[np.ndarray], cfg: GeometryConfig) -> Vo
 def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], renders: list[ViewRender],
                   cfg: GeometryConfig) -> _Carving:  # fmt: skip
     """Every variant's solid: carved on the selection's domain (again on a fitted grid, :func:`_refit`), cut to the
-    seen Gaussians' polytope (:mod:`.gaussians`) and above the support plane, less the hidden open space."""
+    seen Gaussians' polytope (:mod:`.gaussians`) and above the support plane, less the hidden open space. ``views``:
+    the object masks (their visual hull), ``renders``: the object's Gaussians' own render (which lie on its surface)."""
     grid = align_to_plane(_domain(g, selection.selected, cfg), selection.plane)
-    mask_views, own = views, renders  # the object's masks and its Gaussians' own render: what lies on its surface
-    views, renders = free_space_views(g, views, cfg.backend)
-    sdf = signed_mask_distances([v.mask for v in views])
+    depths = free_space_depths(g, views, cfg.backend)
     variants = _variants(cfg)
     wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
     ext_idx = torch.nonzero(selection.selected).squeeze(1)
     # each selected Gaussian's smallest depth behind a view's rendered surface: the extent's, the material evidence's
     # and the skin's sets are those within their bands of it (one pass over the views)
-    excess = surface_excess(g.means[ext_idx], mask_views, own)
+    excess = surface_excess(g.means[ext_idx], views, renders)
     seen = excess <= grid.voxel_size
     if int(seen.sum()) >= 50:
         logger.info("object extent: %d of %d selected Gaussians are seen by a view; the unseen ones "
@@ -525,8 +505,9 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
            "extent_skip": int(cfg.extent_outlier_fraction * selection.num_selected)}  # fmt: skip
 
     def carve(on: VoxelGrid) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:
-        hull = _mask_hull(on, mask_views, variants[0][1], g.means.device)
-        return _carve_variants(on, views, renders, hull, variants, sdf, g.means.device, g.means[ext_idx],
+        # the masks' visual hull: the empty space inside it, outside the solid, is the object's concavities
+        hull = mask_hull(on, views, variants[0][1], device=g.means.device)
+        return _carve_variants(on, views, depths, hull, variants, g.means.device, g.means[ext_idx],
                                cfg.extent_pad_voxels, wider, **ext)  # fmt: skip
 
     solids, hull, beyond, raw_nominal = carve(grid)
@@ -540,7 +521,7 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
     solids = [seeded_components(grid, s, seeds) for s in solids]
     removed, edges = None, None
     if cfg.hidden_skin_voxels is not None:
-        solids, removed, edges = _without_hidden(g, selection, mask_views, own, excess, grid, solids, beyond, cfg)
+        solids, removed, edges = _without_hidden(g, selection, views, renders, excess, grid, solids, beyond, cfg)
     if not solids[0].any():
         raise GeometryError("carving left no solid voxel: the object masks and the views disagree (check poses and "
                             "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
@@ -549,8 +530,7 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
         unseen = unseen | _beyond_kept(raw_nominal, beyond)
     names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else [])
     cfgs = [cc for _, cc in variants] + [variants[0][1]] * (len(solids) - len(variants))  # the extent variant's
-    return _Carving(grid, names, cfgs, solids, hull, views, renders, sdf, excess, unseen, len(ext_idx), removed,
-                    edges)  # fmt: skip
+    return _Carving(grid, names, cfgs, solids, hull, views, depths, excess, unseen, len(ext_idx), removed, edges)
 
 
 
@@ -714,8 +694,8 @@ def reconstruct_object(
                          dirichlet_prior)  # fmt: skip
     pixel_voxels = _pixel_voxels(obj_views, cv.grid) if obj_views else 1.0
     step("partial volume")
-    fills = boundary_fill(cv.grid, cv.solids, cv.cfgs, cv.views, cv.renders, sdf=cv.sdf, subsamples=BOUNDARY_SUBSAMPLES,
-                          device=g.means.device)  # fmt: skip
+    fills = boundary_fill(cv.grid, cv.solids, cv.cfgs, cv.views, cv.depths, subsamples=BOUNDARY_SUBSAMPLES,
+                          device=g.means.device)
     geos = _surfaces(cv, pp, cfg, pixel_voxels, g.means.device)
     step("structure")
     lib = library_thickness if library_thickness is not None else [None] * pp.pm.shape[1]
