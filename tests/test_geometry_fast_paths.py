@@ -177,8 +177,9 @@ def test_solid_from_votes_on_the_bounding_box_equals_the_whole_grid():
         solid[12:20, 12:20, 12:20] = True
         solid[14:18, 14:18, 14:18] = trial < 3  # an enclosed pocket (filled), or a solid block
         solid[5, 5, 5] = True  # a speck (dropped)
-        votes = CarveVotes(empty=torch.from_numpy((~solid).reshape(-1).astype(np.int32) * 5),
-                           seen=torch.full((solid.size,), 10, dtype=torch.int32), num_views=10)  # fmt: skip
+        votes = CarveVotes(free=torch.from_numpy((~solid).reshape(-1).astype(np.int32) * 5),
+                           seen=torch.full((solid.size,), 10, dtype=torch.int32),
+                           near=torch.zeros(solid.size, dtype=torch.int32), num_views=10)  # fmt: skip
         cfg = CarveConfig()
         got = solid_from_votes(votes, grid, cfg)
         labels, _ = ndimage.label(solid, structure=np.ones((3, 3, 3), bool))

@@ -1,6 +1,6 @@
-"""The object's geometry for mass: which Gaussians are the object, its volume carved from many views' masks
-and depth, its parts, their wall areas and whether each is solid or hollow (docs/architecture.md, "Mass
-geometry"). Pure geometry on tensors and arrays: no nerfstudio imports."""
+"""The object's geometry for mass: which Gaussians are the object (from the views' masks), its volume carved from
+the views' free space (the whole splat's depth), its parts, their wall areas and whether each is solid or hollow
+(docs/architecture.md, "Mass geometry"). Pure geometry on tensors and arrays: no nerfstudio imports."""
 
 from .capture import CaptureView, MaskObservation, load_capture, load_observations
 from .carve import CarveConfig

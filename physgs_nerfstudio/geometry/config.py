@@ -105,7 +105,8 @@ class GeometryConfig:
     """a view's mask gets back each piece of the object's rendered silhouette (the views' consensus) that it misses
     and that covers at least this share of it; smaller ones are the silhouette's blur; documented range 0.01-0.05"""
     min_mask_agreement: float = 0.5
-    """a view whose object mask agrees with the rendered silhouette at IoU below this carves with the silhouette"""
+    """a view whose object mask agrees with the rendered silhouette at IoU below this takes the silhouette instead
+    (for the masks' visual hull)"""
     max_views: int | None = None
     """use at most this many views (evenly spaced); None = all"""
     backend: str = "auto"

@@ -195,12 +195,14 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
             out.append(cut[-1])
     if replaced > len(views) / 2:  # most views disagree with the selection: it is the selection that failed
         logger.warning("object masks: %d of %d views disagree with the selected Gaussians' silhouette (IoU < %.2g): "
-                       "the selection holds more than the object (floaters, background); carving with the views' "
-                       "own masks (cut to the silhouette)", replaced, len(views), cfg.min_mask_agreement)  # fmt: skip
+                       "the selection holds more than the object (floaters, background); the masks' hull keeps the "
+                       "views' own masks (cut to the silhouette)", replaced, len(views),
+                       cfg.min_mask_agreement)  # fmt: skip
         return [replace(c, mask_source=c.mask_source + "_kept") for c in cut], renders
     if replaced:
         logger.info("object masks: %d of %d views disagree with the object's rendered silhouette (IoU < %.2g) and "
-                    "carve with the silhouette instead", replaced, len(views), cfg.min_mask_agreement)  # fmt: skip
+                    "take the silhouette instead (the masks' hull)", replaced, len(views),
+                    cfg.min_mask_agreement)  # fmt: skip
     return out, renders
 
 
