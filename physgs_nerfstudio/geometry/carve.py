@@ -164,11 +164,22 @@ def carved_by_votes(votes: CarveVotes, cfg: CarveConfig) -> Tensor:
     """bool [M]: the points that the free-space vote carves (module doc), point by point (no specks dropped, no
     cavity filled: :func:`solid_from_votes` does that on the grid)."""
     f = votes.free.float()
-    carved = (f >= cfg.min_votes) & (f >= cfg.min_vote_fraction * votes.seen.float())
+    carved = _outvoted(votes.free, votes.seen, votes.num_views, cfg)
     if cfg.depth_consensus > 0:
-        carved &= f >= cfg.depth_consensus * votes.near.float()
-    carved |= votes.seen.float() < cfg.min_seen_fraction * votes.num_views
+        carved &= (f >= cfg.depth_consensus * votes.near.float()) | _unframed(votes.seen, votes.num_views, cfg)
     return carved
+
+
+def _unframed(seen: Tensor, num_views: int, cfg: CarveConfig) -> Tensor:
+    """bool [M]: the points fewer than ``min_seen_fraction`` of the views have in their image (module doc)."""
+    return seen.float() < cfg.min_seen_fraction * num_views
+
+
+def _outvoted(empty: Tensor, seen: Tensor, num_views: int, cfg: CarveConfig) -> Tensor:
+    """bool [M]: the points whose empty votes reach ``min_votes`` and ``min_vote_fraction`` of the views that see
+    them, or that too few views frame (:func:`_unframed`): the rule both votes share."""
+    e = empty.float()
+    return ((e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * seen.float())) | _unframed(seen, num_views, cfg)
 
 
 @torch.no_grad()
@@ -186,10 +197,7 @@ def mask_hull(grid: VoxelGrid, views: Sequence[CaptureView], cfg: CarveConfig, *
             ok, _, at, _ = part.lookup(x)
             _add_views(outside[s0 : s0 + n], ok & (_bilinear(at["sdf"]) > 0))
             _add_views(seen[s0 : s0 + n], ok)
-    e = outside.float()
-    carved = (e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * seen.float())
-    carved |= seen.float() < cfg.min_seen_fraction * len(views)
-    return (~carved).reshape(grid.shape).cpu().numpy()
+    return (~_outvoted(outside, seen, len(views), cfg)).reshape(grid.shape).cpu().numpy()
 
 
 def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:
