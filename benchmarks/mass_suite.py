@@ -7,6 +7,7 @@
     python benchmarks/mass_suite.py --seeds 70001 --export-args "--mass.geometry.resolution 128" --alt-name r128
     python benchmarks/mass_suite.py --merge A/mass_suite.json B/mass_suite_rows_baseline.jsonl merged.json  # one table
     python benchmarks/mass_suite.py --masks --families mug chair --seeds 71001 --renderers mitsuba  # the segmenter only
+    python benchmarks/mass_suite.py --selection --seeds 71001 --renderers mitsuba --out OUT  # finished runs' selection
 
 **The suite.** Every family of `physgs_nerfstudio.synth.families` (today's twelve presets as parametric families and
 eleven new ones), each drawn from the seed (dimensions, part counts, walls, hollow or solid, each part's material and
@@ -309,6 +310,53 @@ def masks_mode(todo: list[dict], a: argparse.Namespace) -> None:
     (a.out / "mask_iou.json").write_text(json.dumps({"seeds": a.seeds, "support": a.support, "rows": rows}, indent=2))
 
 
+def selection_share(run_dir: Path, family: str, seed: int, mesh_dir: Path | None) -> dict:
+    """How much of the object the selection holds on a finished run (``--selection``): the trained splat's Gaussians
+    (opacity > 0.1) whose centres lie inside the object's true envelope (its parts' outer shapes), their median
+    foreground probability (the masks lifted onto the Gaussians) and the share of them that
+    ``geometry.select.select_object`` selects with the export's defaults. The solid ends at the selected Gaussians'
+    polytope, so what the selection lacks is not carved."""
+    from physgs_nerfstudio.export.run import load_run
+    from physgs_nerfstudio.geometry.config import GeometryConfig
+    from physgs_nerfstudio.geometry.reconstruct import _views_used
+    from physgs_nerfstudio.geometry.select import select_object
+    from physgs_nerfstudio.synth.support import suite_layout
+
+    run = load_run(next((run_dir / "runs").glob("**/config.yml")))
+    dp = json.loads(next((run_dir / "runs").glob("**/dataparser_transforms.json")).read_text())
+    cfg = GeometryConfig()
+    g = run.field
+    sel = select_object(g, _views_used(run.views, cfg), cfg.select, backend=cfg.backend)
+    world = _to_world(g.means.double().cpu().numpy(), np.asarray(dp["transform"], float), float(dp["scale"]))
+    meshes = {"mesh_dir": mesh_dir} if mesh_dir is not None else {}
+    inside = np.zeros(len(world), bool)
+    for p in suite_layout(family, seed, shape="drawn", support="drawn", pose="drawn", **meshes).parts:
+        if p.role != "ground":
+            inside |= p.outer().contains(p.to_local(world))
+    obj = inside & (g.opacities.reshape(-1).cpu().numpy() > 0.1)
+    prob, selected = sel.prob.cpu().numpy()[obj], sel.selected.cpu().numpy()[obj]
+    return {"gaussians": int(obj.sum()), "median_prob": float(np.median(prob)) if obj.any() else None,
+            "selected_share": float(selected.mean()) if obj.any() else None}  # fmt: skip
+
+
+def selection_mode(todo: list[dict], a: argparse.Namespace) -> None:
+    """``--selection``: score every finished run's selection (:func:`selection_share`), print one line per run and
+    the median share, and write OUT/selection_share.json."""
+    rows = []
+    for t in todo:
+        d = a.out / _tag(t, a.support)
+        if not (d / "demo_summary.json").is_file():
+            continue
+        r = {"family": t["family"], "seed": t["seed"], "renderer": t["renderer"],
+             **selection_share(d, t["family"], t["seed"], a.mesh_dir)}  # fmt: skip
+        rows.append(r)
+        print(f"{r['family']:10s} {r['seed']} {r['renderer']:8s} object Gaussians {r['gaussians']:5d}  median "
+              f"probability {r['median_prob']:.2f}  selected {r['selected_share']:.2f}", flush=True)
+    if rows:
+        print(f"median selected share {_median([r['selected_share'] for r in rows]):.2f}  ({len(rows)} runs)")
+    (a.out / "selection_share.json").write_text(json.dumps({"seeds": a.seeds, "rows": rows}, indent=2))
+
+
 def _median(xs: list) -> float | None:
     xs = [x for x in xs if x is not None and math.isfinite(x)]
     return statistics.median(xs) if xs else None
@@ -376,6 +424,9 @@ def _args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--masks", action="store_true",
                     help="write the scenes and score the built-in segmenter's whole-object masks against their label "
                          "maps (IoU, share on the support; OUT/mask_iou.json) instead of running the pipeline")
+    ap.add_argument("--selection", action="store_true",
+                    help="score the finished runs' selection: the share of each object's Gaussians it holds "
+                         "(OUT/selection_share.json) instead of running the pipeline")
     ap.add_argument("--export-args", type=shlex.split, default=None,
                     help="re-export every finished demo with these extra `physgs export` flags (one quoted string) into "
                          "export_NAME/ and score that: a method row beside the baseline")  # fmt: skip
@@ -426,6 +477,8 @@ def main(argv: list[str] | None = None) -> None:
         return write_scenes(todo, a)
     if a.masks:
         return masks_mode(todo, a)
+    if a.selection:
+        return selection_mode(todo, a)
     method = "baseline" if a.export_args is None else a.alt_name
     partial = a.out / f"mass_suite_rows_{method}.jsonl"  # every finished row at once: a run stopped early keeps them
 
