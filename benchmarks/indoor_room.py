@@ -124,7 +124,6 @@ def main() -> None:
     voxels = float(geo.solid.sum()) * float(geo.grid.voxel_size) ** 3 * mpu**3
     res = {
         "seed": int(truth.get("seed", a.seed)), "demo_settings": given, "export_resolution": resolution,
-        "object_name": geo.selection.object_name, "other_object_gaussians": geo.selection.other_object,
         "hidden_boundary_voxels": geo.summary()["hidden_boundary_voxels"],
         "selected_gaussians": int(sel.sum()), "selected_on": counts,
         "selected_on_ground": int(ground.sum()), "selected_off_every_part": int((on < 0).sum()),

@@ -175,7 +175,7 @@ def _replay_rasterization() -> None:
 
 
 _FUNCTIONS = {
-    "select": ["lift_masks", "lift_masks_and_labels", "band_labels", "split_close", "support_plane_or_reason"],
+    "select": ["lift_masks", "band_labels", "split_close", "support_plane_or_reason"],
     "reconstruct": ["_within_hull", "_object_views", "mask_hull", "carve_votes_many", "solid_from_votes",
                     "support_excess", "voxel_mixture", "part_labels", "observation_shares", "concavities",
                     "pooled_part_alpha", "material_quantiles", "part_areas", "fuse_structure"],

@@ -29,7 +29,6 @@ __all__ = [
     "SURFACE_TRANSMITTANCE",
     "ViewRender",
     "lift_masks",
-    "lift_masks_and_labels",
     "render_depth",
     "support_directions",
     "support_excess",
@@ -184,42 +183,16 @@ def lift_masks(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
     "evidence per view"). Returns two float [N] tensors. ``views_per_call``: views of one size rendered in one
     rasterizer call (:func:`physgs_nerfstudio.lifting.lift_views`; None: :func:`_views_per_call`); the views'
     evidence is added in their order either way."""
-    inside, outside, _ = lift_masks_and_labels(g, views, backend=backend, min_view_weight=min_view_weight,
-                                               views_per_call=views_per_call)  # fmt: skip
-    return inside, outside
-
-
-@torch.no_grad()
-def lift_masks_and_labels(g: Any, views: Sequence[CaptureView], labels: Sequence[Tensor | None] | None = None,
-                          num_labels: int = 0, *, backend: str = "auto", min_view_weight: float = 1e-3,
-                          views_per_call: int | None = None) -> tuple[Tensor, Tensor, Tensor]:  # fmt: skip
-    """:func:`lift_masks`, and in the same rasterizer calls the share of each Gaussian's blending weight on the
-    pixels of each of ``num_labels`` labels, summed over the views that see it: float64 [N, num_labels].
-    ``labels[i]``: long [H, W] at ``views[i]``'s size, the label of each pixel (-1: none; None: no labels in that
-    view)."""
     means, quats, scales, opacities = g.means, g.quats, g.scales, g.opacities
     dev = means.device
     n = means.shape[0]
     per_call = views_per_call if views_per_call is not None else _views_per_call(backend, dev, n)
     inside = torch.zeros(n, dtype=torch.float64, device=dev)
     outside = torch.zeros_like(inside)
-    counts = torch.zeros(n, num_labels, dtype=torch.float64, device=dev)
-    index = {id(v): i for i, v in enumerate(views)}
-
-    def maps(v: CaptureView) -> Tensor:
-        m = v.mask.to(dev).float()[..., None]
-        if not num_labels:
-            return m
-        lab = labels[index[id(v)]] if labels is not None else None
-        if lab is None:
-            return torch.cat([m, m.new_zeros((*m.shape[:2], num_labels))], -1)
-        lab = lab.to(dev)
-        return torch.cat([m, torch.nn.functional.one_hot(lab.clamp_min(0), num_labels).float()
-                          * (lab >= 0)[..., None].float()], -1)  # fmt: skip
 
     def lift(group: list[CaptureView]) -> list[tuple[Tensor, Tensor]]:
         size = (group[0].width, group[0].height)
-        stacked = torch.stack([maps(v) for v in group])
+        stacked = torch.stack([v.mask.to(dev).float()[..., None] for v in group])
         viewmats = torch.stack([v.viewmat.to(dev) for v in group])
         Ks = torch.stack([v.K.to(dev) for v in group])
         return [(ev[k], vis[k])
@@ -231,14 +204,10 @@ def lift_masks_and_labels(g: Any, views: Sequence[CaptureView], labels: Sequence
         for ev, vis in _grouped(lift, group):  # view by view, in order
             w = vis.double()
             seen = w > min_view_weight
-            evd = ev.double()
-            share = torch.where(seen[:, None], evd / w.clamp_min(1e-12)[:, None], torch.zeros_like(evd))
-            frac = share[:, 0].clamp(0, 1)
+            frac = torch.where(seen, ev[:, 0].double() / w.clamp_min(1e-12), torch.zeros_like(w)).clamp(0, 1)
             inside += torch.where(seen, frac, torch.zeros_like(frac))
             outside += torch.where(seen, 1 - frac, torch.zeros_like(frac))
-            if num_labels:
-                counts += share[:, 1:].clamp(0, 1)
-    return inside, outside, counts
+    return inside, outside
 
 
 def _grouped(fn: Callable[[list[CaptureView]], list[_T]], group: list[CaptureView]) -> list[_T]:

@@ -42,7 +42,7 @@ from .parts import (
     sum_rows,
     voxel_mixture,
 )
-from .select import ObjectSelection, object_labels, outside_mask_hull, select_object
+from .select import ObjectSelection, outside_mask_hull, select_object
 from .structure import PartStructure, fuse_structure
 from .support import SupportPlane, align_to_plane, find_support, support_gaussians, views_up
 
@@ -139,8 +139,6 @@ class ObjectGeometry:
                 "support_found": self.selection.support_found,
                 "on_support_gaussians": self.selection.on_support, "clusters": self.selection.num_clusters,
                 "split_from_gaussians": self.selection.split_from,
-                "object_name": self.selection.object_name,
-                "other_object_gaussians": self.selection.other_object,
                 "hidden_open_voxels": self.hidden_removed, "pixel_footprint_voxels": self.pixel_voxels,
                 "hidden_boundary_voxels": (int(self.hidden_edge.sum()) if self.hidden_edge is not None else None),
                 "unseen_surface_share": self.unseen_surface_share,
@@ -683,8 +681,7 @@ def reconstruct_object(
     step = progress or (lambda _s: None)
     views = _views_used(views, cfg)
     step("selecting the object")
-    labels = object_labels(views, observations) if cfg.select.object_names is not None else None
-    selection = select_object(g, views, cfg.select, backend=cfg.backend, labels=labels)
+    selection = select_object(g, views, cfg.select, backend=cfg.backend)
     _within_hull(g, selection, views, cfg)
     _support_under(g, selection, views, cfg)
     step("rendering depth")

@@ -20,11 +20,6 @@
    camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
    the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
    restricts the candidates first.
-   3b. **Another object's** (``object_names``, below; off by default). A chosen Gaussian that one other name in
-   perception's answers claims, by more than ``object_names`` views' evidence over the object's own name, is
-   dropped. With the built-in segmenter's masks it drops some of the `indoor_room` table's own Gaussians and
-   keeps the mug on it (the chair's, crate's and lamp's masks bleed onto the table); tested on synthetic masks
-   that isolate each object (tests/test_object_names.py).
 4. **Inside the masks' hull** (:func:`outside_mask_hull`, applied by :func:`.reconstruct.reconstruct_object`). A
    selected Gaussian is dropped when its centre projects outside the views' foreground masks (by more than
    ``hull_margin_px``) in at least ``hull_min_votes`` views and ``hull_vote_fraction`` (a majority) of the views
@@ -53,27 +48,23 @@ from typing import Any
 
 import numpy as np
 import torch
-from jaxtyping import Bool, Float, Int
 from torch import Tensor
 
-from .capture import CaptureView, MaskObservation
+from .capture import CaptureView
 from .carve import mask_view_votes, signed_mask_distances
 from .clusters import band_labels, split_close
-from .gaussians import lift_masks, lift_masks_and_labels
+from .gaussians import lift_masks
 from .grid import GeometryError
 from .support import SupportConfig, SupportPlane, support_plane_or_reason, views_up
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "ObjectLabels",
     "ObjectSelection",
     "SelectConfig",
     "capture_centre",
     "hull_view_weights",
     "nearest_cluster",
-    "object_labels",
-    "other_object",
     "select_object",
 ]
 
@@ -127,11 +118,6 @@ class SelectConfig:
     `indoor_room` the chair stands 15 cm from the table and stayed in its cluster (2.5-2.8x the table's volume).
     With ``contact_band`` the split links its parts only above the band, at its own reach (floaters near the floor
     otherwise link neighbouring objects). False: the coarse clusters alone"""
-    object_names: float | None = None
-    """the chosen cluster's Gaussians that one other object's name claims by more than this many views' evidence
-    are dropped (module doc, step 3b: a mug standing on the table; 1 is the tested value); None,
-    the default: the names are not used (with the built-in segmenter's masks the rule dropped the table's own
-    Gaussians, not the mug's)"""
     support: SupportConfig = field(default_factory=SupportConfig)
     """the floor or table the object stands on, dropped before the clusters (module doc, step 2;
     :mod:`.support`)"""
@@ -144,8 +130,6 @@ class SelectConfig:
         if self.contact_band is not None and not self.contact_band >= 0:
             raise ValueError(f"SelectConfig.contact_band must be >= 0 (the clusters' reach) or None, got "
                              f"{self.contact_band}.")
-        if self.object_names is not None and not self.object_names >= 0:
-            raise ValueError(f"SelectConfig.object_names must be >= 0 (views) or None, got {self.object_names}.")
         if self.cluster_cells < 4:
             raise ValueError(f"SelectConfig.cluster_cells must be >= 4, got {self.cluster_cells}.")
         if self.bbox is not None:
@@ -181,10 +165,6 @@ class ObjectSelection:
     """how the support under the object was found, or why none was (:func:`.support.find_support`, for the report)"""
     split_from: int = 0
     """the chosen cluster's Gaussians before ``split_on_plane`` split it (0: not split; module doc, step 2)"""
-    object_name: str | None = None
-    """the object's name in perception's answers (module doc, step 3b); None: they name none"""
-    other_object: int = 0
-    """the chosen cluster's Gaussians dropped as another object's (step 3b)"""
 
     @property
     def num_selected(self) -> int:
@@ -278,15 +258,10 @@ def _nothing_selected(prob: Tensor, opaque: Tensor, views: Sequence[CaptureView]
 
 @torch.no_grad()
 def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None = None, *,
-                  backend: str = "auto", labels: ObjectLabels | None = None) -> ObjectSelection:  # fmt: skip
-    """The object's Gaussians (module doc). ``labels``: the object each view's pixels belong to, by perception's
-    answers (:func:`.names.object_labels`; step 3b)."""
+                  backend: str = "auto") -> ObjectSelection:  # fmt: skip
+    """The object's Gaussians (module doc)."""
     cfg = cfg or SelectConfig()
-    named = labels is not None and cfg.object_names is not None and len(labels.names) > 1
-    if named:  # the names' channels in the foreground's rasterizer calls
-        inside, outside, counts = lift_masks_and_labels(g, views, labels.maps, len(labels.names), backend=backend)
-    else:
-        inside, outside = lift_masks(g, views, backend=backend)
+    inside, outside = lift_masks(g, views, backend=backend)
     a0, b0 = cfg.prior
     prob = ((a0 + inside) / (a0 + b0 + inside + outside)).float()
     cand = (prob >= cfg.min_prob) & (g.opacities >= cfg.min_opacity)
@@ -332,87 +307,8 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
                     int(chosen.sum()), before)  # fmt: skip
     selected = torch.zeros_like(cand)
     selected[idx[chosen.to(idx.device)]] = True
-    name, other = None, 0
-    if named:
-        k, drop = other_object(counts, selected, cfg.object_names)
-        name = labels.names[k] if k is not None else None
-        if drop is not None and bool(drop.any()) and bool((selected & ~drop).any()):
-            other = int(drop.sum())
-            selected &= ~drop
-            logger.info("object: %d of its Gaussians named another object than %r by the views dropped", other, name)
-    elif labels is not None and len(labels.names) == 1:  # one name: nothing to tell apart
-        name = labels.names[0]
     logger.info("object: %d of %d Gaussians (%d clusters on the foreground)", int(selected.sum()),
                 g.means.shape[0], len(ids))  # fmt: skip
     return ObjectSelection(prob, selected, centre, len(ids), on_support=on_support, support=support,
                            plane=plane if support is not None else None, plane_in_masks=support is not None,
-                           split_from=split_from, object_name=name,
-                           other_object=other)  # fmt: skip
-
-
-_LEVEL_ORDER = {"whole": 0, "part": 1, "subpart": 2}
-
-
-# Another object's Gaussians (step 3b). Perception names the whole object of every part it is shown (``object`` in
-# observations.jsonl: "mug" for the mug on the table). Each view's pixels take the name of the finest mask holding
-# them (``subpart`` over ``part`` over ``whole``: :func:`object_labels`); the names are lifted per Gaussian
-# (:func:`.gaussians.lift_masks_and_labels`); the object's name has the most evidence over the chosen cluster, and a
-# selected Gaussian goes when one other name's evidence exceeds it by more than ``prior`` views
-# (:func:`other_object`), so one wrong answer or an even split never removes a Gaussian. A real VLM may name one
-# object two ways ("table", "desk"); answers are normalised (:func:`..perception.validate.object_name`).
-
-
-@dataclass
-class ObjectLabels:
-    names: list[str]
-    """the object names the answers gave, in order of first appearance"""
-    maps: list[Int[Tensor, "H W"] | None]
-    """per view (in the views' order): each pixel's name index (-1: none) at the view's size; None: no named mask"""
-
-
-def object_labels(views: Sequence[CaptureView], observations: Sequence[MaskObservation]) -> ObjectLabels:
-    """Step 1 of the module doc: each view's pixels labelled with the object named for the finest mask holding
-    them (observations whose view is not among ``views``, or that name no object, are skipped)."""
-    names: list[str] = []
-    index: dict[str, int] = {}
-    by_view: dict[str, dict[int | None, MaskObservation]] = {}
-    for ob in observations:
-        if ob.object is None:
-            continue
-        if ob.object not in index:
-            index[ob.object] = len(names)
-            names.append(ob.object)
-        by_view.setdefault(ob.view, {}).setdefault(ob.mask_id if ob.mask_id is not None else id(ob.mask), ob)
-    maps: list[Tensor | None] = []
-    for v in views:
-        obs = sorted(by_view.get(v.name, {}).values(), key=lambda o: _LEVEL_ORDER.get(o.level, 1))
-        if not obs:
-            maps.append(None)
-            continue
-        lab = torch.full(obs[0].mask.shape, -1, dtype=torch.long)
-        for ob in obs:  # coarse first: the finer masks paint over
-            lab[torch.from_numpy(ob.mask)] = index[ob.object]  # type: ignore[index]
-        if tuple(lab.shape) != (v.height, v.width):
-            lab = torch.nn.functional.interpolate(lab[None, None].float(), size=(v.height, v.width),
-                                                  mode="nearest")[0, 0].long()  # fmt: skip
-        maps.append(lab)
-    return ObjectLabels(names, maps)
-
-
-def other_object(counts: Float[Tensor, "N K"], selected: Bool[Tensor, " N"], prior: float
-                 ) -> tuple[int | None, Bool[Tensor, " N"]]:  # fmt: skip
-    """Step 3 of the module doc: the object's name (index into the names; None without evidence) over the
-    ``selected`` Gaussians' ``counts`` (per Gaussian and name, views' worth of evidence), and the selected
-    Gaussians one other name claims by more than ``prior`` views."""
-    none = torch.zeros_like(selected)
-    if counts.shape[1] == 0 or not bool(selected.any()):
-        return None, none
-    total = counts[selected].sum(0)
-    if not float(total.max()) > 0:
-        return None, none
-    k = int(total.argmax())
-    if counts.shape[1] == 1:
-        return k, none
-    others = counts.clone()
-    others[:, k] = -1.0
-    return k, selected & (others.amax(1) > counts[:, k] + prior)
+                           split_from=split_from)  # fmt: skip

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,11 +53,6 @@ class SimBuild:
     """[2, P, K] the mean body's part masses (solid, wall)"""
     voxel_m: float
     origin_m: np.ndarray
-
-
-def _name(geo: Any) -> str:
-    raw = getattr(geo.selection, "object_name", None) or "object"
-    return re.sub(r"[^A-Za-z0-9_]+", "_", str(raw)).strip("_") or "object"
 
 
 def part_materials(pf: Any, share: np.ndarray, friction: np.ndarray, mass: np.ndarray, volume: np.ndarray
@@ -115,5 +109,5 @@ def build_object(pf: Any, geo: Any, draws: Any, cfg: SimConfig, views: Sequence[
         m.collision, method = collision_pieces(m, cfg.collision, cfg.coacd_threshold, cfg.max_pieces)
     friction = pf.material_means()[:, pf.property_index(FRICTION_KEY)].cpu().numpy()
     mats = part_materials(pf, geo.part_mixture, friction, masses.sum((0, 2)), draws.volume_m3.mean(0))
-    obj = SimObject(_name(geo), body, meshes, mats, collision_method=method)
+    obj = SimObject("object", body, meshes, mats, collision_method=method)
     return SimBuild(obj, frame, up_source, carriers, solid_e, wall_e, masses, a, origin)
