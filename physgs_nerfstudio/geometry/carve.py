@@ -163,11 +163,10 @@ def carve_votes_many(
 def carved_by_votes(votes: CarveVotes, cfg: CarveConfig) -> Tensor:
     """bool [M]: the points that the free-space vote carves (module doc), point by point (no specks dropped, no
     cavity filled: :func:`solid_from_votes` does that on the grid)."""
-    f = votes.free.float()
-    carved = _outvoted(votes.free, votes.seen, votes.num_views, cfg)
+    carved = _outvoted(votes.free, votes.seen, cfg)
     if cfg.depth_consensus > 0:
-        carved &= (f >= cfg.depth_consensus * votes.near.float()) | _unframed(votes.seen, votes.num_views, cfg)
-    return carved
+        carved &= votes.free.float() >= cfg.depth_consensus * votes.near.float()
+    return carved | _unframed(votes.seen, votes.num_views, cfg)
 
 
 def _unframed(seen: Tensor, num_views: int, cfg: CarveConfig) -> Tensor:
@@ -175,11 +174,11 @@ def _unframed(seen: Tensor, num_views: int, cfg: CarveConfig) -> Tensor:
     return seen.float() < cfg.min_seen_fraction * num_views
 
 
-def _outvoted(empty: Tensor, seen: Tensor, num_views: int, cfg: CarveConfig) -> Tensor:
+def _outvoted(empty: Tensor, seen: Tensor, cfg: CarveConfig) -> Tensor:
     """bool [M]: the points whose empty votes reach ``min_votes`` and ``min_vote_fraction`` of the views that see
-    them, or that too few views frame (:func:`_unframed`): the rule both votes share."""
+    them: the count both votes share (each also empties the points too few views frame, :func:`_unframed`)."""
     e = empty.float()
-    return ((e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * seen.float())) | _unframed(seen, num_views, cfg)
+    return (e >= cfg.min_votes) & (e >= cfg.min_vote_fraction * seen.float())
 
 
 @torch.no_grad()
@@ -197,7 +196,7 @@ def mask_hull(grid: VoxelGrid, views: Sequence[CaptureView], cfg: CarveConfig, *
             ok, _, at, _ = part.lookup(x)
             _add_views(outside[s0 : s0 + n], ok & (_bilinear(at["sdf"]) > 0))
             _add_views(seen[s0 : s0 + n], ok)
-    return (~_outvoted(outside, seen, len(views), cfg)).reshape(grid.shape).cpu().numpy()
+    return (~(_outvoted(outside, seen, cfg) | _unframed(seen, len(views), cfg))).reshape(grid.shape).cpu().numpy()
 
 
 def solid_from_votes(votes: CarveVotes, grid: VoxelGrid, cfg: CarveConfig) -> np.ndarray:

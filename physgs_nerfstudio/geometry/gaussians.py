@@ -205,8 +205,8 @@ def lift_masks(g: Any, views: Sequence[CaptureView], *, backend: str = "auto",
             w = vis.double()
             seen = w > min_view_weight
             frac = torch.where(seen, ev[:, 0].double() / w.clamp_min(1e-12), torch.zeros_like(w)).clamp(0, 1)
-            inside += torch.where(seen, frac, torch.zeros_like(frac))
-            outside += torch.where(seen, 1 - frac, torch.zeros_like(frac))
+            inside += frac  # 0 where the view does not see the Gaussian
+            outside += seen.double() - frac
     return inside, outside
 
 
