@@ -107,8 +107,6 @@ class GeometryConfig:
     min_mask_agreement: float = 0.5
     """a view whose object mask agrees with the rendered silhouette at IoU below this takes the silhouette instead
     (for the masks' visual hull)"""
-    max_views: int | None = None
-    """use at most this many views (evenly spaced); None = all"""
     backend: str = "auto"
 
     def __post_init__(self) -> None:

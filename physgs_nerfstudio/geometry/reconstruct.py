@@ -459,11 +459,8 @@ class _Parts:
 
 
 def _views_used(views: Sequence[CaptureView], cfg: GeometryConfig) -> list[CaptureView]:
-    """The views that carve: all, or ``max_views`` of them evenly spaced."""
+    """The views that carve: all of them."""
     views = list(views)
-    if cfg.max_views is not None and len(views) > cfg.max_views:
-        keep = np.linspace(0, len(views) - 1, cfg.max_views).round().astype(int)
-        views = [views[i] for i in keep]
     if not views:
         raise GeometryError("no views to carve the object from: the run has no training cameras.")
     return views
