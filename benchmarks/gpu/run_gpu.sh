@@ -14,6 +14,8 @@
 #   PHASE=train OBJECTS="mug chair" bash benchmarks/gpu/run_gpu.sh msuite     # ... then train and score them
 #   PHASE=scenes SEEDS="70001 70002 70003" bash benchmarks/gpu/run_gpu.sh grid  # the mass suite's grid: scenes (.whlpt)
 #   PHASE=runs SEEDS="70001 70002 70003" bash benchmarks/gpu/run_gpu.sh grid    # ... then its runs, detached (.whl)
+#                                            # (EXPORT_ARGS="--mass.X Y" ALT=NAME: then every run re-exported so too,
+#                                            # scored as mass_suite_NAME.json beside the baseline)
 #                                            # (RENDERERS="mitsuba project", FAMILIES: all; carry .meshes/, a copy of
 #                                            # ../shared/data's bunny.obj and armadillo.obj, for the figurine family)
 #   [BASE=DIR] bash benchmarks/gpu/run_gpu.sh after  # issue 13, after `export` on the same machine: mass_integration.py
@@ -277,7 +279,11 @@ case "${1:-kernels}" in
     bash benchmarks/gpu/detached.sh start "export PYTHONPATH=/tmp/site:/tmp/msite:\$PWD TORCH_EXTENSIONS_DIR=\$PWD/.gsplat_build; while pgrep -f 'mass_suite.py --scenes[-]only' >/dev/null; \
       do sleep 5; done; python3 benchmarks/mass_suite.py --seeds $SEEDS --renderers ${RENDERERS:-mitsuba project} \
       ${FAMILIES:+--families $FAMILIES} $(MESHES) --jobs ${JOBS:-12} \
-      --demo-args '--device cuda' --out /tmp/suite > \$OUT/suite.log 2>&1; cp /tmp/suite/mass_suite*.json* \$OUT/"
+      --demo-args '--device cuda' --out /tmp/suite > \$OUT/suite.log 2>&1; cp /tmp/suite/mass_suite*.json* \$OUT/" \
+      ${EXPORT_ARGS:+"export PYTHONPATH=/tmp/site:/tmp/msite:\$PWD; python3 benchmarks/mass_suite.py --seeds $SEEDS \
+      --renderers ${RENDERERS:-mitsuba project} ${FAMILIES:+--families $FAMILIES} $(MESHES) --jobs ${JOBS:-12} \
+      --export-args '$EXPORT_ARGS' --alt-name ${ALT:-alt} --out /tmp/suite > \$OUT/suite_${ALT:-alt}.log 2>&1; \
+      cp /tmp/suite/mass_suite*.json* \$OUT/"}
     ;;
   msuite)
     # issue 12, the mass suite at 60 views 512 px on the GPU, in phases that each fit a 10-minute command on one
