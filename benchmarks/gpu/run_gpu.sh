@@ -280,7 +280,7 @@ case "${1:-kernels}" in
       do sleep 5; done; python3 benchmarks/mass_suite.py --seeds $SEEDS --renderers ${RENDERERS:-mitsuba project} \
       ${FAMILIES:+--families $FAMILIES} $(MESHES) --jobs ${JOBS:-12} \
       --demo-args '--device cuda' --out /tmp/suite > \$OUT/suite.log 2>&1; cp /tmp/suite/mass_suite*.json* \$OUT/" \
-      ${EXPORT_ARGS:+"export PYTHONPATH=/tmp/site:/tmp/msite:\$PWD; python3 benchmarks/mass_suite.py --seeds $SEEDS \
+      ${EXPORT_ARGS:+"export PYTHONPATH=/tmp/site:/tmp/msite:\$PWD TORCH_EXTENSIONS_DIR=\$PWD/.gsplat_build; python3 benchmarks/mass_suite.py --seeds $SEEDS \
       --renderers ${RENDERERS:-mitsuba project} ${FAMILIES:+--families $FAMILIES} $(MESHES) --jobs ${JOBS:-12} \
       --export-args '$EXPORT_ARGS' --alt-name ${ALT:-alt} --out /tmp/suite > \$OUT/suite_${ALT:-alt}.log 2>&1; \
       cp /tmp/suite/mass_suite*.json* \$OUT/"}
