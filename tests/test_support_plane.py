@@ -259,9 +259,10 @@ def test_points_under_a_wide_floor_are_hidden_from_cameras_above() -> None:
 
 def test_contact_band_keeps_neighbours_joined_near_the_floor_apart(monkeypatch) -> None:
     """Two objects on a floor, 0.4 m apart, joined by a chain of clutter a few centimetres above the floor (what the
-    GPU room's floor Gaussians did): clustered as one without the band; with ``contact_band`` (the default) the
-    clusters are cut above it, the central object alone is selected, and its own points in the band (its legs' feet)
-    join it. A low object wholly inside the band (a mat on the floor, at the capture's centre) is still found."""
+    GPU room's floor Gaussians did): clustered as one without the band (``contact_band`` 0); with ``contact_band``
+    (the default) the clusters are cut above it, the central object alone is selected, and its own points in the band
+    (its legs' feet) join it. A low object wholly inside the band (a mat on the floor, at the capture's centre) is
+    still found."""
     import types
 
     import torch
@@ -281,7 +282,7 @@ def test_contact_band_keeps_neighbours_joined_near_the_floor_apart(monkeypatch) 
     views = _views(cams)
     n_t, n_c = len(floor), len(floor) + len(table)
     up_t, up_c = table[:, 2] > 0.03, crate[:, 2] > 0.03  # (the bottom faces go with the floor)
-    base = sel.select_object(g, views, sel.SelectConfig(contact_band=None)).selected.numpy()
+    base = sel.select_object(g, views, sel.SelectConfig(contact_band=0.0)).selected.numpy()
     assert base[n_t:n_c][up_t].mean() > 0.99 and base[n_c : n_c + len(crate)][up_c].mean() > 0.99  # joined
     assert not base[: len(floor)].any()  # the floor is the support plane
     cut = sel.select_object(g, views, sel.SelectConfig()).selected.numpy()

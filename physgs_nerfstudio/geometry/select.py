@@ -99,7 +99,7 @@ class SelectConfig:
     """pick the cluster nearest this point (scene units) instead of the capture centre"""
     bbox: tuple[float, float, float, float, float, float] | None = None
     """only Gaussians inside (xmin ymin zmin xmax ymax zmax), scene units (the viewer's crop box)"""
-    contact_band: float | None = 1.0
+    contact_band: float = 1.0
     """where a support plane is found: the clusters are cut only among the candidates higher above it than its
     tolerance plus this many of the clusters' *reach* (the distance across which they join: a cell times
     ``bridge_cells`` + 1), and the candidates in that band then join the cluster whose points they reach, a reach per
@@ -108,7 +108,7 @@ class SelectConfig:
     their contact shadows, clutter and the floor's reflections bridge them: on the GPU's `indoor_room` the chair, the
     crate and the lamp joined the table's cluster through Gaussians a few centimetres up. At the clusters' own
     resolution whatever lies within one reach of the plane touches it, so it is no evidence that two objects touch.
-    None: every candidate above the plane's tolerance is clustered"""
+    0: every candidate above the plane's tolerance is clustered"""
     split_on_plane: bool = True
     """where a support plane is found: the chosen cluster is split again at its own resolution (:func:`.clusters.split_close`:
     its Gaussians linked within the clusters' reach, two cells of ``cluster_cells`` along the longest side of its
@@ -127,9 +127,8 @@ class SelectConfig:
             raise ValueError(f"SelectConfig.min_prob must be in (0, 1), got {self.min_prob}.")
         if min(self.prior) <= 0:
             raise ValueError(f"SelectConfig.prior must be two positive numbers, got {self.prior}.")
-        if self.contact_band is not None and not self.contact_band >= 0:
-            raise ValueError(f"SelectConfig.contact_band must be >= 0 (the clusters' reach) or None, got "
-                             f"{self.contact_band}.")
+        if not self.contact_band >= 0:
+            raise ValueError(f"SelectConfig.contact_band must be >= 0 (the clusters' reach), got {self.contact_band}.")
         if self.cluster_cells < 4:
             raise ValueError(f"SelectConfig.cluster_cells must be >= 4, got {self.cluster_cells}.")
         if self.bbox is not None:
