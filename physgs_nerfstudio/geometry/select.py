@@ -12,8 +12,8 @@
    object's parts a few millimetres apart stay one cluster). Over a support plane, two more rules: the
    clusters are cut above a *contact band* one reach above the plane and grown back into it (``contact_band``: near
    a floor, its clutter, contact shadows and reflections bridge the objects standing on it), and the chosen cluster
-   is split again at its own resolution (``split_on_plane``, :func:`.clusters.split_close`: the cells are a share of the floor,
-   and a chair 15 cm from a table would share its cluster), linked above the contact band only (faint Gaussians
+   is split again at its own resolution (:func:`.clusters.split_close`: the cells are a share of the floor, and a
+   chair 15 cm from a table would share its cluster), linked above the contact band only (faint Gaussians
    just over a floor, on no object, would link neighbours). In `indoor_room` they keep the chair, the crate and the
    lamp out of the table's selection.
 3. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
@@ -109,15 +109,6 @@ class SelectConfig:
     crate and the lamp joined the table's cluster through Gaussians a few centimetres up. At the clusters' own
     resolution whatever lies within one reach of the plane touches it, so it is no evidence that two objects touch.
     0: every candidate above the plane's tolerance is clustered"""
-    split_on_plane: bool = True
-    """where a support plane is found: the chosen cluster is split again at its own resolution (:func:`.clusters.split_close`:
-    its Gaussians linked within the clusters' reach, two cells of ``cluster_cells`` along the longest side of its
-    5-95% core or of 1.5 x the 90th percentile of their spacing, by exact distance), keeping the part nearest the
-    centre, until it stops shrinking. The clusters' cells
-    are a share of the floor's size, not of the object's, and objects on a floor stand close: on the GPU's
-    `indoor_room` the chair stands 15 cm from the table and stayed in its cluster (2.5-2.8x the table's volume).
-    With ``contact_band`` the split links its parts only above the band, at its own reach (floaters near the floor
-    otherwise link neighbouring objects). False: the coarse clusters alone"""
     support: SupportConfig = field(default_factory=SupportConfig)
     """the floor or table the object stands on, dropped before the clusters (module doc, step 2;
     :mod:`.support`)"""
@@ -163,7 +154,7 @@ class ObjectSelection:
     support_found: str = ""
     """how the support under the object was found, or why none was (:func:`.support.find_support`, for the report)"""
     split_from: int = 0
-    """the chosen cluster's Gaussians before ``split_on_plane`` split it (0: not split; module doc, step 2)"""
+    """the chosen cluster's Gaussians before the split over the support plane (0: not split; module doc, step 2)"""
 
     @property
     def num_selected(self) -> int:
@@ -297,7 +288,7 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     lab, ids = band_labels(m_dev, cfg, extent, height, plane.tol if plane is not None else 0.0)
     chosen = nearest_cluster(m_dev, lab, centre)
     split_from = 0
-    if height is not None and cfg.split_on_plane:
+    if height is not None:
         before = int(chosen.sum())
         chosen = split_close(m_dev, chosen, centre, cfg, height=height,
                              tol=plane.tol if plane is not None else 0.0)  # fmt: skip
