@@ -494,14 +494,14 @@ def test_hull_view_weights_are_each_masks_recall_of_the_majority():
     assert got[3] == 1.0 and got[0] > got[-1]
 
 
-def test_the_weighed_hull_keeps_a_part_that_many_views_lost(box):
+def test_the_weighed_hull_keeps_a_part_that_many_views_lost(box, monkeypatch):
     """When two views in five lost two thirds of the box (the built-in segmenter at 512 px lost the table's top in a
     third of the views), a count of their votes at a hull vote fraction of 0.35 drops much of the lost part's
     Gaussians (30%); weighed by each mask's recall, the views that lost it say less and the box stays whole. A far
     floater, outside every mask, still goes either way."""
     from dataclasses import replace
 
-    from physgs_nerfstudio.geometry.select import outside_mask_hull
+    import physgs_nerfstudio.geometry.select as sel
 
     pf, views = box
     keep = pf.means[:, 0] > 0.07  # the box (x in [-0.2, 0.2]) without its two thirds at x < 0.07 (a table's top)
@@ -512,14 +512,19 @@ def test_the_weighed_hull_keeps_a_part_that_many_views_lost(box):
     masks = dict(zip(sorted(lost), (r.alpha > 0.5 for r in renders)))
     damaged = [replace(v, mask=masks[i]) if i in lost else v for i, v in enumerate(views)]
     means = torch.cat([pf.means.float(), torch.tensor([[0.0, 0.0, 0.6]])])
-    counted = outside_mask_hull(means, damaged, _select(hull_vote_fraction=0.35, hull_weigh_views=False))
-    weighed = outside_mask_hull(means, damaged, _select(hull_vote_fraction=0.35))
-    assert float(counted[:-1][~keep].float().mean()) > 0.2  # much of the lost part goes with a count
+    cfg = _select(hull_vote_fraction=0.35)
+
+    def counted(vs):  # every view's vote 1
+        with monkeypatch.context() as m:
+            m.setattr(sel, "hull_view_weights", lambda f, *a: torch.ones(len(f), dtype=torch.float64))
+            return sel.outside_mask_hull(means, vs, cfg)
+
+    weighed = sel.outside_mask_hull(means, damaged, cfg)
+    assert float(counted(damaged)[:-1][~keep].float().mean()) > 0.2  # much of the lost part goes with a count
     assert not bool(weighed[:-1].any())
-    assert bool(counted[-1]) and bool(weighed[-1])
+    assert bool(counted(damaged)[-1]) and bool(weighed[-1])
     # with every mask whole, each view weighs 1 and the two votes agree
-    whole = outside_mask_hull(means, views, _select(hull_vote_fraction=0.35))
-    assert torch.equal(whole, outside_mask_hull(means, views, _select(hull_vote_fraction=0.35, hull_weigh_views=False)))
+    assert torch.equal(sel.outside_mask_hull(means, views, cfg), counted(views))
 
 
 def test_masks_that_lost_a_part_are_completed_by_the_consensus_silhouette(box):

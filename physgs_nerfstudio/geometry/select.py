@@ -85,9 +85,6 @@ class SelectConfig:
     """a selected Gaussian is outside the masks' hull when its centre projects outside the views' masks in at least
     this fraction of the views that frame it (module doc, step 4: a majority; documented range 0.35-0.65); > 1
     switches the test off"""
-    hull_weigh_views: bool = True
-    """each view's hull vote is weighed by its mask's recall of the selection (:func:`hull_view_weights`, module doc,
-    step 4); False: every view votes 1"""
     hull_min_votes: int = 2
     """... and in at least this many views (the carving's ``min_votes``)"""
     hull_min_framed_fraction: float = 0.5
@@ -181,9 +178,8 @@ def capture_centre(views: Sequence[CaptureView]) -> np.ndarray:
 def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectConfig, *,
                       chunk: int = 1 << 20) -> Tensor:  # fmt: skip
     """bool [N]: centres that project outside the views' masks in enough of the views that frame them (module doc,
-    step 4), each view's vote weighed by its mask's recall (:func:`hull_view_weights`) unless
-    ``cfg.hull_weigh_views`` is False. Out-of-frame views and views behind which a centre lies do not vote.
-    ``chunk``: centres looked up at a time."""
+    step 4), each view's vote weighed by its mask's recall (:func:`hull_view_weights`). Out-of-frame views and views
+    behind which a centre lies do not vote. ``chunk``: centres looked up at a time."""
     dev = means.device
     n = means.shape[0]
     sdf = [d.to(dev) for d in signed_mask_distances([v.mask for v in views])]
@@ -193,12 +189,9 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
         framed[:, s0 : s0 + chunk], outside[:, s0 : s0 + chunk] = mask_view_votes(
             means[s0 : s0 + chunk].float(), views, sdf, cfg.hull_margin_px)
     n_framed, n_outside = framed.sum(0), outside.sum(0)
-    if cfg.hull_weigh_views:
-        w = hull_view_weights(framed, outside, (n_framed, n_outside)).to(torch.float32)
-        w_framed, w_outside = w @ framed.to(w.dtype), w @ outside.to(w.dtype)
-        by_vote = (w_outside >= cfg.hull_vote_fraction * w_framed) & (w_framed > 0)
-    else:
-        by_vote = n_outside >= cfg.hull_vote_fraction * n_framed
+    w = hull_view_weights(framed, outside, (n_framed, n_outside)).to(torch.float32)
+    w_framed, w_outside = w @ framed.to(w.dtype), w @ outside.to(w.dtype)
+    by_vote = (w_outside >= cfg.hull_vote_fraction * w_framed) & (w_framed > 0)
     return ((n_outside >= cfg.hull_min_votes) & by_vote) | (n_framed < cfg.hull_min_framed_fraction * len(views))
 
 
