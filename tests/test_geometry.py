@@ -436,7 +436,8 @@ def test_a_failed_selection_neither_replaces_the_masks_nor_coarsens_the_grid(box
 
     monkeypatch.setattr(rec, "select_object", everything)
     assert geometry_of(both, views).selection.outside_hull == 300  # the masks' hull drops the far ones; without it:
-    geo = geometry_of(both, views, select=_select(hull_vote_fraction=2.0))
+    monkeypatch.setattr(rec, "_within_hull", lambda *a: None)
+    geo = geometry_of(both, views)
     assert geo.selection.num_selected == both.num_gaussians
     assert 0.93 * 0.024 <= geo.volumes[0].sum() <= 1.12 * 0.024
     assert geo.grid.voxel_size < 0.02  # fitted to the box (0.4 m); the 5 m spread gave 0.09
@@ -447,6 +448,7 @@ def test_the_masks_hull_drops_gaussians_outside_the_masks_whatever_their_probabi
     cluster with the object, join it. The hull test counts every view whose frame holds a centre, seen or not:
     centres outside the carving's masks in enough of them are dropped; the object stays whole, and so does its
     volume."""
+    import physgs_nerfstudio.geometry.reconstruct as rec
     import physgs_nerfstudio.geometry.select as sel
     from physgs_nerfstudio.export.shapes import field_from as make
 
@@ -461,7 +463,11 @@ def test_the_masks_hull_drops_gaussians_outside_the_masks_whatever_their_probabi
     # the lifted probability says "object" everywhere (the failure this test is about)
     monkeypatch.setattr(sel, "lift_masks", lambda g, vs, **kw: (torch.full((n,), 5.0, dtype=torch.float64),
                                                                  torch.zeros(n, dtype=torch.float64)))  # fmt: skip
-    without = geometry_of(both, views, select=_select(hull_vote_fraction=2.0)).selection
+    with monkeypatch.context() as m:  # without the masks' hull
+        m.setattr(rec, "_within_hull", lambda *a: None)
+        without = geometry_of(both, views).selection
+    with pytest.raises(ValueError, match="hull_vote_fraction"):
+        _select(hull_vote_fraction=2.0)
     assert bool(without.selected[n_obj:].all())  # the trail is one cluster with the box
     geo = geometry_of(both, views)
     kept = geo.selection.selected

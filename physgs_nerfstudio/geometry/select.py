@@ -83,8 +83,7 @@ class SelectConfig:
     """dilation of occupied cells before labelling clusters"""
     hull_vote_fraction: float = 0.5
     """a selected Gaussian is outside the masks' hull when its centre projects outside the views' masks in at least
-    this fraction of the views that frame it (module doc, step 4: a majority; documented range 0.35-0.65); > 1
-    switches the test off"""
+    this fraction of the views that frame it (module doc, step 4: a majority; documented range 0.35-0.65)"""
     hull_min_votes: int = 2
     """... and in at least this many views (the carving's ``min_votes``)"""
     hull_min_framed_fraction: float = 0.5
@@ -117,6 +116,8 @@ class SelectConfig:
             raise ValueError(f"SelectConfig.prior must be two positive numbers, got {self.prior}.")
         if not self.contact_band >= 0:
             raise ValueError(f"SelectConfig.contact_band must be >= 0 (the clusters' reach), got {self.contact_band}.")
+        if not 0 <= self.hull_vote_fraction <= 1:
+            raise ValueError(f"SelectConfig.hull_vote_fraction must be in [0, 1], got {self.hull_vote_fraction}.")
         if self.cluster_cells < 4:
             raise ValueError(f"SelectConfig.cluster_cells must be >= 4, got {self.cluster_cells}.")
         if self.bbox is not None:
