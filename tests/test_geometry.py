@@ -436,7 +436,8 @@ def test_a_failed_selection_neither_replaces_the_masks_nor_coarsens_the_grid(box
 
     monkeypatch.setattr(rec, "select_object", everything)
     assert geometry_of(both, views).selection.outside_hull == 300  # the masks' hull drops the far ones; without it:
-    geo = geometry_of(both, views, select=_select(hull_vote_fraction=2.0))
+    monkeypatch.setattr(rec, "_within_hull", lambda *a: None)
+    geo = geometry_of(both, views)
     assert geo.selection.num_selected == both.num_gaussians
     assert 0.93 * 0.024 <= geo.volumes[0].sum() <= 1.12 * 0.024
     assert geo.grid.voxel_size < 0.02  # fitted to the box (0.4 m); the 5 m spread gave 0.09
@@ -447,6 +448,7 @@ def test_the_masks_hull_drops_gaussians_outside_the_masks_whatever_their_probabi
     cluster with the object, join it. The hull test counts every view whose frame holds a centre, seen or not:
     centres outside the carving's masks in enough of them are dropped; the object stays whole, and so does its
     volume."""
+    import physgs_nerfstudio.geometry.reconstruct as rec
     import physgs_nerfstudio.geometry.select as sel
     from physgs_nerfstudio.export.shapes import field_from as make
 
@@ -461,7 +463,11 @@ def test_the_masks_hull_drops_gaussians_outside_the_masks_whatever_their_probabi
     # the lifted probability says "object" everywhere (the failure this test is about)
     monkeypatch.setattr(sel, "lift_masks", lambda g, vs, **kw: (torch.full((n,), 5.0, dtype=torch.float64),
                                                                  torch.zeros(n, dtype=torch.float64)))  # fmt: skip
-    without = geometry_of(both, views, select=_select(hull_vote_fraction=2.0)).selection
+    with monkeypatch.context() as m:  # without the masks' hull
+        m.setattr(rec, "_within_hull", lambda *a: None)
+        without = geometry_of(both, views).selection
+    with pytest.raises(ValueError, match="hull_vote_fraction"):
+        _select(hull_vote_fraction=2.0)
     assert bool(without.selected[n_obj:].all())  # the trail is one cluster with the box
     geo = geometry_of(both, views)
     kept = geo.selection.selected
@@ -494,14 +500,14 @@ def test_hull_view_weights_are_each_masks_recall_of_the_majority():
     assert got[3] == 1.0 and got[0] > got[-1]
 
 
-def test_the_weighed_hull_keeps_a_part_that_many_views_lost(box):
+def test_the_weighed_hull_keeps_a_part_that_many_views_lost(box, monkeypatch):
     """When two views in five lost two thirds of the box (the built-in segmenter at 512 px lost the table's top in a
     third of the views), a count of their votes at a hull vote fraction of 0.35 drops much of the lost part's
     Gaussians (30%); weighed by each mask's recall, the views that lost it say less and the box stays whole. A far
     floater, outside every mask, still goes either way."""
     from dataclasses import replace
 
-    from physgs_nerfstudio.geometry.select import outside_mask_hull
+    import physgs_nerfstudio.geometry.select as sel
 
     pf, views = box
     keep = pf.means[:, 0] > 0.07  # the box (x in [-0.2, 0.2]) without its two thirds at x < 0.07 (a table's top)
@@ -512,14 +518,19 @@ def test_the_weighed_hull_keeps_a_part_that_many_views_lost(box):
     masks = dict(zip(sorted(lost), (r.alpha > 0.5 for r in renders)))
     damaged = [replace(v, mask=masks[i]) if i in lost else v for i, v in enumerate(views)]
     means = torch.cat([pf.means.float(), torch.tensor([[0.0, 0.0, 0.6]])])
-    counted = outside_mask_hull(means, damaged, _select(hull_vote_fraction=0.35, hull_weigh_views=False))
-    weighed = outside_mask_hull(means, damaged, _select(hull_vote_fraction=0.35))
-    assert float(counted[:-1][~keep].float().mean()) > 0.2  # much of the lost part goes with a count
+    cfg = _select(hull_vote_fraction=0.35)
+
+    def counted(vs):  # every view's vote 1
+        with monkeypatch.context() as m:
+            m.setattr(sel, "hull_view_weights", lambda f, *a: torch.ones(len(f), dtype=torch.float64))
+            return sel.outside_mask_hull(means, vs, cfg)
+
+    weighed = sel.outside_mask_hull(means, damaged, cfg)
+    assert float(counted(damaged)[:-1][~keep].float().mean()) > 0.2  # much of the lost part goes with a count
     assert not bool(weighed[:-1].any())
-    assert bool(counted[-1]) and bool(weighed[-1])
+    assert bool(counted(damaged)[-1]) and bool(weighed[-1])
     # with every mask whole, each view weighs 1 and the two votes agree
-    whole = outside_mask_hull(means, views, _select(hull_vote_fraction=0.35))
-    assert torch.equal(whole, outside_mask_hull(means, views, _select(hull_vote_fraction=0.35, hull_weigh_views=False)))
+    assert torch.equal(sel.outside_mask_hull(means, views, cfg), counted(views))
 
 
 def test_masks_that_lost_a_part_are_completed_by_the_consensus_silhouette(box):

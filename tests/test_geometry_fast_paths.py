@@ -420,15 +420,14 @@ def test_outside_mask_hull_equals_one_view_at_a_time(monkeypatch):
     the oracle), for points framed by some views and not others, on a GPU's batch size and one view at a time."""
     from physgs_nerfstudio.geometry import carve_views
     from physgs_nerfstudio.geometry.carve import _sample, signed_mask_distances
-    from physgs_nerfstudio.geometry.select import SelectConfig, outside_mask_hull
+    from physgs_nerfstudio.geometry.select import SelectConfig, hull_view_weights, outside_mask_hull
 
     _, views, _ = _carving_scene(3)
     g = torch.Generator().manual_seed(3)
     means = (torch.rand(5000, 3, generator=g) - 0.5) * torch.tensor([2.4, 2.0, 1.6])
-    cfg = SelectConfig(hull_weigh_views=False)  # the count (the weighed vote: test_geometry.py)
+    cfg = SelectConfig()
     sdf = signed_mask_distances([v.mask for v in views])
-    framed = torch.zeros(len(means), dtype=torch.int32)
-    outside = torch.zeros_like(framed)
+    in_frame, out = [], []
     for v, sd in zip(views, sdf):
         pc = means @ v.viewmat[:3, :3].T + v.viewmat[:3, 3]
         z = pc[:, 2]
@@ -436,10 +435,13 @@ def test_outside_mask_hull_equals_one_view_at_a_time(monkeypatch):
         w = v.K[1, 1] * pc[:, 1] / z.clamp_min(1e-9) + v.K[1, 2]
         ok = (z > 1e-6) & (u >= 0) & (u < v.width) & (w >= 0) & (w < v.height)
         d = _sample(sd, u.clamp(0, v.width), w.clamp(0, v.height))
-        framed += ok.int()
-        outside += (ok & (d > cfg.hull_margin_px)).int()
-    want = ((outside >= cfg.hull_min_votes) & (outside >= cfg.hull_vote_fraction * framed)) | (
-        framed < cfg.hull_min_framed_fraction * len(views))
+        in_frame.append(ok)
+        out.append(ok & (d > cfg.hull_margin_px))
+    framed, outside = torch.stack(in_frame).sum(0), torch.stack(out).sum(0)
+    w = hull_view_weights(torch.stack(in_frame), torch.stack(out)).float()  # (its oracle: test_geometry.py)
+    w_framed, w_outside = w @ torch.stack(in_frame).float(), w @ torch.stack(out).float()
+    by_vote = (w_outside >= cfg.hull_vote_fraction * w_framed) & (w_framed > 0)
+    want = ((outside >= cfg.hull_min_votes) & by_vote) | (framed < cfg.hull_min_framed_fraction * len(views))
     assert 0 < int(want.sum()) < len(means) and 0 < int((framed < len(views)).sum())
     for points in (1, 3 * len(means), 1 << 23):
         monkeypatch.setattr(carve_views, "default_batch_points", lambda _dev, p=points: p)

@@ -259,9 +259,10 @@ def test_points_under_a_wide_floor_are_hidden_from_cameras_above() -> None:
 
 def test_contact_band_keeps_neighbours_joined_near_the_floor_apart(monkeypatch) -> None:
     """Two objects on a floor, 0.4 m apart, joined by a chain of clutter a few centimetres above the floor (what the
-    GPU room's floor Gaussians did): clustered as one without the band; with ``contact_band`` (the default) the
-    clusters are cut above it, the central object alone is selected, and its own points in the band (its legs' feet)
-    join it. A low object wholly inside the band (a mat on the floor, at the capture's centre) is still found."""
+    GPU room's floor Gaussians did): clustered as one without the band (``contact_band`` 0); with ``contact_band``
+    (the default) the clusters are cut above it, the central object alone is selected, and its own points in the band
+    (its legs' feet) join it. A low object wholly inside the band (a mat on the floor, at the capture's centre) is
+    still found."""
     import types
 
     import torch
@@ -281,7 +282,7 @@ def test_contact_band_keeps_neighbours_joined_near_the_floor_apart(monkeypatch) 
     views = _views(cams)
     n_t, n_c = len(floor), len(floor) + len(table)
     up_t, up_c = table[:, 2] > 0.03, crate[:, 2] > 0.03  # (the bottom faces go with the floor)
-    base = sel.select_object(g, views, sel.SelectConfig(contact_band=None)).selected.numpy()
+    base = sel.select_object(g, views, sel.SelectConfig(contact_band=0.0)).selected.numpy()
     assert base[n_t:n_c][up_t].mean() > 0.99 and base[n_c : n_c + len(crate)][up_c].mean() > 0.99  # joined
     assert not base[: len(floor)].any()  # the floor is the support plane
     cut = sel.select_object(g, views, sel.SelectConfig()).selected.numpy()
@@ -320,10 +321,20 @@ def _table_and_chair(rng: np.random.Generator, gap: float) -> tuple[np.ndarray, 
     return table, chair
 
 
+def _coarse_selection(monkeypatch, g, views) -> np.ndarray:
+    """The selection's coarse cluster alone (without the split over the support plane)."""
+    import physgs_nerfstudio.geometry.select as sel
+
+    with monkeypatch.context() as m:
+        m.setattr(sel, "split_close", lambda _m, chosen, *a, **k: chosen)
+        return sel.select_object(g, views, sel.SelectConfig()).selected.numpy()
+
+
 def test_object_standing_close_to_another_on_a_floor_is_split_from_it(monkeypatch) -> None:
     """A table and a chair 15 cm from its edge on a floor (the generated `indoor_room`'s layout): the clusters' cells
-    are a share of the floor's size and join them; ``split_on_plane`` splits the chosen cluster again at the table's
-    own resolution and keeps the table whole, legs included, and none of the chair."""
+    are a share of the floor's size and join them (the coarse selection: :func:`.clusters.split_close` left out); the
+    split over the support plane splits the chosen cluster again at the table's own resolution and keeps the table
+    whole, legs included, and none of the chair."""
     import types
 
     import torch
@@ -340,7 +351,7 @@ def test_object_standing_close_to_another_on_a_floor_is_split_from_it(monkeypatc
     views = _views(_ring(30, 3.5, 30, 60))
     n_t = len(floor)
     t_up, c_up = table[:, 2] > 0.03, chair[:, 2] > 0.03
-    coarse = sel.select_object(g, views, sel.SelectConfig(split_on_plane=False)).selected.numpy()
+    coarse = _coarse_selection(monkeypatch, g, views)
     assert coarse[n_t : n_t + len(table)][t_up].mean() > 0.99 and coarse[n_t + len(table) :][c_up].mean() > 0.99
     chosen = sel.select_object(g, views, sel.SelectConfig())
     got = chosen.selected.numpy()
@@ -379,7 +390,7 @@ def test_floaters_near_the_floor_do_not_link_a_chair_to_the_table_in_the_split(m
     got = sel.select_object(g, views, sel.SelectConfig()).selected.numpy()
     up = table[:, 2] > 0.03  # (the plane's tolerance drops the feet's lowest millimetres)
     assert got[t0:c0][up].mean() > 0.99
-    coarse = sel.select_object(g, views, sel.SelectConfig(split_on_plane=False)).selected.numpy()
+    coarse = _coarse_selection(monkeypatch, g, views)
     assert coarse[c0:f0][chair[:, 2] > 0.2].mean() > 0.99  # the coarse clusters join them
     assert not (coarse[t0:c0] & ~got[t0:c0]).any()  # the split keeps every point of the table they had, feet too
     assert not got[c0:f0].any() and not got[:t0].any()

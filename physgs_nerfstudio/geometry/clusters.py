@@ -25,7 +25,7 @@ class ClusterSettings(Protocol):
 
     cluster_cells: int
     bridge_cells: int
-    contact_band: float | None
+    contact_band: float
 
 logger = logging.getLogger(__name__)
 
@@ -174,7 +174,7 @@ def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSetti
 
     cur = chosen.cpu().numpy().copy()
     pts = m.cpu().numpy()
-    banded = height is not None and cfg.contact_band is not None
+    banded = height is not None
     for _ in range(rounds):
         p = pts[cur]
         if len(p) < 16:
@@ -184,8 +184,8 @@ def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSetti
         spacing = float(np.quantile(_nn_spacings(tree, p), spacing_quantile))
         reach = (cfg.bridge_cells + 1) * max(float((q[1] - q[0]).max()) / cfg.cluster_cells, 1.5 * spacing)
         linked = np.ones(len(p), bool)
-        if banded:  # (contact_band is not None)
-            linked = np.asarray(height)[cur] > tol + cfg.contact_band * reach  # type: ignore[operator]
+        if banded:
+            linked = np.asarray(height)[cur] > tol + cfg.contact_band * reach
             if linked.sum() < 16:
                 linked[:] = True
         pl = p[linked]
@@ -222,7 +222,7 @@ def band_labels(m: Tensor, cfg: ClusterSettings, extent: float | None, height: n
     """Cluster label of each candidate (0: none) and the cluster ids: :func:`cluster_labels`, or, above a support plane
     (``height``: the candidates' heights above it, ``tol``: its tolerance) with ``cfg.contact_band``, clusters cut
     above the band and grown back into it (:func:`grow_into_band`)."""
-    if height is None or cfg.contact_band is None:
+    if height is None:
         lab, _, _, ids = cluster_labels(m, cfg, extent)
         return lab, ids
     cell = cell_size(m, cfg, extent)

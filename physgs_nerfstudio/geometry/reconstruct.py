@@ -207,8 +207,6 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
 def _within_hull(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
     """Drop the selected Gaussians outside the masks' hull (:mod:`.select`, step 4), in place, before the views'
     masks are judged against the selection's silhouette (:func:`_object_views`)."""
-    if cfg.select.hull_vote_fraction > 1:
-        return
     idx = torch.nonzero(selection.selected).squeeze(1)
     drop = outside_mask_hull(g.means[idx], views, cfg.select)
     if not bool(drop.any()) or bool(drop.all()):  # all: the masks and the selection disagree; the carving says so

@@ -12,8 +12,8 @@
    object's parts a few millimetres apart stay one cluster). Over a support plane, two more rules: the
    clusters are cut above a *contact band* one reach above the plane and grown back into it (``contact_band``: near
    a floor, its clutter, contact shadows and reflections bridge the objects standing on it), and the chosen cluster
-   is split again at its own resolution (``split_on_plane``, :func:`.clusters.split_close`: the cells are a share of the floor,
-   and a chair 15 cm from a table would share its cluster), linked above the contact band only (faint Gaussians
+   is split again at its own resolution (:func:`.clusters.split_close`: the cells are a share of the floor, and a
+   chair 15 cm from a table would share its cluster), linked above the contact band only (faint Gaussians
    just over a floor, on no object, would link neighbours). In `indoor_room` they keep the chair, the crate and the
    lamp out of the table's selection.
 3. The object is the cluster nearest the *capture centre*: the point closest, in least squares, to every
@@ -83,11 +83,7 @@ class SelectConfig:
     """dilation of occupied cells before labelling clusters"""
     hull_vote_fraction: float = 0.5
     """a selected Gaussian is outside the masks' hull when its centre projects outside the views' masks in at least
-    this fraction of the views that frame it (module doc, step 4: a majority; documented range 0.35-0.65); > 1
-    switches the test off"""
-    hull_weigh_views: bool = True
-    """each view's hull vote is weighed by its mask's recall of the selection (:func:`hull_view_weights`, module doc,
-    step 4); False: every view votes 1"""
+    this fraction of the views that frame it (module doc, step 4: a majority; documented range 0.35-0.65)"""
     hull_min_votes: int = 2
     """... and in at least this many views (the carving's ``min_votes``)"""
     hull_min_framed_fraction: float = 0.5
@@ -99,7 +95,7 @@ class SelectConfig:
     """pick the cluster nearest this point (scene units) instead of the capture centre"""
     bbox: tuple[float, float, float, float, float, float] | None = None
     """only Gaussians inside (xmin ymin zmin xmax ymax zmax), scene units (the viewer's crop box)"""
-    contact_band: float | None = 1.0
+    contact_band: float = 1.0
     """where a support plane is found: the clusters are cut only among the candidates higher above it than its
     tolerance plus this many of the clusters' *reach* (the distance across which they join: a cell times
     ``bridge_cells`` + 1), and the candidates in that band then join the cluster whose points they reach, a reach per
@@ -108,16 +104,7 @@ class SelectConfig:
     their contact shadows, clutter and the floor's reflections bridge them: on the GPU's `indoor_room` the chair, the
     crate and the lamp joined the table's cluster through Gaussians a few centimetres up. At the clusters' own
     resolution whatever lies within one reach of the plane touches it, so it is no evidence that two objects touch.
-    None: every candidate above the plane's tolerance is clustered"""
-    split_on_plane: bool = True
-    """where a support plane is found: the chosen cluster is split again at its own resolution (:func:`.clusters.split_close`:
-    its Gaussians linked within the clusters' reach, two cells of ``cluster_cells`` along the longest side of its
-    5-95% core or of 1.5 x the 90th percentile of their spacing, by exact distance), keeping the part nearest the
-    centre, until it stops shrinking. The clusters' cells
-    are a share of the floor's size, not of the object's, and objects on a floor stand close: on the GPU's
-    `indoor_room` the chair stands 15 cm from the table and stayed in its cluster (2.5-2.8x the table's volume).
-    With ``contact_band`` the split links its parts only above the band, at its own reach (floaters near the floor
-    otherwise link neighbouring objects). False: the coarse clusters alone"""
+    0: every candidate above the plane's tolerance is clustered"""
     support: SupportConfig = field(default_factory=SupportConfig)
     """the floor or table the object stands on, dropped before the clusters (module doc, step 2;
     :mod:`.support`)"""
@@ -127,9 +114,10 @@ class SelectConfig:
             raise ValueError(f"SelectConfig.min_prob must be in (0, 1), got {self.min_prob}.")
         if min(self.prior) <= 0:
             raise ValueError(f"SelectConfig.prior must be two positive numbers, got {self.prior}.")
-        if self.contact_band is not None and not self.contact_band >= 0:
-            raise ValueError(f"SelectConfig.contact_band must be >= 0 (the clusters' reach) or None, got "
-                             f"{self.contact_band}.")
+        if not self.contact_band >= 0:
+            raise ValueError(f"SelectConfig.contact_band must be >= 0 (the clusters' reach), got {self.contact_band}.")
+        if not 0 <= self.hull_vote_fraction <= 1:
+            raise ValueError(f"SelectConfig.hull_vote_fraction must be in [0, 1], got {self.hull_vote_fraction}.")
         if self.cluster_cells < 4:
             raise ValueError(f"SelectConfig.cluster_cells must be >= 4, got {self.cluster_cells}.")
         if self.bbox is not None:
@@ -164,7 +152,7 @@ class ObjectSelection:
     support_found: str = ""
     """how the support under the object was found, or why none was (:func:`.support.find_support`, for the report)"""
     split_from: int = 0
-    """the chosen cluster's Gaussians before ``split_on_plane`` split it (0: not split; module doc, step 2)"""
+    """the chosen cluster's Gaussians before the split over the support plane (0: not split; module doc, step 2)"""
 
     @property
     def num_selected(self) -> int:
@@ -191,9 +179,8 @@ def capture_centre(views: Sequence[CaptureView]) -> np.ndarray:
 def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectConfig, *,
                       chunk: int = 1 << 20) -> Tensor:  # fmt: skip
     """bool [N]: centres that project outside the views' masks in enough of the views that frame them (module doc,
-    step 4), each view's vote weighed by its mask's recall (:func:`hull_view_weights`) unless
-    ``cfg.hull_weigh_views`` is False. Out-of-frame views and views behind which a centre lies do not vote.
-    ``chunk``: centres looked up at a time."""
+    step 4), each view's vote weighed by its mask's recall (:func:`hull_view_weights`). Out-of-frame views and views
+    behind which a centre lies do not vote. ``chunk``: centres looked up at a time."""
     dev = means.device
     n = means.shape[0]
     sdf = [d.to(dev) for d in signed_mask_distances([v.mask for v in views])]
@@ -203,12 +190,9 @@ def outside_mask_hull(means: Tensor, views: Sequence[CaptureView], cfg: SelectCo
         framed[:, s0 : s0 + chunk], outside[:, s0 : s0 + chunk] = mask_view_votes(
             means[s0 : s0 + chunk].float(), views, sdf, cfg.hull_margin_px)
     n_framed, n_outside = framed.sum(0), outside.sum(0)
-    if cfg.hull_weigh_views:
-        w = hull_view_weights(framed, outside, (n_framed, n_outside)).to(torch.float32)
-        w_framed, w_outside = w @ framed.to(w.dtype), w @ outside.to(w.dtype)
-        by_vote = (w_outside >= cfg.hull_vote_fraction * w_framed) & (w_framed > 0)
-    else:
-        by_vote = n_outside >= cfg.hull_vote_fraction * n_framed
+    w = hull_view_weights(framed, outside, (n_framed, n_outside)).to(torch.float32)
+    w_framed, w_outside = w @ framed.to(w.dtype), w @ outside.to(w.dtype)
+    by_vote = (w_outside >= cfg.hull_vote_fraction * w_framed) & (w_framed > 0)
     return ((n_outside >= cfg.hull_min_votes) & by_vote) | (n_framed < cfg.hull_min_framed_fraction * len(views))
 
 
@@ -298,7 +282,7 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     lab, ids = band_labels(m_dev, cfg, extent, height, plane.tol if plane is not None else 0.0)
     chosen = nearest_cluster(m_dev, lab, centre)
     split_from = 0
-    if height is not None and cfg.split_on_plane:
+    if height is not None:
         before = int(chosen.sum())
         chosen = split_close(m_dev, chosen, centre, cfg, height=height,
                              tol=plane.tol if plane is not None else 0.0)  # fmt: skip
