@@ -43,9 +43,9 @@ class GeometryConfig:
     extent_outlier_fraction: float = 0.001
     """along each direction the polytope skips this share of the outermost Gaussians
     (:func:`.gaussians.support_heights`), so that a few strays under an unseen bottom face do not set where the solid ends; documented range 0-0.003"""
-    extent_variant_voxels: float | None = 1.0
+    extent_variant_voxels: float = 1.0
     """the interval also samples the nominal carving cut to the polytope grown by this many voxels (where the
-    polytope ends the solid, a few Gaussians' scatter places the surface to about a voxel); None = no such variant"""
+    polytope ends the solid, a few Gaussians' scatter places the surface to about a voxel)"""
     hidden_skin_voxels: int | None = 2
     """the solid loses its *hidden open space* (:mod:`.hidden`: space no view could carve that no seen surface
     encloses, such as under a table top); the skin closes the gaps between its samples over this many voxels each
