@@ -68,12 +68,6 @@ class GeometryConfig:
     hidden_min_open_half: int = 9
     """... or in at least this many of the 9 directions of one half and one across it (:mod:`.hidden`, "The open
     half"); documented range 8-9"""
-    sheet_voxels: float | None = None
-    """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels; None =
-    the nominal depth margin + 2 (the surface depth keeps both surfaces of a wall, in front of their Gaussians)"""
-    min_plate: float = 0.25
-    """a sheet face counts half only where the thin solid is a plate: the second-largest spread of its voxels is at
-    least this times the largest (:func:`.parts.part_areas`; a rod's faces are its one outer side); 0 = always"""
     concavity_px: float = 3.0
     """a wall face that is no sheet and faces a concavity (empty space that only depth carved, this many pixels and
     at least 2 voxels inside the visual hull: a cup's inside) is not counted in a hollow part's area (its outer face

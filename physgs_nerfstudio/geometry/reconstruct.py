@@ -620,12 +620,14 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
 def _surfaces(cv: _Carving, pp: _Parts, cfg: GeometryConfig, pixel_voxels: float, device: Any
               ) -> list[PartGeometry]:  # fmt: skip
     """Every variant's per-part wall areas, surfaces and curvatures (:func:`.parts.part_areas`)."""
-    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else cfg.carve.depth_margin_voxels + 2.0
+    # a face is one side of a sheet where the solid's inscribed half-thickness is at most the nominal depth margin
+    # + 2 voxels (the surface depth keeps both surfaces of a wall, in front of their Gaussians)
+    sheet = cfg.carve.depth_margin_voxels + 2.0
     concave = concavities(cv.hull, cv.solids[0], max(2.0, cfg.concavity_px * pixel_voxels))
 
     def areas(s: np.ndarray) -> PartGeometry:
-        return part_areas(cv.grid, s, np.where(s, pp.parts, -1), pp.count, sheet_voxels=sheet,
-                          min_plate=cfg.min_plate, concave=concave, device=device)  # fmt: skip
+        return part_areas(cv.grid, s, np.where(s, pp.parts, -1), pp.count, sheet_voxels=sheet, concave=concave,
+                          device=device)  # fmt: skip
 
     # the variants' surfaces on a thread pool: each is independent, and NumPy's and SciPy's loops release the GIL
     # for much of the work (the same numbers as one at a time)
