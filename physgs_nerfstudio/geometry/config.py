@@ -6,7 +6,6 @@ measurements that chose the defaults: CHANGELOG.md and benchmarks/results/mass_s
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
 
 from .carve import CarveConfig
 from .select import SelectConfig
@@ -74,10 +73,6 @@ class GeometryConfig:
     is; :func:`.parts.part_areas`); in pixels because the hull is wider than the solid by the masks' blur"""
     min_part_fraction: float = 2e-3
     """parts smaller than this share of the solid are pooled into one last part (:func:`.parts.part_labels`)"""
-    part_materials: Literal["observations", "pooled", "voxels"] = "observations"
-    """a part's material: "observations", the Dirichlet fusion of the views' answers about it (:mod:`.part_evidence`;
-    a part none reaches falls back to "pooled"); "pooled", its Gaussians' mean posterior; "voxels", each voxel its
-    own (:mod:`.parts`)"""
     min_part_observation: float = 0.5
     """a part takes its material from the observations when their summed weight (level x confidence x share of the
     mask) reaches this, about half a view's answer; below it, it joins the observed part nearest each voxel"""

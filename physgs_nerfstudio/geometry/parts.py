@@ -15,13 +15,13 @@
   as deep as its edge; at 10 the edge reaches across its whole thickness.
 * **Parts.** Connected components (26-connectivity) of solid voxels sharing a dominant (argmax) material;
   parts below ``min_part_fraction`` of the object's volume are pooled into one residual part.
-* **A part's material** (:func:`pooled_part_alpha`, ``part_materials="pooled"``; the default fuses the views'
-  answers per part, :mod:`.part_evidence`). A part is one piece of one material; its Dirichlet is the weighted mean
-  of its Gaussians' posteriors, ``alpha0 + mean(lambda * e_g)`` (weights: opacity x observed share): the mean, not
-  the sum, since a part's Gaussians see the same pixels. Averaging the Gaussians' *weights* instead (``"voxels"``)
+* **A part's material** (:func:`pooled_part_alpha`, for a part that no view's answer reaches; the others fuse the
+  views' answers per part, :mod:`.part_evidence`). A part is one piece of one material; its Dirichlet is the
+  weighted mean of its Gaussians' posteriors, ``alpha0 + mean(lambda * e_g)`` (weights: opacity x observed share):
+  the mean, not the sum, since a part's Gaussians see the same pixels. Averaging the Gaussians' *weights* instead
   keeps every weakly observed Gaussian's spread over 10-28 candidates, and a metal tail can double a wooden part's
   mean density. The whole part switches material together in the mass's Monte Carlo.
-* **Material draws within a part** (:func:`material_quantiles`, ``part_materials="voxels"``). The mass's Monte Carlo draws one level
+* **Material draws within a part** (:func:`material_quantiles`, without the Gaussians' posteriors). The mass's Monte Carlo draws one level
   ``u ~ U(0, 1)`` per part and sample; each voxel of the part then takes the material where its own mixture's
   cumulative sum (materials in the order of the part's mean mixture) first reaches ``u``. Where the voxels are
   equally unsure (oak or walnut everywhere) the whole part switches together, which keeps the ambiguity in the

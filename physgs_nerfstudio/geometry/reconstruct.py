@@ -579,9 +579,10 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
                     observations: Sequence[MaskObservation], cv: _Carving, cfg: GeometryConfig,
                     material_names: Sequence[str] | None, alpha: torch.Tensor | None, material_weights: str,
                     dirichlet_prior: tuple[float, float] | None) -> _Parts:  # fmt: skip
-    """Per-voxel material mixture, the parts (components of one dominant material) and each part's material:
-    fused from the views' answers about it, from its Gaussians' pooled posteriors, or drawn per voxel
-    (``part_materials``; :func:`reconstruct_object`'s arguments)."""
+    """Per-voxel material mixture, the parts (components of one dominant material) and each part's material: the
+    Dirichlet fusion of the views' answers about it (:mod:`.part_evidence`); a part no observation reaches keeps its
+    Gaussians' pooled posterior (:func:`.parts.pooled_part_alpha`), and without ``alpha`` each voxel keeps its own
+    mixture (:func:`.parts.material_quantiles`). :func:`reconstruct_object`'s arguments."""
     sel, device = selection.selected, g.means.device
     labelled = getattr(g, "labelled", None)
     pi_sel = pi(sel) if callable(pi) else pi[sel]
@@ -594,7 +595,7 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
     parts = part_labels(union, mixture, cfg.min_part_fraction)
     names = list(material_names) if material_names is not None else [str(k) for k in range(pi_sel.shape[1])]
     prior = dirichlet_prior if dirichlet_prior is not None else (1.0, 4.0)
-    by_views = cfg.part_materials == "observations" and alpha is not None and bool(observations)
+    by_views = alpha is not None and bool(observations)
     shares: list[tuple[int, np.ndarray]] = []
     if by_views:
         parts, shares = _merged_parts(parts, cv, views, observations, names, prior, cfg, device)
@@ -602,7 +603,7 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
     pm = _part_mixture(parts, mixture, cv)
     if observations and not by_views:  # the structure's evidence
         shares = observation_shares(cv.grid, np.where(cv.solids[0], parts, -1), P, views, observations, device)
-    if cfg.part_materials == "voxels" or alpha is None:
+    if alpha is None:
         return _Parts(mixture, parts, pm, material_quantiles(parts, mixture, P, pm), shares, names)
     pooled, support = pooled_part_alpha(cv.grid, parts, P, g.means[sel], g.opacities[sel], alpha[sel], observed)
     has = support > 0
@@ -673,9 +674,9 @@ def reconstruct_object(
     (or a function of a bool row mask giving those rows' weights, so that only the object's are computed),
     ``library_thickness[k]``: material k's typical wall thickness in the library (None: solid),
     ``material_names[k]``: the names observations use; ``alpha``: their Dirichlet posteriors [N, K] and
-    ``material_weights`` the field's weighting, for ``part_materials="pooled"`` (None: "voxels");
-    ``dirichlet_prior``: the model's (alpha0, lambda) for ``part_materials="observations"`` (None: (1, 4), the
-    fusion's defaults). ``progress(stage: str)`` is called as stages start."""
+    ``material_weights`` the field's weighting, for the parts' materials (None: each voxel its own,
+    :func:`.parts.material_quantiles`); ``dirichlet_prior``: the model's (alpha0, lambda) for the fusion of the
+    observations (None: (1, 4), the fusion's defaults). ``progress(stage: str)`` is called as stages start."""
     cfg = cfg or GeometryConfig()
     step = progress or (lambda _s: None)
     views = _views_used(views, cfg)
