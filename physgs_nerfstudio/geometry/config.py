@@ -52,18 +52,12 @@ class GeometryConfig:
     hidden_skin_tolerance: float = 1.5
     """a voxel is skin when the samples around it have their centroid within this many voxels of its centre (half
     the skin's thickness across a surface); documented range 1.25-2"""
-    hidden_skin_sigmas: float = 1.0
-    """the skin's samples: the surface Gaussians' means and the ends of their axes at this many standard deviations
-    (:func:`.hidden.gaussian_samples`); 0 = the means only"""
     hidden_skin_seen: float | None = 1.0
     """an axis end samples the skin only where some view sees it on its rendered surface, within this many voxels
     plus its Gaussian's own thickness (:mod:`.hidden`, "Seen samples"); None = every end; documented range 0.5-2"""
     hidden_skin_band: float = 0.5
     """the skin's Gaussians: those whose centre some view sees at most this many voxels behind its rendered depth
     (:mod:`.hidden`, "The skin's band"); documented range 0.5-1"""
-    hidden_min_open_fraction: float = 0.5
-    """a voxel is hidden open space when its rays leave the solid without meeting the skin in more than this share
-    of the 26 lattice directions (:mod:`.hidden`)"""
     hidden_min_open_half: int = 9
     """... or in at least this many of the 9 directions of one half and one across it (:mod:`.hidden`, "The open
     half"); documented range 8-9"""
@@ -110,15 +104,11 @@ class GeometryConfig:
         if self.hidden_skin_voxels is not None and self.hidden_skin_voxels < 0:
             raise ValueError("GeometryConfig.hidden_skin_voxels must be >= 0 (or None: keep the hidden space), got "
                              f"{self.hidden_skin_voxels}.")
-        if not self.hidden_skin_tolerance > 0 or not self.hidden_skin_sigmas >= 0:
-            raise ValueError("GeometryConfig.hidden_skin_tolerance must be > 0 and hidden_skin_sigmas >= 0, got "
-                             f"{self.hidden_skin_tolerance} and {self.hidden_skin_sigmas}.")
+        if not self.hidden_skin_tolerance > 0:
+            raise ValueError(f"GeometryConfig.hidden_skin_tolerance must be > 0, got {self.hidden_skin_tolerance}.")
         if self.hidden_skin_seen is not None and not self.hidden_skin_seen >= 0:
             raise ValueError("GeometryConfig.hidden_skin_seen must be >= 0 (voxels) or None, got "
                              f"{self.hidden_skin_seen}.")
-        if not 0.0 <= self.hidden_min_open_fraction < 1.0:
-            raise ValueError("GeometryConfig.hidden_min_open_fraction must be in [0, 1), got "
-                             f"{self.hidden_min_open_fraction}.")
         if not 1 <= self.hidden_min_open_half <= 9:
             raise ValueError("GeometryConfig.hidden_min_open_half must be in 1-9, got "
                              f"{self.hidden_min_open_half}.")

@@ -28,7 +28,15 @@ from .config import GeometryConfig
 from .free_space import free_space_depths, seeded_components
 from .gaussians import ViewRender, render_depth, support_excess, surface_excess, surface_views
 from .grid import GeometryError, VoxelGrid
-from .hidden import HIDDEN_PASSES, gaussian_samples, hidden_boundary, skin_centred, without_hidden_space_many
+from .hidden import (
+    HIDDEN_PASSES,
+    MIN_OPEN_FRACTION,
+    SKIN_SIGMAS,
+    gaussian_samples,
+    hidden_boundary,
+    skin_centred,
+    without_hidden_space_many,
+)
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .partial import BOUNDARY_SUBSAMPLES, boundary_fill, part_volumes
 from .parts import (
@@ -358,13 +366,13 @@ def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView]
     (:func:`.hidden.hidden_boundary`)."""
     on_skin = excess <= cfg.hidden_skin_band * grid.voxel_size
     surface = _Subset(g, torch.nonzero(selection.selected).squeeze(1)[on_skin])
-    samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, cfg.hidden_skin_sigmas)
+    samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, SKIN_SIGMAS)
     n = len(surface.means)
     if cfg.hidden_skin_seen is not None and len(samples) > n:
         # the means are seen; the axis ends that some view sees too, within the band plus their Gaussian's own
         # thickness (its smallest standard deviation): a thick Gaussian's shortest axis ends that far behind
         ends = samples[n:]
-        thick = (cfg.hidden_skin_sigmas * surface.scales.min(1).values).repeat_interleave(6)
+        thick = (SKIN_SIGMAS * surface.scales.min(1).values).repeat_interleave(6)
         seen = surface_views(ends, views, renders, cfg.hidden_skin_seen * grid.voxel_size + thick)
         samples = torch.cat([samples[:n], ends[seen > 0]])
     skin = skin_centred(samples, np.asarray(grid.origin), grid.voxel_size, grid.shape,
@@ -375,7 +383,7 @@ def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView]
         closed |= ~selection.plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
     before = torch.from_numpy(np.stack(solids)).to(dev)
-    kept, counts = without_hidden_space_many(before, skin, closed_t, cfg.hidden_min_open_fraction,
+    kept, counts = without_hidden_space_many(before, skin, closed_t, MIN_OPEN_FRACTION,
                                              cfg.hidden_min_open_half, HIDDEN_PASSES)  # fmt: skip
     out = list(kept.cpu().numpy())
     edges = list(hidden_boundary(kept, before & ~kept).cpu().numpy())
