@@ -30,6 +30,10 @@ def _direct(grid, solid, parts, num_parts, sheet_voxels, area_sigma=0.5):
     pid = parts[nv]
     r = int(np.ceil(sheet_voxels)) + 1
     sheet = ndimage.maximum_filter(ndimage.distance_transform_edt(solid), size=2 * r + 1)[nv] <= sheet_voxels
+    # the plate test on the whole grid (test_plate_test_by_summed_tables_equals_each_window_directly checks it)
+    idx = np.flatnonzero(sheet)
+    half = 2 * int(np.ceil(2 * sheet_voxels)) + 1
+    sheet[idx] = parts_mod._plate_like(solid, tuple(a[idx] for a in nv), half, parts_mod.MIN_PLATE)
     ok = pid >= 0
     np.add.at(area, pid[ok], (fa * np.where(sheet, 0.5, 1.0))[ok])
     np.add.at(sheet_area, pid[ok], (fa * sheet)[ok])

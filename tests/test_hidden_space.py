@@ -215,7 +215,6 @@ def test_gaussian_samples_are_the_means_and_their_axes_ends():
     gram = ends[:, :3] @ ends[:, :3].transpose(1, 2)
     assert torch.allclose(gram - torch.diag_embed(torch.diagonal(gram, dim1=1, dim2=2)), torch.zeros_like(gram),
                           atol=1e-12)  # fmt: skip
-    assert torch.equal(gaussian_samples(means, scales, quats, 0.0), means)
 
 
 def _table(thickness: int = 2):
@@ -447,9 +446,8 @@ def test_axis_ends_that_no_view_sees_do_not_sample_the_skin():
     assert seen_d < plain_d + 0.25 * (every_end - plain)
 
 
-@pytest.mark.parametrize("bad", [{"hidden_skin_tolerance": 0.0},
-                                 {"hidden_skin_sigmas": -1.0}, {"hidden_skin_voxels": -1},
-                                 {"hidden_min_open_fraction": 1.0}, {"hidden_min_open_half": 0},
+@pytest.mark.parametrize("bad", [{"hidden_skin_tolerance": 0.0}, {"hidden_skin_voxels": -1},
+                                 {"hidden_min_open_half": 0},
                                  {"hidden_min_open_half": 10},
                                  {"hidden_skin_seen": -1.0}])  # fmt: skip
 def test_hidden_space_settings_are_checked(bad):

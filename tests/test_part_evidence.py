@@ -41,13 +41,14 @@ def two_boxes():
 
 @pytest.fixture(scope="module")
 def geos(two_boxes):
+    """"observations": the parts' materials from the views' answers; "pooled": without observations, each part's
+    Gaussians' pooled posterior (:func:`physgs_nerfstudio.geometry.parts.pooled_part_alpha`)."""
     pf, views, obs = two_boxes
-    return {m: _reconstruct(pf, views, obs, m) for m in ("observations", "pooled")}
+    return {"observations": _reconstruct(pf, views, obs), "pooled": _reconstruct(pf, views, ())}
 
 
-def _reconstruct(pf, views, obs, part_materials):
-    cfg = GeometryConfig(resolution=48, backend="reference", select=SelectConfig(bridge_cells=1, cluster_cells=4),
-                         part_materials=part_materials)  # fmt: skip
+def _reconstruct(pf, views, obs):
+    cfg = GeometryConfig(resolution=48, backend="reference", select=SelectConfig(bridge_cells=1, cluster_cells=4))
     return reconstruct_object(pf, pf.pi(), views, obs, [None] * len(NAMES), cfg, material_names=NAMES,
                               alpha=pf.alpha, dirichlet_prior=(1.0, 4.0))  # fmt: skip
 
@@ -102,7 +103,7 @@ def test_parts_take_their_material_from_the_views_not_the_diluted_gaussians(two_
 def test_a_part_no_view_answers_keeps_its_gaussians_posterior(two_boxes, geos):
     pf, views, obs = two_boxes
     only_left = [o for o in obs if o.material in ("steel", "cast_iron")]
-    geo = _reconstruct(pf, views, only_left, "observations")
+    geo = _reconstruct(pf, views, only_left)
     pooled = geos["pooled"]
     xs = [float(np.argwhere(geo.parts == p)[:, 0].mean()) for p in range(2)]
     right = 1 if xs[0] < xs[1] else 0

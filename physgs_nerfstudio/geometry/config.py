@@ -6,7 +6,6 @@ measurements that chose the defaults: CHANGELOG.md and benchmarks/results/mass_s
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
 
 from .carve import CarveConfig
 from .select import SelectConfig
@@ -43,9 +42,9 @@ class GeometryConfig:
     extent_outlier_fraction: float = 0.001
     """along each direction the polytope skips this share of the outermost Gaussians
     (:func:`.gaussians.support_heights`), so that a few strays under an unseen bottom face do not set where the solid ends; documented range 0-0.003"""
-    extent_variant_voxels: float | None = 1.0
+    extent_variant_voxels: float = 1.0
     """the interval also samples the nominal carving cut to the polytope grown by this many voxels (where the
-    polytope ends the solid, a few Gaussians' scatter places the surface to about a voxel); None = no such variant"""
+    polytope ends the solid, a few Gaussians' scatter places the surface to about a voxel)"""
     hidden_skin_voxels: int | None = 2
     """the solid loses its *hidden open space* (:mod:`.hidden`: space no view could carve that no seen surface
     encloses, such as under a table top); the skin closes the gaps between its samples over this many voxels each
@@ -53,37 +52,21 @@ class GeometryConfig:
     hidden_skin_tolerance: float = 1.5
     """a voxel is skin when the samples around it have their centroid within this many voxels of its centre (half
     the skin's thickness across a surface); documented range 1.25-2"""
-    hidden_skin_sigmas: float = 1.0
-    """the skin's samples: the surface Gaussians' means and the ends of their axes at this many standard deviations
-    (:func:`.hidden.gaussian_samples`); 0 = the means only"""
     hidden_skin_seen: float | None = 1.0
     """an axis end samples the skin only where some view sees it on its rendered surface, within this many voxels
     plus its Gaussian's own thickness (:mod:`.hidden`, "Seen samples"); None = every end; documented range 0.5-2"""
     hidden_skin_band: float = 0.5
     """the skin's Gaussians: those whose centre some view sees at most this many voxels behind its rendered depth
     (:mod:`.hidden`, "The skin's band"); documented range 0.5-1"""
-    hidden_min_open_fraction: float = 0.5
-    """a voxel is hidden open space when its rays leave the solid without meeting the skin in more than this share
-    of the 26 lattice directions (:mod:`.hidden`)"""
     hidden_min_open_half: int = 9
     """... or in at least this many of the 9 directions of one half and one across it (:mod:`.hidden`, "The open
     half"); documented range 8-9"""
-    sheet_voxels: float | None = None
-    """a face is one side of a sheet where the solid's inscribed half-thickness is at most this many voxels; None =
-    the nominal depth margin + 2 (the surface depth keeps both surfaces of a wall, in front of their Gaussians)"""
-    min_plate: float = 0.25
-    """a sheet face counts half only where the thin solid is a plate: the second-largest spread of its voxels is at
-    least this times the largest (:func:`.parts.part_areas`; a rod's faces are its one outer side); 0 = always"""
     concavity_px: float = 3.0
     """a wall face that is no sheet and faces a concavity (empty space that only depth carved, this many pixels and
     at least 2 voxels inside the visual hull: a cup's inside) is not counted in a hollow part's area (its outer face
     is; :func:`.parts.part_areas`); in pixels because the hull is wider than the solid by the masks' blur"""
     min_part_fraction: float = 2e-3
     """parts smaller than this share of the solid are pooled into one last part (:func:`.parts.part_labels`)"""
-    part_materials: Literal["observations", "pooled", "voxels"] = "observations"
-    """a part's material: "observations", the Dirichlet fusion of the views' answers about it (:mod:`.part_evidence`;
-    a part none reaches falls back to "pooled"); "pooled", its Gaussians' mean posterior; "voxels", each voxel its
-    own (:mod:`.parts`)"""
     min_part_observation: float = 0.5
     """a part takes its material from the observations when their summed weight (level x confidence x share of the
     mask) reaches this, about half a view's answer; below it, it joins the observed part nearest each voxel"""
@@ -121,15 +104,11 @@ class GeometryConfig:
         if self.hidden_skin_voxels is not None and self.hidden_skin_voxels < 0:
             raise ValueError("GeometryConfig.hidden_skin_voxels must be >= 0 (or None: keep the hidden space), got "
                              f"{self.hidden_skin_voxels}.")
-        if not self.hidden_skin_tolerance > 0 or not self.hidden_skin_sigmas >= 0:
-            raise ValueError("GeometryConfig.hidden_skin_tolerance must be > 0 and hidden_skin_sigmas >= 0, got "
-                             f"{self.hidden_skin_tolerance} and {self.hidden_skin_sigmas}.")
+        if not self.hidden_skin_tolerance > 0:
+            raise ValueError(f"GeometryConfig.hidden_skin_tolerance must be > 0, got {self.hidden_skin_tolerance}.")
         if self.hidden_skin_seen is not None and not self.hidden_skin_seen >= 0:
             raise ValueError("GeometryConfig.hidden_skin_seen must be >= 0 (voxels) or None, got "
                              f"{self.hidden_skin_seen}.")
-        if not 0.0 <= self.hidden_min_open_fraction < 1.0:
-            raise ValueError("GeometryConfig.hidden_min_open_fraction must be in [0, 1), got "
-                             f"{self.hidden_min_open_fraction}.")
         if not 1 <= self.hidden_min_open_half <= 9:
             raise ValueError("GeometryConfig.hidden_min_open_half must be in 1-9, got "
                              f"{self.hidden_min_open_half}.")

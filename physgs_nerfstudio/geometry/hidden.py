@@ -11,7 +11,7 @@ rays cannot slip through a skin one voxel thick.
 
 The skin (:func:`skin_centred`). Its samples are the surface Gaussians (those some view sees on its rendered
 surface, :func:`.gaussians.surface_excess`): their means and the ends of their axes at one standard deviation
-(:func:`gaussian_samples`). A scattered sample leaves gaps that rays leak through, so a voxel is also skin when the
+(:data:`SKIN_SIGMAS`, :func:`gaussian_samples`). A scattered sample leaves gaps that rays leak through, so a voxel is also skin when the
 samples within ``window`` voxels of it each way have their centroid within ``tolerance`` voxels of its centre:
 around a gap the samples surround the voxel and the gap closes; off a face or past an edge they lie on one side and
 the skin does not grow. It is about 1 + 2 x tolerance voxels thick across a face.
@@ -24,7 +24,7 @@ The skin's band (``GeometryConfig.hidden_skin_band``). The skin's Gaussians are 
 at most the band behind its rendered depth: a splat fills a thin plate through its thickness, and a wider band
 samples the plate's unseen lower face, whose skin encloses space under it.
 
-The majority (``min_open_fraction`` = 0.5): a voxel under a top has the top above it and open space below and to
+The majority (``min_open_fraction``, :data:`MIN_OPEN_FRACTION` = 0.5): a voxel under a top has the top above it and open space below and to
 the sides; a voxel inside the top has the top's skin above and around it.
 
 The open half (``min_open_half``). The lowest views see a little under a top near its edges, and the Gaussians that
@@ -63,7 +63,7 @@ from torch import Tensor
 
 from ..render.projection import quat_to_rotmat
 
-__all__ = ["HIDDEN_PASSES", "LATTICE_DIRECTIONS", "gaussian_samples", "hidden_boundary", "hidden_open_rules",
+__all__ = ["HIDDEN_PASSES", "LATTICE_DIRECTIONS", "MIN_OPEN_FRACTION", "SKIN_SIGMAS", "gaussian_samples", "hidden_boundary", "hidden_open_rules",
            "hidden_open_space", "open_counts", "open_fraction", "skin_centred", "without_hidden_space",
            "without_hidden_space_many"]
 
@@ -75,6 +75,14 @@ HIDDEN_PASSES = 8
 """the most passes of the rules ("Passes"): they stop earlier, at the first pass that removes nothing, so this only
 bounds the cost; a single pass left the CPU demo table and chair 2-3% heavier
 (benchmarks/results/mass_stability_cpu.json)"""
+
+SKIN_SIGMAS = 1.0
+"""the skin's samples: the surface Gaussians' means and the ends of their axes at this many standard deviations
+(:func:`gaussian_samples`), where a splat's footprint ends on the surface it renders"""
+
+MIN_OPEN_FRACTION = 0.5
+"""a voxel is hidden open space when its rays leave the solid without meeting the skin in more than this share of
+the 26 lattice directions ("The majority": under a top, the space below and to the sides is open)"""
 
 _UNRESOLVED, _OPEN, _CLOSED = 0, 1, 2
 
@@ -102,10 +110,10 @@ def _in_grid(points: Float[Tensor, "N 3"], origin: Tensor | np.ndarray, voxel_si
 
 
 def gaussian_samples(means: Float[Tensor, "N 3"], scales: Float[Tensor, "N 3"], quats: Float[Tensor, "N 4"],
-                     sigmas: float = 1.0) -> Float[Tensor, "M 3"]:  # fmt: skip
+                     sigmas: float = SKIN_SIGMAS) -> Float[Tensor, "M 3"]:  # fmt: skip
     """Each Gaussian's mean and the six ends of its axes at ``sigmas`` standard deviations: a sample of the surface
     that the Gaussians cover, denser than their means where they are large and few."""
-    if sigmas <= 0 or not len(means):
+    if not len(means):
         return means
     axes = quat_to_rotmat(quats.to(means.dtype)) * (sigmas * scales.to(means.dtype))[:, None, :]  # columns: scaled axes
     ends = torch.cat([means[:, None, :] + axes.transpose(1, 2), means[:, None, :] - axes.transpose(1, 2)], 1)
@@ -241,7 +249,7 @@ def _box(solid: Bool[Tensor, "*B X Y Z"]) -> tuple[slice, slice, slice] | None:
 
 
 def hidden_open_rules(solid: Bool[Tensor, "*B X Y Z"], skin: Bool[Tensor, "X Y Z"],
-                      closed: Bool[Tensor, "X Y Z"] | None = None, min_open_fraction: float = 0.5,
+                      closed: Bool[Tensor, "X Y Z"] | None = None, min_open_fraction: float = MIN_OPEN_FRACTION,
                       min_open_half: int | None = None) -> UInt8[Tensor, "*B X Y Z"]:  # fmt: skip
     """uint8 grid: which rule makes each voxel hidden open space (module doc): 0 none; 1 the majority (no skin, open
     in more than ``min_open_fraction`` of the directions); 2 the open half alone (no skin, not a majority, and,
@@ -270,14 +278,14 @@ def hidden_boundary(kept: Bool[Tensor, "*B X Y Z"], removed: Bool[Tensor, "*B X 
 
 
 def hidden_open_space(solid: Bool[Tensor, "X Y Z"], skin: Bool[Tensor, "X Y Z"],
-                      closed: Bool[Tensor, "X Y Z"] | None = None, min_open_fraction: float = 0.5,
+                      closed: Bool[Tensor, "X Y Z"] | None = None, min_open_fraction: float = MIN_OPEN_FRACTION,
                       min_open_half: int | None = None) -> Bool[Tensor, "X Y Z"]:  # fmt: skip
     """bool grid: the solid's voxels that are hidden open space by either rule (:func:`hidden_open_rules`)."""
     return hidden_open_rules(solid, skin, closed, min_open_fraction, min_open_half) > 0
 
 
 def without_hidden_space(solid: Bool[Tensor, "X Y Z"], skin: Bool[Tensor, "X Y Z"],
-                         closed: Bool[Tensor, "X Y Z"] | None = None, min_open_fraction: float = 0.5,
+                         closed: Bool[Tensor, "X Y Z"] | None = None, min_open_fraction: float = MIN_OPEN_FRACTION,
                          min_open_half: int | None = None, passes: int = 1
                          ) -> tuple[Bool[Tensor, "X Y Z"], dict[str, int]]:  # fmt: skip
     """``solid`` without its hidden open space (:func:`hidden_open_rules`), the rules run again on what they leave
@@ -288,7 +296,7 @@ def without_hidden_space(solid: Bool[Tensor, "X Y Z"], skin: Bool[Tensor, "X Y Z
 
 
 def without_hidden_space_many(solids: Bool[Tensor, "B X Y Z"], skin: Bool[Tensor, "X Y Z"],
-                              closed: Bool[Tensor, "X Y Z"] | None = None, min_open_fraction: float = 0.5,
+                              closed: Bool[Tensor, "X Y Z"] | None = None, min_open_fraction: float = MIN_OPEN_FRACTION,
                               min_open_half: int | None = None, passes: int = 1, max_voxels: int = 2**25
                               ) -> tuple[Bool[Tensor, "B X Y Z"], list[dict[str, int]]]:  # fmt: skip
     """:func:`without_hidden_space` of each of ``solids`` (the carving's variants), which share ``skin`` and

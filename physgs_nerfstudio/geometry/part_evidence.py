@@ -11,7 +11,8 @@ Gaussian: ``alpha_s = alpha0 + lambda sum_o l_o p_o share_os onehot(c_o)``, with
 ``alpha0`` and evidence strength ``lambda`` (materials.json). Its mixture weights are the field's (dominance
 probability by default, :func:`physgs_nerfstudio.bayes.mixture.material_mixture_weights`).
 
-Why not the mean of the part's Gaussians' posteriors (``part_materials="pooled"``): each Gaussian's lifted
+Why not the mean of the part's Gaussians' posteriors (:func:`.parts.pooled_part_alpha`, what a part no observation
+reaches keeps): each Gaussian's lifted
 evidence is its share of a view's answer, a fraction of one observation, so the mean Gaussian of a part holds
 the evidence of about one view, not of the 10-16 views that saw the part. With K candidate materials in a scene
 (28 for the generated dumbbell) and a prior of 1 per material, that posterior is near the prior: the dominance

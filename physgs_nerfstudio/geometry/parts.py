@@ -15,13 +15,13 @@
   as deep as its edge; at 10 the edge reaches across its whole thickness.
 * **Parts.** Connected components (26-connectivity) of solid voxels sharing a dominant (argmax) material;
   parts below ``min_part_fraction`` of the object's volume are pooled into one residual part.
-* **A part's material** (:func:`pooled_part_alpha`, ``part_materials="pooled"``; the default fuses the views'
-  answers per part, :mod:`.part_evidence`). A part is one piece of one material; its Dirichlet is the weighted mean
-  of its Gaussians' posteriors, ``alpha0 + mean(lambda * e_g)`` (weights: opacity x observed share): the mean, not
-  the sum, since a part's Gaussians see the same pixels. Averaging the Gaussians' *weights* instead (``"voxels"``)
+* **A part's material** (:func:`pooled_part_alpha`, for a part that no view's answer reaches; the others fuse the
+  views' answers per part, :mod:`.part_evidence`). A part is one piece of one material; its Dirichlet is the
+  weighted mean of its Gaussians' posteriors, ``alpha0 + mean(lambda * e_g)`` (weights: opacity x observed share):
+  the mean, not the sum, since a part's Gaussians see the same pixels. Averaging the Gaussians' *weights* instead
   keeps every weakly observed Gaussian's spread over 10-28 candidates, and a metal tail can double a wooden part's
   mean density. The whole part switches material together in the mass's Monte Carlo.
-* **Material draws within a part** (:func:`material_quantiles`, ``part_materials="voxels"``). The mass's Monte Carlo draws one level
+* **Material draws within a part** (:func:`material_quantiles`, without the Gaussians' posteriors). The mass's Monte Carlo draws one level
   ``u ~ U(0, 1)`` per part and sample; each voxel of the part then takes the material where its own mixture's
   cumulative sum (materials in the order of the part's mean mixture) first reaches ``u``. Where the voxels are
   equally unsure (oak or walnut everywhere) the whole part switches together, which keeps the ambiguity in the
@@ -34,7 +34,8 @@
   wider kernel erases it). Each face belongs to the part of the solid
   voxel nearest to it. A face counts fully where the solid under it is bulky (a closed hollow part, filled
   because no view sees its inside) and half where the solid is a sheet at most ``2 * sheet_voxels`` voxels
-  thick (an open wall whose two sides were both reconstructed: each side is one copy of the wall). A face that
+  thick and spread as a plate (``MIN_PLATE``; an open wall whose two sides were both reconstructed: each side is
+  one copy of the wall; a rod as thin as a sheet has its faces on one side). A face that
   is no sheet face and borders a *concavity* (empty space more than ``concavity_voxels`` inside the visual hull,
   :func:`concavities`) but not the ordinary outside counts 0: it is the inner face of a wall carved thicker than
   a sheet, whose outer face is counted (a pan's inside, a vase's at low resolution: both faces counted in full
@@ -75,6 +76,11 @@ __all__ = [
     "sum_rows",
     "voxel_mixture",
 ]
+
+MIN_PLATE = 0.25
+"""a sheet face counts half only where the thin solid is a plate: the second-largest spread of its voxels in the
+plate window is at least this times the largest (:func:`_plate_like`; a rod as thin as a sheet has its faces on
+one outer side)"""
 
 
 def sum_rows(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
@@ -236,14 +242,15 @@ def concavities(hull: np.ndarray, solid: np.ndarray, depth_voxels: float = 2.0) 
 
 
 def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts: int, *,
-               sheet_voxels: float = 1.5, area_sigma: float = 0.5, min_plate: float = 0.0,
-               concave: np.ndarray | None = None, device: torch.device | str = "cpu") -> PartGeometry:  # fmt: skip
+               sheet_voxels: float = 1.5, area_sigma: float = 0.5, concave: np.ndarray | None = None,
+               device: torch.device | str = "cpu") -> PartGeometry:  # fmt: skip
     """Per-part volume and wall area of ``solid`` (module doc). Computed on the solid's bounding box (with a margin
     for the smoothing and the sheet window): the same faces, nearest voxels and sheet test as on the whole grid.
     ``concave`` (:func:`concavities`): a face that is no sheet face and whose voxel borders a concavity but not the
     ordinary outside is the inner face of a wall whose outer face is counted (a cup carved with a thick wall, a
-    pan's inside) or the top of an unseen fill (under a cup's rim): it counts 0. ``device``: where the plate
-    test's tables are summed (the splat's device)."""
+    pan's inside) or the top of an unseen fill (under a cup's rim): it counts 0. A sheet face counts half only
+    where the thin solid is a plate (:data:`MIN_PLATE`). ``device``: where the plate test's tables are summed (the
+    splat's device)."""
     from scipy import ndimage  # lazily: a PLY-only export needs no SciPy
     from skimage.measure import marching_cubes
     h = grid.voxel_size
@@ -251,9 +258,8 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     if not solid.any():
         zero = np.zeros(num_parts)
         return PartGeometry(vol, zero, zero.copy(), zero.copy(), zero.copy(), zero.copy())
-    m = int(np.floor(sheet_voxels)) + 2  # empty voxels kept around the solid: the sheet test's ball fits inside
-    if min_plate > 0:
-        m = max(m, _plate_window(sheet_voxels))
+    # empty voxels kept around the solid: the sheet test's ball and the plate test's window fit inside
+    m = max(int(np.floor(sheet_voxels)) + 2, _plate_window(sheet_voxels))
     lo, hi = bounding_box(solid)
     lo, hi = np.maximum(lo - m, 0), np.minimum(hi + m, solid.shape)
     crop = tuple(slice(a, b) for a, b in zip(lo, hi))
@@ -276,10 +282,9 @@ def part_areas(grid: VoxelGrid, solid: np.ndarray, parts: np.ndarray, num_parts:
     nv = _nearest_solid(solid, fv)
     pid = parts[nv]
     sheet = _sheet_faces(solid, nv, sheet_voxels)
-    if min_plate > 0 and sheet.any():
+    if sheet.any():
         idx = np.flatnonzero(sheet)
-        sheet[idx] = _plate_like(solid, tuple(a[idx] for a in nv), _plate_window(sheet_voxels), min_plate,
-                                  device)  # fmt: skip
+        sheet[idx] = _plate_like(solid, tuple(a[idx] for a in nv), _plate_window(sheet_voxels), MIN_PLATE, device)
     factor = np.where(sheet, 0.5, 1.0)
     if concave is not None and concave.any():
         inner = solid & _dilate_faces(concave)

@@ -28,7 +28,15 @@ from .config import GeometryConfig
 from .free_space import free_space_depths, seeded_components
 from .gaussians import ViewRender, render_depth, support_excess, surface_excess, surface_views
 from .grid import GeometryError, VoxelGrid
-from .hidden import HIDDEN_PASSES, gaussian_samples, hidden_boundary, skin_centred, without_hidden_space_many
+from .hidden import (
+    HIDDEN_PASSES,
+    MIN_OPEN_FRACTION,
+    SKIN_SIGMAS,
+    gaussian_samples,
+    hidden_boundary,
+    skin_centred,
+    without_hidden_space_many,
+)
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .partial import BOUNDARY_SUBSAMPLES, boundary_fill, part_volumes
 from .parts import (
@@ -356,13 +364,13 @@ def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView]
     (:func:`.hidden.hidden_boundary`)."""
     on_skin = excess <= cfg.hidden_skin_band * grid.voxel_size
     surface = _Subset(g, torch.nonzero(selection.selected).squeeze(1)[on_skin])
-    samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, cfg.hidden_skin_sigmas)
+    samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, SKIN_SIGMAS)
     n = len(surface.means)
     if cfg.hidden_skin_seen is not None and len(samples) > n:
         # the means are seen; the axis ends that some view sees too, within the band plus their Gaussian's own
         # thickness (its smallest standard deviation): a thick Gaussian's shortest axis ends that far behind
         ends = samples[n:]
-        thick = (cfg.hidden_skin_sigmas * surface.scales.min(1).values).repeat_interleave(6)
+        thick = (SKIN_SIGMAS * surface.scales.min(1).values).repeat_interleave(6)
         seen = surface_views(ends, views, renders, cfg.hidden_skin_seen * grid.voxel_size + thick)
         samples = torch.cat([samples[:n], ends[seen > 0]])
     skin = skin_centred(samples, np.asarray(grid.origin), grid.voxel_size, grid.shape,
@@ -373,7 +381,7 @@ def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView]
         closed |= ~selection.plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
     before = torch.from_numpy(np.stack(solids)).to(dev)
-    kept, counts = without_hidden_space_many(before, skin, closed_t, cfg.hidden_min_open_fraction,
+    kept, counts = without_hidden_space_many(before, skin, closed_t, MIN_OPEN_FRACTION,
                                              cfg.hidden_min_open_half, HIDDEN_PASSES)  # fmt: skip
     out = list(kept.cpu().numpy())
     edges = list(hidden_boundary(kept, before & ~kept).cpu().numpy())
@@ -577,9 +585,10 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
                     observations: Sequence[MaskObservation], cv: _Carving, cfg: GeometryConfig,
                     material_names: Sequence[str] | None, alpha: torch.Tensor | None, material_weights: str,
                     dirichlet_prior: tuple[float, float] | None) -> _Parts:  # fmt: skip
-    """Per-voxel material mixture, the parts (components of one dominant material) and each part's material:
-    fused from the views' answers about it, from its Gaussians' pooled posteriors, or drawn per voxel
-    (``part_materials``; :func:`reconstruct_object`'s arguments)."""
+    """Per-voxel material mixture, the parts (components of one dominant material) and each part's material: the
+    Dirichlet fusion of the views' answers about it (:mod:`.part_evidence`); a part no observation reaches keeps its
+    Gaussians' pooled posterior (:func:`.parts.pooled_part_alpha`), and without ``alpha`` each voxel keeps its own
+    mixture (:func:`.parts.material_quantiles`). :func:`reconstruct_object`'s arguments."""
     sel, device = selection.selected, g.means.device
     labelled = getattr(g, "labelled", None)
     pi_sel = pi(sel) if callable(pi) else pi[sel]
@@ -592,7 +601,7 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
     parts = part_labels(union, mixture, cfg.min_part_fraction)
     names = list(material_names) if material_names is not None else [str(k) for k in range(pi_sel.shape[1])]
     prior = dirichlet_prior if dirichlet_prior is not None else (1.0, 4.0)
-    by_views = cfg.part_materials == "observations" and alpha is not None and bool(observations)
+    by_views = alpha is not None and bool(observations)
     shares: list[tuple[int, np.ndarray]] = []
     if by_views:
         parts, shares = _merged_parts(parts, cv, views, observations, names, prior, cfg, device)
@@ -600,7 +609,7 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
     pm = _part_mixture(parts, mixture, cv)
     if observations and not by_views:  # the structure's evidence
         shares = observation_shares(cv.grid, np.where(cv.solids[0], parts, -1), P, views, observations, device)
-    if cfg.part_materials == "voxels" or alpha is None:
+    if alpha is None:
         return _Parts(mixture, parts, pm, material_quantiles(parts, mixture, P, pm), shares, names)
     pooled, support = pooled_part_alpha(cv.grid, parts, P, g.means[sel], g.opacities[sel], alpha[sel], observed)
     has = support > 0
@@ -618,12 +627,14 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
 def _surfaces(cv: _Carving, pp: _Parts, cfg: GeometryConfig, pixel_voxels: float, device: Any
               ) -> list[PartGeometry]:  # fmt: skip
     """Every variant's per-part wall areas, surfaces and curvatures (:func:`.parts.part_areas`)."""
-    sheet = cfg.sheet_voxels if cfg.sheet_voxels is not None else cfg.carve.depth_margin_voxels + 2.0
+    # a face is one side of a sheet where the solid's inscribed half-thickness is at most the nominal depth margin
+    # + 2 voxels (the surface depth keeps both surfaces of a wall, in front of their Gaussians)
+    sheet = cfg.carve.depth_margin_voxels + 2.0
     concave = concavities(cv.hull, cv.solids[0], max(2.0, cfg.concavity_px * pixel_voxels))
 
     def areas(s: np.ndarray) -> PartGeometry:
-        return part_areas(cv.grid, s, np.where(s, pp.parts, -1), pp.count, sheet_voxels=sheet,
-                          min_plate=cfg.min_plate, concave=concave, device=device)  # fmt: skip
+        return part_areas(cv.grid, s, np.where(s, pp.parts, -1), pp.count, sheet_voxels=sheet, concave=concave,
+                          device=device)  # fmt: skip
 
     # the variants' surfaces on a thread pool: each is independent, and NumPy's and SciPy's loops release the GIL
     # for much of the work (the same numbers as one at a time)
@@ -669,9 +680,9 @@ def reconstruct_object(
     (or a function of a bool row mask giving those rows' weights, so that only the object's are computed),
     ``library_thickness[k]``: material k's typical wall thickness in the library (None: solid),
     ``material_names[k]``: the names observations use; ``alpha``: their Dirichlet posteriors [N, K] and
-    ``material_weights`` the field's weighting, for ``part_materials="pooled"`` (None: "voxels");
-    ``dirichlet_prior``: the model's (alpha0, lambda) for ``part_materials="observations"`` (None: (1, 4), the
-    fusion's defaults). ``progress(stage: str)`` is called as stages start."""
+    ``material_weights`` the field's weighting, for the parts' materials (None: each voxel its own,
+    :func:`.parts.material_quantiles`); ``dirichlet_prior``: the model's (alpha0, lambda) for the fusion of the
+    observations (None: (1, 4), the fusion's defaults). ``progress(stage: str)`` is called as stages start."""
     cfg = cfg or GeometryConfig()
     step = progress or (lambda _s: None)
     views = _views_used(views, cfg)
