@@ -174,7 +174,6 @@ def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSetti
 
     cur = chosen.cpu().numpy().copy()
     pts = m.cpu().numpy()
-    banded = height is not None
     for _ in range(rounds):
         p = pts[cur]
         if len(p) < 16:
@@ -184,7 +183,7 @@ def split_close(m: Tensor, chosen: Tensor, centre: np.ndarray, cfg: ClusterSetti
         spacing = float(np.quantile(_nn_spacings(tree, p), spacing_quantile))
         reach = (cfg.bridge_cells + 1) * max(float((q[1] - q[0]).max()) / cfg.cluster_cells, 1.5 * spacing)
         linked = np.ones(len(p), bool)
-        if banded:
+        if height is not None:
             linked = np.asarray(height)[cur] > tol + cfg.contact_band * reach
             if linked.sum() < 16:
                 linked[:] = True

@@ -11,9 +11,9 @@ rays cannot slip through a skin one voxel thick.
 
 The skin (:func:`skin_centred`). Its samples are the surface Gaussians (those some view sees on its rendered
 surface, :func:`.gaussians.surface_excess`): their means and the ends of their axes at one standard deviation
-(:data:`SKIN_SIGMAS`, :func:`gaussian_samples`). A scattered sample leaves gaps that rays leak through, so a voxel is also skin when the
-samples within ``window`` voxels of it each way have their centroid within ``tolerance`` voxels of its centre:
-around a gap the samples surround the voxel and the gap closes; off a face or past an edge they lie on one side and
+(:data:`SKIN_SIGMAS`, :func:`gaussian_samples`). A scattered sample leaves gaps that rays leak through, so a voxel is
+also skin when the samples within ``window`` voxels of it each way have their centroid within ``tolerance`` voxels
+of its centre: around a gap the samples surround the voxel and the gap closes; off a face or past an edge they lie on one side and
 the skin does not grow. It is about 1 + 2 x tolerance voxels thick across a face.
 
 Seen samples (``GeometryConfig.hidden_skin_seen``). An axis end counts only where some view sees it on its rendered
@@ -24,8 +24,8 @@ The skin's band (``GeometryConfig.hidden_skin_band``). The skin's Gaussians are 
 at most the band behind its rendered depth: a splat fills a thin plate through its thickness, and a wider band
 samples the plate's unseen lower face, whose skin encloses space under it.
 
-The majority (``min_open_fraction``, :data:`MIN_OPEN_FRACTION` = 0.5): a voxel under a top has the top above it and open space below and to
-the sides; a voxel inside the top has the top's skin above and around it.
+The majority (``min_open_fraction``, :data:`MIN_OPEN_FRACTION` = 0.5): a voxel under a top has the top above it and
+open space below and to the sides; a voxel inside the top has the top's skin above and around it.
 
 The open half (``min_open_half``). The lowest views see a little under a top near its edges, and the Gaussians that
 render that underside lie a voxel or two below it; their skin blocks the sideways rays under the top, and only the
@@ -63,8 +63,8 @@ from torch import Tensor
 
 from ..render.projection import quat_to_rotmat
 
-__all__ = ["HIDDEN_PASSES", "LATTICE_DIRECTIONS", "MIN_OPEN_FRACTION", "SKIN_SIGMAS", "gaussian_samples", "hidden_boundary", "hidden_open_rules",
-           "hidden_open_space", "open_counts", "open_fraction", "skin_centred", "without_hidden_space",
+__all__ = ["HIDDEN_PASSES", "LATTICE_DIRECTIONS", "MIN_OPEN_FRACTION", "SKIN_SIGMAS", "gaussian_samples",
+           "hidden_boundary", "hidden_open_rules", "hidden_open_space", "open_counts", "open_fraction", "skin_centred", "without_hidden_space",
            "without_hidden_space_many"]
 
 LATTICE_DIRECTIONS: tuple[tuple[int, int, int], ...] = tuple(

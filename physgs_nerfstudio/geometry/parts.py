@@ -21,9 +21,9 @@
   the mean, not the sum, since a part's Gaussians see the same pixels. Averaging the Gaussians' *weights* instead
   keeps every weakly observed Gaussian's spread over 10-28 candidates, and a metal tail can double a wooden part's
   mean density. The whole part switches material together in the mass's Monte Carlo.
-* **Material draws within a part** (:func:`material_quantiles`, without the Gaussians' posteriors). The mass's Monte Carlo draws one level
-  ``u ~ U(0, 1)`` per part and sample; each voxel of the part then takes the material where its own mixture's
-  cumulative sum (materials in the order of the part's mean mixture) first reaches ``u``. Where the voxels are
+* **Material draws within a part** (:func:`material_quantiles`, without the Gaussians' posteriors). The mass's Monte
+  Carlo draws one level ``u ~ U(0, 1)`` per part and sample; each voxel of the part then takes the material where
+  its own mixture's cumulative sum (materials in the order of the part's mean mixture) first reaches ``u``. Where the voxels are
   equally unsure (oak or walnut everywhere) the whole part switches together, which keeps the ambiguity in the
   interval; where they are sure but differ (a leg voxel steel, a top voxel oak), each keeps its own material,
   so a 5% steel share of a part's volume stays 5% of its volume instead of becoming a 5% chance that the whole
