@@ -25,6 +25,7 @@ from ..bayes.mixture import material_mixture_weights
 from .capture import CaptureView, MaskObservation
 from .carve import CarveConfig, carve_votes_many, mask_hull, solid_from_votes
 from .config import GeometryConfig
+from .contact import Contact, ObjectLabels, contact_cut, object_labels
 from .free_space import free_space_depths, seeded_components
 from .gaussians import ViewRender, render_depth, support_excess, surface_excess, surface_views
 from .grid import GeometryError, VoxelGrid
@@ -105,6 +106,10 @@ class ObjectGeometry:
     removed (an unseen underside; :func:`unseen_face_share`)"""
     extent_gaussians: int = 0
     """the Gaussians whose polytope ends the solid (those some view sees)"""
+    stands_on: str | None = None
+    """the object perception names under the contact cut (a stand, a table; :mod:`.contact`); None: no cut"""
+    contact_gain: float = 0.0
+    """the share of the named surface that the contact cut put on its name's side (:data:`.contact.MIN_GAIN`)"""
     hidden_removed: dict[str, int] | None = None
     """the nominal solid's voxels removed as hidden open space (:mod:`.hidden`), by the rule that removed them:
     "majority", "open_half"; None = the rule is off"""
@@ -150,7 +155,8 @@ class ObjectGeometry:
                 "hidden_open_voxels": self.hidden_removed, "pixel_footprint_voxels": self.pixel_voxels,
                 "hidden_boundary_voxels": (int(self.hidden_edge.sum()) if self.hidden_edge is not None else None),
                 "unseen_surface_share": self.unseen_surface_share,
-                "extent_gaussians": self.extent_gaussians}  # fmt: skip
+                "extent_gaussians": self.extent_gaussians, "stands_on": self.stands_on,
+                "contact_gain": self.contact_gain}  # fmt: skip
 
 
 def _domain(g: Any, selected: torch.Tensor, cfg: GeometryConfig) -> VoxelGrid:
@@ -354,11 +360,12 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
 
 def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView], renders: list[ViewRender],
                     excess: torch.Tensor, grid: VoxelGrid, solids: list[np.ndarray], beyond: np.ndarray | None,
-                    cfg: GeometryConfig) -> tuple[list[np.ndarray], dict[str, int], list[np.ndarray]]:  # fmt: skip
+                    plane: SupportPlane | None, cfg: GeometryConfig
+                    ) -> tuple[list[np.ndarray], dict[str, int], list[np.ndarray]]:  # fmt: skip
     """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is sampled by the selected
     Gaussians whose centres some view sees within ``hidden_skin_band`` behind its surface (``excess``: their depth
     behind the nearest rendered surface), their axis ends only where a view sees them too (``hidden_skin_seen``);
-    rays that leave the solid below the support plane or into space that the views kept and the Gaussians' polytope
+    rays that leave the solid below ``plane`` (the support's or the contact's) or into space that the views kept and the Gaussians' polytope
     cut (``beyond``) are enclosed (the object's unseen underside). Also returns the nominal solid's voxels that each
     rule removed, and each variant's kept voxels on the boundary with the space removed
     (:func:`.hidden.hidden_boundary`)."""
@@ -377,8 +384,8 @@ def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView]
                         int(cfg.hidden_skin_voxels or 0), cfg.hidden_skin_tolerance)  # fmt: skip
     dev = surface.means.device
     closed = np.zeros(grid.shape, bool) if beyond is None else beyond.copy()
-    if selection.plane is not None:
-        closed |= ~selection.plane.above_voxels(grid)
+    if plane is not None:
+        closed |= ~plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
     before = torch.from_numpy(np.stack(solids)).to(dev)
     kept, counts = without_hidden_space_many(before, skin, closed_t, MIN_OPEN_FRACTION,
@@ -444,6 +451,7 @@ class _Carving:
     extent_gaussians: int
     hidden_removed: dict[str, int] | None = None
     edges: list[np.ndarray] | None = None
+    contact: Contact | None = None
 
 
 @dataclass
@@ -486,10 +494,11 @@ def _refit(grid: VoxelGrid, solids: list[np.ndarray], cfg: GeometryConfig) -> Vo
 
 
 def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], renders: list[ViewRender],
-                  cfg: GeometryConfig) -> _Carving:  # fmt: skip
+                  labels: ObjectLabels, cfg: GeometryConfig) -> _Carving:  # fmt: skip
     """Every variant's solid: carved on the selection's domain (again on a fitted grid, :func:`_refit`), cut to the
-    seen Gaussians' polytope (:mod:`.gaussians`) and above the support plane, less the hidden open space. ``views``:
-    the object masks (their visual hull), ``renders``: the object's Gaussians' own render (which lie on its surface)."""
+    seen Gaussians' polytope (:mod:`.gaussians`), above the support plane and above the contact with another named
+    object under it (:mod:`.contact`), less the hidden open space. ``views``: the object masks (their visual hull),
+    ``renders``: the object's Gaussians' own render (which lie on its surface), ``labels``: the views' names."""
     grid = align_to_plane(_domain(g, selection.selected, cfg), selection.plane)
     depths = free_space_depths(g, views, cfg.backend)
     variants = _variants(cfg)
@@ -522,9 +531,19 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
     solids, hull = _cut_below(grid, solids, hull, selection.plane)
     seeds = g.means[selection.selected]
     solids = [seeded_components(grid, s, seeds) for s in solids]
+    up = selection.plane.normal if selection.plane is not None else views_up(views)
+    contact = contact_cut(grid, solids[0], views, depths, labels, up)
+    plane = selection.plane
+    if contact is not None:
+        logger.info("contact: the object (%r) stands on %r: cut at the level that separates their named surfaces "
+                    "(%.0f%% of the surface)", contact.object_name, contact.below, 100 * contact.gain)  # fmt: skip
+        plane = contact.plane
+        solids, hull = _cut_below(grid, solids, hull, plane)
+        solids = [seeded_components(grid, s, seeds) for s in solids]
     removed, edges = None, None
     if cfg.hidden_skin_voxels is not None:
-        solids, removed, edges = _without_hidden(g, selection, views, renders, excess, grid, solids, beyond, cfg)
+        solids, removed, edges = _without_hidden(g, selection, views, renders, excess, grid, solids, beyond, plane,
+                                                 cfg)  # fmt: skip
     if not solids[0].any():
         raise GeometryError("carving left no solid voxel: the object masks and the views disagree (check poses and "
                             "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
@@ -533,7 +552,8 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
         unseen = unseen | _beyond_kept(raw_nominal, beyond)
     names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else [])
     cfgs = [cc for _, cc in variants] + [variants[0][1]] * (len(solids) - len(variants))  # the extent variant's
-    return _Carving(grid, names, cfgs, solids, hull, views, depths, excess, unseen, len(ext_idx), removed, edges)
+    return _Carving(grid, names, cfgs, solids, hull, views, depths, excess, unseen, len(ext_idx), removed, edges,
+                    contact)
 
 
 
@@ -693,7 +713,7 @@ def reconstruct_object(
     step("rendering depth")
     obj_views, renders = _object_views(g, selection, views, cfg)
     step("carving")
-    cv = _carve_object(g, selection, obj_views, renders, cfg)
+    cv = _carve_object(g, selection, obj_views, renders, object_labels(obj_views, observations), cfg)
     step("materials and parts")
     pp = _part_materials(g, pi, selection, views, observations, cv, cfg, material_names, alpha, material_weights,
                          dirichlet_prior)  # fmt: skip
@@ -722,5 +742,6 @@ def reconstruct_object(
         seam_areas=seam_areas(nominal_parts, pp.count, cv.grid.voxel_size), hidden_removed=cv.hidden_removed,
         unseen_surface_share=unseen_face_share(cv.solids[0], cv.unseen), hidden_boundary=boundary,
         hidden_edge=cv.edges[0] if cv.edges is not None and boundary is not None else None,
+        stands_on=cv.contact.below if cv.contact else None, contact_gain=cv.contact.gain if cv.contact else 0.0,
         extent_gaussians=cv.extent_gaussians, occupancy=fills[0] if BOUNDARY_SUBSAMPLES > 1 else None,
     )  # fmt: skip

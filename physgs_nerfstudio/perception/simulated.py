@@ -26,10 +26,11 @@ so the same request always gets the same answer:
    the part's true wall thickness (truth candidate) or the candidate material's library thickness
    (``default_thickness_m`` without one), times exp(``thickness_sigma`` * N(0, 1)); a solid answer gives null.
 6. object: the whole object of that ground-truth part (``object`` in ground_truth.json: "table" for its leg, "mug"
-   for the mug standing on it; null for the ground, a floor or a rug, as the prompt asks for background); with
-   probability ``p_object_error`` another object's name instead, one of the scene's other objects (uniform;
-   "unknown object" in a scene of one object). Drawn after everything above, so
-   the materials, values and structure are those an answer without the field had.
+   for the mug standing on it, "stand" for the stand under it, "floor" for the floor), as the prompt asks of every
+   physical part; null only where the answer has no candidates (background). With probability ``p_object_error``
+   another object's name instead, one of the scene's other objects (uniform; "unknown object" in a scene of one
+   object). Drawn after everything above, so the materials, values and structure are those an answer without the
+   field had.
 """
 
 from __future__ import annotations
@@ -326,12 +327,12 @@ class SimulatedBackend:
     def _object_of(self, part: dict | None, rng: np.random.Generator) -> str | None:
         """The answer's ``object`` (module doc, 6): the part's object, or another with ``p_object_error``."""
         true = part.get("object") if part is not None else None
-        if not isinstance(true, str) or part.get("role") == "ground":  # the floor, a rug: background (null)
+        if not isinstance(true, str):
             return None
         if rng.random() >= self.config.p_object_error:
             return true
-        others = sorted({str(p["object"]) for p in self.truth.parts if isinstance(p.get("object"), str)
-                         and p.get("object") != true and p.get("role") != "ground"})  # fmt: skip
+        others = sorted({str(p["object"]) for p in self.truth.parts
+                         if isinstance(p.get("object"), str) and p.get("object") != true})  # fmt: skip
         return others[int(rng.integers(len(others)))] if others else "unknown object"
 
     def query(self, request: VLMRequest) -> VLMResponse:
