@@ -34,6 +34,6 @@ if [ "${1:-}" = pathtrace ]; then
          ptracer prbvolpath; do rm -f mitsuba/plugins/$p.so; done \
     && python3 -c "import glob, os; r = glob.glob('*.dist-info/RECORD')[0]; ls = [l for l in open(r) if os.path.exists(l.split(',')[0])]; open(r, 'w').writelines(ls)" \
     && zip -q -r -9 "$R/.whlpt/$(basename ../mitsuba-*.whl)" .)
-  cp .whl/rtree-*.whl .whlpt/  # the figurine family's meshes (trimesh) in the scenes phase
+  cp .whl/rtree-*.whl .whl/trimesh-*.whl .whlpt/  # the figurine family's meshes (trimesh) in the scenes phase
   rm -rf "$T"; du -sh .whlpt
 fi
