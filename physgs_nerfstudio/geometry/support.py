@@ -393,47 +393,29 @@ def _base_ring(p: np.ndarray, selected: np.ndarray) -> tuple[np.ndarray, np.ndar
     """The ring around the object's base (module doc, "The support under the object"), in the frame ``p`` [N, 3]
     (horizontal, horizontal, up) of every Gaussian: (the ring's points' indices, their sector, the base's lowest
     height, the object's size, its horizontal size), or None when the object has no extent."""
-    found = _base(p[selected])
-    if found is None:
-        return None
-    h0, size, base, wide = found
-    idx = np.flatnonzero(np.abs(p[:, 2] - h0) <= RING_HEIGHT * size)
-    idx = idx[_in_ring(p[idx, :2], base, wide)]
-    return idx, _sector(p[idx, :2], base), h0, size, wide
-
-
-def _base(obj: np.ndarray) -> tuple[float, float, np.ndarray, float] | None:
-    """The object's base from its points ``obj`` [N, 3] (horizontal, horizontal, up): (its lowest height (2%
-    quantile), its size (the 3-D extent of the 2-98% quantiles), the base's points' horizontal coordinates [M, 2],
-    its horizontal size (1-99%)), or None when it has no extent."""
-    lo3, hi3 = np.quantile(obj, 0.02, axis=0), np.quantile(obj, 0.98, axis=0)
-    size = float(np.max(hi3 - lo3))
-    base = obj[obj[:, 2] <= lo3[2] + BASE_SHARE * (hi3[2] - lo3[2]), :2]
-    if not size > 0 or len(base) < 3:
-        return None
-    wide = float(np.max(np.quantile(obj[:, :2], 0.99, axis=0) - np.quantile(obj[:, :2], 0.01, axis=0)))
-    return float(lo3[2]), size, base, wide
-
-
-def _in_ring(xy: np.ndarray, base: np.ndarray, wide: float) -> np.ndarray:
-    """bool [N]: the horizontal points ``xy`` [N, 2] from ``RING_GAP`` to ``RING_GAP + RING_WIDTH`` of the object's
-    horizontal size ``wide`` beyond the base's footprint (its points ``base`` [M, 2])."""
     from scipy.spatial import cKDTree
 
+    obj = p[selected]
+    lo3, hi3 = np.quantile(obj, 0.02, axis=0), np.quantile(obj, 0.98, axis=0)
+    size = float(np.max(hi3 - lo3))
+    if not size > 0:
+        return None
+    h0 = float(lo3[2])
+    base = obj[obj[:, 2] <= h0 + BASE_SHARE * (hi3[2] - lo3[2])]
+    if len(base) < 3:
+        return None
+    wide = float(np.max(np.quantile(obj[:, :2], 0.99, axis=0) - np.quantile(obj[:, :2], 0.01, axis=0)))
     gap, width = RING_GAP * wide, RING_WIDTH * wide
-    out = np.zeros(len(xy), bool)
-    box = np.all((xy >= base.min(0) - gap - width) & (xy <= base.max(0) + gap + width), 1)
-    if box.any():
-        dist = cKDTree(base).query(xy[box], k=1)[0]
-        out[np.flatnonzero(box)] = (dist > gap) & (dist <= gap + width)
-    return out
-
-
-def _sector(xy: np.ndarray, base: np.ndarray) -> np.ndarray:
-    """int [N]: the ring's angular sector (of ``RING_SECTORS``) of each horizontal point about the base's centre."""
-    c = base.mean(0)
-    ang = np.arctan2(xy[:, 1] - c[1], xy[:, 0] - c[0])
-    return np.minimum(((ang + np.pi) / (2 * np.pi) * RING_SECTORS).astype(int), RING_SECTORS - 1)
+    blo, bhi = base[:, :2].min(0) - gap - width, base[:, :2].max(0) + gap + width
+    near = np.all((p[:, :2] >= blo) & (p[:, :2] <= bhi), 1) & (np.abs(p[:, 2] - h0) <= RING_HEIGHT * size)
+    idx = np.flatnonzero(near)
+    dist = cKDTree(base[:, :2]).query(p[idx, :2], k=1)[0]
+    ring = (dist > gap) & (dist <= gap + width)
+    idx = idx[ring]
+    c = base[:, :2].mean(0)
+    ang = np.arctan2(p[idx, 1] - c[1], p[idx, 0] - c[0])
+    sector = np.minimum(((ang + np.pi) / (2 * np.pi) * RING_SECTORS).astype(int), RING_SECTORS - 1)
+    return idx, sector, h0, size, wide
 
 
 def find_support(means: np.ndarray, selected: np.ndarray, cameras: np.ndarray, up: np.ndarray,
@@ -488,34 +470,52 @@ def seen_level(plane: SupportPlane, means: np.ndarray, views: Sequence[CaptureVi
     [N, 3]: the object's Gaussians' centres (its base); ``depths``: each view's whole-splat surface depth [H, W]
     (:func:`.free_space.free_space_depths`, with its see-through value beyond any surface); ``covered``: per view,
     bool [H, W], the pixels on which the object's own render has a surface (its flared walls or handle over the
-    ring: not the support; None: none). Returns the plane and the number of ring points it rests on; ``plane``
-    itself when they cover less than :data:`MIN_RING_COVERAGE` of the ring's sectors (as :func:`find_support` asks
-    of the support's Gaussians)."""
+    ring: not the support; None: none). Returns the plane and
+    the number of ring points it rests on; ``plane`` itself when they cover less than :data:`MIN_RING_COVERAGE` of the
+    ring's sectors (as :func:`find_support` asks of the support's Gaussians)."""
+    from scipy.spatial import cKDTree
+
     n = np.asarray(plane.normal, dtype=np.float64)
     frame = np.column_stack([_in_plane(n), n])  # horizontal, horizontal, up
-    found = _base(np.asarray(means, dtype=np.float64) @ frame) if len(means) >= 3 else None
-    if found is None:
+    obj = np.asarray(means, dtype=np.float64) @ frame
+    if len(obj) < 3:
         return plane, 0
-    h0, size, base, wide = found
-    # around the plane and the base's lowest Gaussians, whichever is lower or higher
-    hlo, hhi = min(plane.offset, h0) - RING_HEIGHT * size, max(plane.offset, h0) + RING_HEIGHT * size
-    pts = []
+    lo3, hi3 = np.quantile(obj, 0.02, axis=0), np.quantile(obj, 0.98, axis=0)
+    size = float(np.max(hi3 - lo3))
+    base = obj[obj[:, 2] <= lo3[2] + BASE_SHARE * (hi3[2] - lo3[2]), :2]
+    wide = float(np.max(np.quantile(obj[:, :2], 0.99, axis=0) - np.quantile(obj[:, :2], 0.01, axis=0)))
+    if not size > 0 or len(base) < 3:
+        return plane, 0
+    gap, width = RING_GAP * wide, RING_WIDTH * wide
+    blo, bhi = base.min(0) - gap - width, base.max(0) + gap + width
+    # heights: around the plane and the base's lowest Gaussians, whichever is lower or higher
+    hlo = min(plane.offset, lo3[2]) - RING_HEIGHT * size
+    hhi = max(plane.offset, lo3[2]) + RING_HEIGHT * size
+    heights = []
     for i, (v, depth) in enumerate(zip(views, depths)):
         z = depth.double().cpu()
         ok = z < 1e29  # a pixel with a surface, not the object's
         if covered is not None:
             ok &= ~covered[i].cpu()
+        if not bool(ok.any()):
+            continue
         ys, xs = torch.nonzero(ok, as_tuple=True)
-        pix = torch.stack([xs + 0.5, ys + 0.5, torch.ones_like(xs, dtype=torch.float64)]).double()
+        pix = torch.stack([xs + 0.5, ys + 0.5, torch.ones_like(xs, dtype=torch.float64)], 0).double()
         cam = torch.linalg.solve(v.K.double().cpu(), pix) * z[ok][None, :]
         R, t = v.viewmat[:3, :3].double().cpu(), v.viewmat[:3, 3].double().cpu()
-        p = (R.T @ (cam - t[:, None])).T.numpy() @ frame
-        p = p[(p[:, 2] >= hlo) & (p[:, 2] <= hhi)]
-        pts.append(p[_in_ring(p[:, :2], base, wide)])
-    ring = np.concatenate(pts) if pts else np.zeros((0, 3))
-    if len(np.unique(_sector(ring[:, :2], base))) < MIN_RING_COVERAGE * RING_SECTORS:  # no layer all around
-        return plane, len(ring)
-    return SupportPlane(n.copy(), float(np.median(ring[:, 2])), plane.tol, plane.share, plane.size), len(ring)
+        p = ((R.T @ (cam - t[:, None])).T).numpy() @ frame
+        near = np.all((p[:, :2] >= blo) & (p[:, :2] <= bhi), 1) & (p[:, 2] >= hlo) & (p[:, 2] <= hhi)
+        heights.append(p[near])
+    pts = np.concatenate(heights) if heights else np.zeros((0, 3))
+    if len(pts):
+        dist = cKDTree(base).query(pts[:, :2], k=1)[0]
+        pts = pts[(dist > gap) & (dist <= gap + width)]
+    c = base.mean(0)
+    sector = np.minimum(((np.arctan2(pts[:, 1] - c[1], pts[:, 0] - c[0]) + np.pi) / (2 * np.pi)
+                         * RING_SECTORS).astype(int), RING_SECTORS - 1)  # fmt: skip
+    if len(np.unique(sector)) < MIN_RING_COVERAGE * RING_SECTORS:  # the views see no layer all around the base
+        return plane, len(pts)
+    return SupportPlane(n.copy(), float(np.median(pts[:, 2])), plane.tol, plane.share, plane.size), len(pts)
 
 
 def support_gaussians(means: np.ndarray, selected: np.ndarray, plane: SupportPlane) -> np.ndarray:
