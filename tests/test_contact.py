@@ -1,6 +1,4 @@
-"""Where the object meets what it stands on: the contact cut (geometry/contact.py), an object on a stand perception
-names separated at their contact, and the support plane moved to where the views see the floor
-(geometry/support.py, ``seen_level``).
+"""The contact cut (geometry/contact.py): an object on a stand perception names, separated at their contact.
 
 Oracles: a brute-force scan of every threshold for the cut's search; for the whole rule, views ray-cast
 analytically onto two boxes (an object on a wider stand, or on its own foot), whose pixels carry the names of the
@@ -20,7 +18,6 @@ from physgs_nerfstudio.geometry.capture import CaptureView, MaskObservation
 from physgs_nerfstudio.geometry.contact import MIN_GAIN, ObjectLabels, _best_cut, contact_cut, object_labels
 from physgs_nerfstudio.geometry.free_space import SEES_THROUGH
 from physgs_nerfstudio.geometry.grid import VoxelGrid
-from physgs_nerfstudio.geometry.support import SupportPlane, seen_level
 
 
 def _brute_cut(height: np.ndarray, name: np.ndarray, k: int) -> float:
@@ -135,45 +132,3 @@ def test_object_labels_paint_the_finest_mask_over_the_coarser():
                                               name="other")], obs)  # fmt: skip
     assert labels.names == ["stand", "mug"] and labels.maps[1] is None
     assert labels.maps[0].tolist() == [[0, 1, 1, 1], [0, 1, 1, 1]]
-
-
-def _on_faces(box, n: int = 3000) -> np.ndarray:
-    """Points on the box's faces: a splat's Gaussians lie on the surface it renders."""
-    lo, hi, _ = box
-    p = np.random.default_rng(0).uniform(lo, hi, (n, 3))
-    axis, side = np.arange(n) % 3, (np.arange(n) // 3) % 2
-    p[np.arange(n), axis] = np.where(side == 1, hi[axis], lo[axis])
-    return p
-
-
-@pytest.mark.parametrize("offset", [-0.03, 0.0, 0.02])  # amid the floor's Gaussians, at its top, above it
-def test_seen_level_moves_the_support_plane_to_the_floors_seen_top(offset):
-    floor = (np.array([-1.0, -1.0, -0.05]), np.array([1.0, 1.0, 0.0]), 1)
-    box = (np.array([-0.08, -0.08, 0.0]), np.array([0.08, 0.08, 0.2]), 0)
-    views, depths, _ = _views([floor, box])
-    means = _on_faces(box)
-    plane = SupportPlane(np.array([0.0, 0.0, 1.0]), offset, 0.005, 0.5)
-    moved, n = seen_level(plane, means, views, depths)
-    assert n >= 16 and moved.offset == pytest.approx(0.0, abs=1e-6)  # every ring point lies on the floor's top
-    assert moved.tol == plane.tol and np.allclose(moved.normal, plane.normal)
-
-
-def test_seen_level_keeps_the_plane_when_no_view_sees_a_ring():
-    box = (np.array([-0.08, -0.08, 0.0]), np.array([0.08, 0.08, 0.2]), 0)
-    views, depths, _ = _views([box])  # nothing around the object: the views see through beside it
-    means = _on_faces(box)
-    plane = SupportPlane(np.array([0.0, 0.0, 1.0]), -0.01, 0.005, 0.5)
-    moved, n = seen_level(plane, means, views, depths)
-    assert n == 0 and moved is plane
-
-
-def test_seen_level_skips_the_objects_own_surface_over_the_ring():
-    floor = (np.array([-1.0, -1.0, -0.05]), np.array([1.0, 1.0, 0.0]), 1)
-    foot = (np.array([-0.05, -0.05, 0.0]), np.array([0.05, 0.05, 0.02]), 0)
-    brim = (np.array([-0.15, -0.15, 0.02]), np.array([0.15, 0.15, 0.04]), 0)  # overhangs the ring, low down
-    views, depths, maps = _views([floor, foot, brim])
-    means = np.concatenate([_on_faces(foot), _on_faces(brim)])
-    plane = SupportPlane(np.array([0.0, 0.0, 1.0]), -0.01, 0.005, 0.5)
-    assert seen_level(plane, means, views, depths)[0].offset == pytest.approx(0.04, abs=1e-6)  # the brim's top
-    moved, n = seen_level(plane, means, views, depths, [m == 0 for m in maps])
-    assert n == 0 and moved is plane  # the brim hides the floor in the ring from every view: no level seen

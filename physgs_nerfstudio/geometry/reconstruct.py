@@ -53,7 +53,7 @@ from .parts import (
 )
 from .select import ObjectSelection, outside_mask_hull, select_object
 from .structure import PartStructure, fuse_structure
-from .support import SupportPlane, align_to_plane, find_support, seen_level, support_gaussians, views_up
+from .support import SupportPlane, align_to_plane, find_support, support_gaussians, views_up
 
 logger = logging.getLogger(__name__)
 
@@ -499,12 +499,8 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
     seen Gaussians' polytope (:mod:`.gaussians`), above the support plane and above the contact with another named
     object under it (:mod:`.contact`), less the hidden open space. ``views``: the object masks (their visual hull),
     ``renders``: the object's Gaussians' own render (which lie on its surface), ``labels``: the views' names."""
-    depths = free_space_depths(g, views, cfg.backend)
-    if selection.plane is not None:  # the cut lies where the views see the support, not amid its Gaussians
-        selection.plane, n = seen_level(selection.plane, g.means[selection.selected].double().cpu().numpy(), views,
-                                        depths, [torch.isfinite(r.depth) for r in renders])  # fmt: skip
-        logger.info("support: its seen surface, from %d surface points around the object's base", n)
     grid = align_to_plane(_domain(g, selection.selected, cfg), selection.plane)
+    depths = free_space_depths(g, views, cfg.backend)
     variants = _variants(cfg)
     wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
     ext_idx = torch.nonzero(selection.selected).squeeze(1)

@@ -57,19 +57,6 @@ are dropped; the voxel grid is placed so that a layer of voxel faces lies on it 
 carved solid is cut there (no voxel straddles the contact); and each view's object mask loses the pixels whose
 rendered surface is the support's (the support's Gaussians around the object, :func:`support_gaussians`, rendered
 opaque where the object's are not): the masks' spill onto the floor carves nothing.
-
-Where the views see the support
--------------------------------
-Both searches fit the plane to Gaussians' centres, but a splat draws a floor as a layer of Gaussians, thicker where
-the floor is glossy or textured (a path-traced floor's Gaussians spread over a centimetre or more, and its
-reflections put more under it), and the centres' mean lies inside that layer. The views see the layer's top: the
-carving places every surface where a pixel's ray has lost a fifth of its light (:mod:`.free_space`), and the floor
-between the plane and that surface stays in the solid, connected to the object (on a path-traced mug, 6.75 voxels of
-floor under it, 38% of its mass). So before the carving, :func:`seen_level` moves the plane along its normal to the
-median height of the views' surface points (each pixel's whole-splat surface depth, where the object's own render
-has none: a pan's flared wall overhangs its ring) in the same ring around the object's base (from ``RING_GAP`` to ``RING_GAP + RING_WIDTH`` of its horizontal size beyond the base's footprint,
-within ``RING_HEIGHT`` of its size of the plane or the base, whichever reaches further), when those points cover
-``MIN_RING_COVERAGE`` of the ring's sectors; the plane's tolerance, which dropped the Gaussians on it, is kept.
 """
 
 from __future__ import annotations
@@ -86,7 +73,7 @@ from .carve import mask_view_votes, signed_mask_distances
 from .grid import VoxelGrid
 
 __all__ = ["MAX_TOL_BANDS", "SupportConfig", "SupportPlane", "align_to_plane", "find_support", "find_support_plane",
-           "seen_level", "seen_under_plane", "support_gaussians", "support_plane_or_reason", "views_up"]
+           "seen_under_plane", "support_gaussians", "support_plane_or_reason", "views_up"]
 
 
 # Fixed rules (module doc), each with its physical meaning; not options.
@@ -461,61 +448,6 @@ def find_support(means: np.ndarray, selected: np.ndarray, cameras: np.ndarray, u
     plane = SupportPlane(up.copy(), d, tol, float(on.mean()), wide + 2 * (RING_GAP + RING_WIDTH) * wide)
     return plane, (f"{covered:.0%} of the ring's sectors, {on.mean():.0%} of its {len(idx)} Gaussians, "
                    f"{d - h0:+.3g} above the base, tolerance {tol:.3g}")  # fmt: skip
-
-
-def seen_level(plane: SupportPlane, means: np.ndarray, views: Sequence[CaptureView], depths: Sequence[torch.Tensor],
-               covered: Sequence[torch.Tensor] | None = None) -> tuple[SupportPlane, int]:  # fmt: skip
-    """``plane`` moved along its normal to where the views see the support (module doc, "Where the views see the
-    support"): the median height of the views' surface points in the ring around the object's base. ``means``
-    [N, 3]: the object's Gaussians' centres (its base); ``depths``: each view's whole-splat surface depth [H, W]
-    (:func:`.free_space.free_space_depths`, with its see-through value beyond any surface); ``covered``: per view,
-    bool [H, W], the pixels on which the object's own render has a surface (its flared walls or handle over the
-    ring: not the support; None: none). Returns the plane and
-    the number of ring points it rests on; ``plane`` itself when they cover less than :data:`MIN_RING_COVERAGE` of the
-    ring's sectors (as :func:`find_support` asks of the support's Gaussians)."""
-    from scipy.spatial import cKDTree
-
-    n = np.asarray(plane.normal, dtype=np.float64)
-    frame = np.column_stack([_in_plane(n), n])  # horizontal, horizontal, up
-    obj = np.asarray(means, dtype=np.float64) @ frame
-    if len(obj) < 3:
-        return plane, 0
-    lo3, hi3 = np.quantile(obj, 0.02, axis=0), np.quantile(obj, 0.98, axis=0)
-    size = float(np.max(hi3 - lo3))
-    base = obj[obj[:, 2] <= lo3[2] + BASE_SHARE * (hi3[2] - lo3[2]), :2]
-    wide = float(np.max(np.quantile(obj[:, :2], 0.99, axis=0) - np.quantile(obj[:, :2], 0.01, axis=0)))
-    if not size > 0 or len(base) < 3:
-        return plane, 0
-    gap, width = RING_GAP * wide, RING_WIDTH * wide
-    blo, bhi = base.min(0) - gap - width, base.max(0) + gap + width
-    # heights: around the plane and the base's lowest Gaussians, whichever is lower or higher
-    hlo = min(plane.offset, lo3[2]) - RING_HEIGHT * size
-    hhi = max(plane.offset, lo3[2]) + RING_HEIGHT * size
-    heights = []
-    for i, (v, depth) in enumerate(zip(views, depths)):
-        z = depth.double().cpu()
-        ok = z < 1e29  # a pixel with a surface, not the object's
-        if covered is not None:
-            ok &= ~covered[i].cpu()
-        if not bool(ok.any()):
-            continue
-        ys, xs = torch.nonzero(ok, as_tuple=True)
-        pix = torch.stack([xs + 0.5, ys + 0.5, torch.ones_like(xs, dtype=torch.float64)], 0).double()
-        cam = torch.linalg.solve(v.K.double().cpu(), pix) * z[ok][None, :]
-        R, t = v.viewmat[:3, :3].double().cpu(), v.viewmat[:3, 3].double().cpu()
-        p = ((R.T @ (cam - t[:, None])).T).numpy() @ frame
-        near = np.all((p[:, :2] >= blo) & (p[:, :2] <= bhi), 1) & (p[:, 2] >= hlo) & (p[:, 2] <= hhi)
-        heights.append(p[near])
-    pts = np.concatenate(heights) if heights else np.zeros((0, 3))
-    if len(pts):
-        dist = cKDTree(base).query(pts[:, :2], k=1)[0]
-        pts = pts[(dist > gap) & (dist <= gap + width)]
-    c = base.mean(0)
-    sector = np.minimum(((np.arctan2(pts[:, 1] - c[1], pts[:, 0] - c[0]) + np.pi) / (2 * np.pi)
-                         * RING_SECTORS).astype(int), RING_SECTORS - 1)  # fmt: skip
-    if len(np.unique(sector)) < MIN_RING_COVERAGE * RING_SECTORS:  # the views see no layer all around the base
-        return plane, len(pts)
-    return SupportPlane(n.copy(), float(np.median(pts[:, 2])), plane.tol, plane.share, plane.size), len(pts)
 
 
 def support_gaussians(means: np.ndarray, selected: np.ndarray, plane: SupportPlane) -> np.ndarray:
