@@ -9,23 +9,12 @@ import math
 import numpy as np
 import pytest
 import torch
+from helpers.shapes import look_at_w2c
 
 from physgs_nerfstudio.geometry.capture import CaptureView
 from physgs_nerfstudio.geometry.carve import CarveConfig, carve_votes_many, mask_hull, signed_mask_distance
 from physgs_nerfstudio.geometry.free_space import SEES_THROUGH
 from physgs_nerfstudio.geometry.grid import VoxelGrid
-
-
-def _look_at(eye: np.ndarray) -> torch.Tensor:
-    """World-to-camera (OpenCV axes) looking at the origin."""
-    f = -eye / np.linalg.norm(eye)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    d = np.cross(f, r)
-    R = np.stack([r, d, f])
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = R, -R @ eye
-    return torch.tensor(out, dtype=torch.float32)
 
 
 def _scene(seed: int):
@@ -37,7 +26,7 @@ def _scene(seed: int):
         W, H = 20, 16
         K = torch.tensor([[18.0, 0, W / 2], [0, 18.0, H / 2], [0, 0, 1]])
         mask = torch.rand(H, W, generator=g) > 0.4
-        views.append(CaptureView(_look_at(np.array([2.5 * math.cos(a), 2.5 * math.sin(a), 0.7])), K, W, H, mask,
+        views.append(CaptureView(look_at_w2c(np.array([2.5 * math.cos(a), 2.5 * math.sin(a), 0.7])), K, W, H, mask,
                                  name=f"v{i}"))  # fmt: skip
         depth = 2.0 + torch.rand(H, W, generator=g)
         depth[torch.rand(H, W, generator=g) < 0.1] = SEES_THROUGH

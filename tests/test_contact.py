@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from helpers.shapes import look_at_w2c
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -51,17 +52,6 @@ def test_best_cut_separates_a_stand_and_ignores_scattered_slips():
 
 # ------------------------------------------------------------------ two boxes, seen by ray-cast views
 
-def _look_at(eye: np.ndarray, target: np.ndarray) -> torch.Tensor:
-    f = (target - eye) / np.linalg.norm(target - eye)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    d = np.cross(f, r)
-    R = np.stack([r, d, f])
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = R, -R @ eye
-    return torch.tensor(out, dtype=torch.float32)
-
-
 def _hit(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Ray parameter of the first hit of rays o + t d on the box [lo, hi] (inf: none), the slab method."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -80,7 +70,7 @@ def _views(boxes: list[tuple[np.ndarray, np.ndarray, int]], n: int = 12, size: i
     for i in range(n):
         a, el = 2 * math.pi * i / n, (0.25 if i % 2 else 0.6)
         eye = target + 1.6 * np.array([math.cos(a) * math.cos(el), math.sin(a) * math.cos(el), math.sin(el)])
-        vm = _look_at(eye, target)
+        vm = look_at_w2c(eye, target)
         R = vm[:3, :3].double().numpy()
         u, v = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
         cam = np.stack([(u - W / 2) / 40.0, (v - H / 2) / 40.0, np.ones_like(u)], -1)

@@ -16,6 +16,19 @@ from physgs_nerfstudio.geometry.gaussians import render_depth
 RES = 96
 
 
+def look_at_w2c(eye: np.ndarray, target: np.ndarray | None = None) -> torch.Tensor:
+    """World-to-camera [4, 4] (OpenCV axes, float32) of a camera at ``eye`` looking at ``target`` (the origin), its
+    image x axis level (world z up)."""
+    target = np.zeros(3) if target is None else np.asarray(target, dtype=np.float64)
+    f = (target - eye) / np.linalg.norm(target - eye)
+    r = np.cross(f, [0.0, 0.0, 1.0])
+    r /= np.linalg.norm(r)
+    R = np.stack([r, np.cross(f, r), f])
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = R, -R @ eye
+    return torch.tensor(out, dtype=torch.float32)
+
+
 def flat_gaussians(points: torch.Tensor, normals: torch.Tensor, spacing: float):
     """Flat Gaussians tangent to a surface: in-plane scale ``spacing``, thin along the normal."""
     z = torch.tensor([0.0, 0.0, 1.0], dtype=points.dtype)
