@@ -95,7 +95,7 @@ def object_labels(views: Sequence[CaptureView], observations: Sequence[MaskObser
             continue
         lab = torch.full(obs[0].mask.shape, -1, dtype=torch.long)
         for ob in obs:  # coarse first: the finer masks paint over
-            lab[torch.from_numpy(np.asarray(ob.mask))] = index[ob.object]  # type: ignore[index]
+            lab[torch.as_tensor(np.array(ob.mask, dtype=bool))] = index[ob.object]  # type: ignore[index]
         if tuple(lab.shape) != (v.height, v.width):
             lab = torch.nn.functional.interpolate(lab[None, None].float(), size=(v.height, v.width),
                                                   mode="nearest")[0, 0].long()  # fmt: skip
