@@ -12,21 +12,16 @@ from physgs_nerfstudio.export.shapes import field_from
 from physgs_nerfstudio.geometry import CaptureView, GeometryConfig, reconstruct_object
 from physgs_nerfstudio.geometry.capture import viewmat_from_c2w
 from physgs_nerfstudio.geometry.gaussians import render_depth
+from physgs_nerfstudio.synth.render import look_at
 
 RES = 96
 
 
 def look_at_w2c(eye: np.ndarray, target: np.ndarray | None = None) -> torch.Tensor:
     """World-to-camera [4, 4] (OpenCV axes, float32) of a camera at ``eye`` looking at ``target`` (the origin), its
-    image x axis level (world z up)."""
-    target = np.zeros(3) if target is None else np.asarray(target, dtype=np.float64)
-    f = (target - eye) / np.linalg.norm(target - eye)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    R = np.stack([r, np.cross(f, r), f])
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = R, -R @ eye
-    return torch.tensor(out, dtype=torch.float32)
+    image x axis level (world z up): the generator's camera (:func:`physgs_nerfstudio.synth.render.look_at`) as the
+    geometry reads it (:func:`physgs_nerfstudio.geometry.capture.viewmat_from_c2w`)."""
+    return viewmat_from_c2w(torch.from_numpy(look_at(eye, np.zeros(3) if target is None else target)[:3]))
 
 
 def flat_gaussians(points: torch.Tensor, normals: torch.Tensor, spacing: float):
