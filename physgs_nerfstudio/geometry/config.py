@@ -34,27 +34,27 @@ class GeometryConfig:
     refit_fraction: float = 0.5
     """when the carved solid's longest side is below this fraction of the domain's, carve again on a grid fitted to
     the solid (outliers of the selection stretched the domain and coarsened the voxels)"""
-    extent_pad_voxels: float | None = 0.0
+    extent_pad_voxels: float = 0.0
     """the solid is cut to the support polytope of the object's seen Gaussians grown by this many voxels
-    (the object's extent, :mod:`.gaussians`: space under an object that no view sees past is not the object);
-    None = no cut. 0: the outermost Gaussians lie on or, by their scatter, beyond the surface, and a voxel counts
-    when its centre is in"""
+    (the object's extent, :mod:`.gaussians`: space under an object that no view sees past is not the object).
+    0: the outermost Gaussians lie on or, by their scatter, beyond the surface, and a voxel counts when its centre
+    is in"""
     extent_outlier_fraction: float = 0.001
     """along each direction the polytope skips this share of the outermost Gaussians
     (:func:`.gaussians.support_heights`), so that a few strays under an unseen bottom face do not set where the solid ends; documented range 0-0.003"""
     extent_variant_voxels: float = 1.0
     """the interval also samples the nominal carving cut to the polytope grown by this many voxels (where the
     polytope ends the solid, a few Gaussians' scatter places the surface to about a voxel)"""
-    hidden_skin_voxels: int | None = 2
+    hidden_skin_voxels: int = 2
     """the solid loses its *hidden open space* (:mod:`.hidden`: space no view could carve that no seen surface
     encloses, such as under a table top); the skin closes the gaps between its samples over this many voxels each
-    way. None = keep all the space no view sees past; documented range 2-3"""
+    way; documented range 2-3"""
     hidden_skin_tolerance: float = 1.5
     """a voxel is skin when the samples around it have their centroid within this many voxels of its centre (half
     the skin's thickness across a surface); documented range 1.25-2"""
-    hidden_skin_seen: float | None = 1.0
+    hidden_skin_seen: float = 1.0
     """an axis end samples the skin only where some view sees it on its rendered surface, within this many voxels
-    plus its Gaussian's own thickness (:mod:`.hidden`, "Seen samples"); None = every end; documented range 0.5-2"""
+    plus its Gaussian's own thickness (:mod:`.hidden`, "Seen samples"); documented range 0.5-2"""
     hidden_skin_band: float = 0.5
     """the skin's Gaussians: those whose centre some view sees at most this many voxels behind its rendered depth
     (:mod:`.hidden`, "The skin's band"); documented range 0.5-1"""
@@ -101,14 +101,12 @@ class GeometryConfig:
         if not self.hidden_skin_band >= 0:
             raise ValueError("GeometryConfig.hidden_skin_band must be >= 0 voxels, got "
                              f"{self.hidden_skin_band}.")
-        if self.hidden_skin_voxels is not None and self.hidden_skin_voxels < 0:
-            raise ValueError("GeometryConfig.hidden_skin_voxels must be >= 0 (or None: keep the hidden space), got "
-                             f"{self.hidden_skin_voxels}.")
+        if self.hidden_skin_voxels < 0:
+            raise ValueError(f"GeometryConfig.hidden_skin_voxels must be >= 0, got {self.hidden_skin_voxels}.")
         if not self.hidden_skin_tolerance > 0:
             raise ValueError(f"GeometryConfig.hidden_skin_tolerance must be > 0, got {self.hidden_skin_tolerance}.")
-        if self.hidden_skin_seen is not None and not self.hidden_skin_seen >= 0:
-            raise ValueError("GeometryConfig.hidden_skin_seen must be >= 0 (voxels) or None, got "
-                             f"{self.hidden_skin_seen}.")
+        if not self.hidden_skin_seen >= 0:
+            raise ValueError(f"GeometryConfig.hidden_skin_seen must be >= 0 voxels, got {self.hidden_skin_seen}.")
         if not 1 <= self.hidden_min_open_half <= 9:
             raise ValueError("GeometryConfig.hidden_min_open_half must be in 1-9, got "
                              f"{self.hidden_min_open_half}.")

@@ -259,37 +259,31 @@ class _Subset:
 
 
 def _carve_variants(grid: VoxelGrid, views: list[CaptureView], depths: list[torch.Tensor], hull: np.ndarray,
-                    variants: list[tuple[str, CarveConfig]], device: Any,
-                    means: torch.Tensor | None = None, extent_pad_voxels: float | None = None,
-                    extent_variant_voxels: float | None = None, scales: torch.Tensor | None = None,
-                    quats: torch.Tensor | None = None, extent_skip: int = 0,
-                    ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:  # fmt: skip
+                    variants: list[tuple[str, CarveConfig]], device: Any, means: torch.Tensor, pad_voxels: float,
+                    wider_voxels: float | None, scales: torch.Tensor, quats: torch.Tensor, extent_skip: int = 0,
+                    ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """The solid of every variant, from one free-space voting pass (:func:`.carve.carve_votes_many`), cut to the
-    support polytope of ``means`` (:mod:`.gaussians`) unless ``extent_pad_voxels`` is None, then (unless
-    ``extent_variant_voxels`` is None, and only with a cut) the first variant's solid cut to the polytope grown by
-    that much more, as one more variant; the masks' visual ``hull`` cut the same way; the voxels that the views kept
-    (in a solid or the hull) and the polytope cut (None without a cut); and the first variant's solid before the
-    cut. ``scales`` and ``quats``: the polytope of the Gaussians' one-sigma ellipsoids
-    (:func:`.gaussians.support_heights`)."""
+    support polytope of ``means`` grown by ``pad_voxels`` (:mod:`.gaussians`; the polytope of the Gaussians'
+    one-sigma ellipsoids of ``scales`` and ``quats``, :func:`.gaussians.support_heights`), then (unless
+    ``wider_voxels`` is None) the first variant's solid cut to the polytope grown by that much more, as one more
+    variant; the masks' visual ``hull`` cut the same way; the voxels that the views kept (in a solid or the hull)
+    and the polytope cut; and the first variant's solid before the cut."""
     votes = carve_votes_many(grid, views, depths, [cc for _, cc in variants], device=device)
     solids = [solid_from_votes(v, grid, cc) for v, (_, cc) in zip(votes, variants)]
-    if means is None or extent_pad_voxels is None:
-        return solids, hull, None, solids[0]
     candidates = np.logical_or.reduce(solids) | hull
-    # how far beyond the polytope each candidate lies, once for both pads (no means: no cut)
+    # how far beyond the polytope each candidate lies, once for both pads
     idx = tuple(np.argwhere(candidates).T)
     excess = (support_excess(grid, means, candidates, scales=scales, quats=quats, skip=extent_skip)
               if len(means) and len(idx[0])
               else np.full(len(idx[0]), -np.inf))  # fmt: skip
     inside = np.zeros_like(candidates)
-    inside[idx] = excess <= extent_pad_voxels
+    inside[idx] = excess <= pad_voxels
     cut = [s & inside for s in solids]
-    if extent_variant_voxels is not None:  # the nominal carving within a wider extent (GeometryConfig)
+    if wider_voxels is not None:  # the nominal carving within a wider extent (GeometryConfig)
         wider = np.zeros_like(candidates)
-        wider[idx] = excess <= extent_pad_voxels + extent_variant_voxels
+        wider[idx] = excess <= pad_voxels + wider_voxels
         cut.append(solids[0] & wider)
-    beyond = candidates & ~inside
-    return cut, hull & inside, beyond, solids[0]
+    return cut, hull & inside, candidates & ~inside, solids[0]
 
 
 def _support_under(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: GeometryConfig) -> None:
@@ -359,7 +353,7 @@ def _cut_below(grid: VoxelGrid, solids: list[np.ndarray], hull: np.ndarray, plan
 
 
 def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView], renders: list[ViewRender],
-                    excess: torch.Tensor, grid: VoxelGrid, solids: list[np.ndarray], beyond: np.ndarray | None,
+                    excess: torch.Tensor, grid: VoxelGrid, solids: list[np.ndarray], beyond: np.ndarray,
                     plane: SupportPlane | None, cfg: GeometryConfig
                     ) -> tuple[list[np.ndarray], dict[str, int], list[np.ndarray]]:  # fmt: skip
     """Every variant's solid without its hidden open space (:mod:`.hidden`): the skin is sampled by the selected
@@ -373,7 +367,7 @@ def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView]
     surface = _Subset(g, torch.nonzero(selection.selected).squeeze(1)[on_skin])
     samples = gaussian_samples(surface.means.double(), surface.scales, surface.quats, SKIN_SIGMAS)
     n = len(surface.means)
-    if cfg.hidden_skin_seen is not None and len(samples) > n:
+    if len(samples) > n:
         # the means are seen; the axis ends that some view sees too, within the band plus their Gaussian's own
         # thickness (its smallest standard deviation): a thick Gaussian's shortest axis ends that far behind
         ends = samples[n:]
@@ -381,9 +375,9 @@ def _without_hidden(g: Any, selection: ObjectSelection, views: list[CaptureView]
         seen = surface_views(ends, views, renders, cfg.hidden_skin_seen * grid.voxel_size + thick)
         samples = torch.cat([samples[:n], ends[seen > 0]])
     skin = skin_centred(samples, np.asarray(grid.origin), grid.voxel_size, grid.shape,
-                        int(cfg.hidden_skin_voxels or 0), cfg.hidden_skin_tolerance)  # fmt: skip
+                        cfg.hidden_skin_voxels, cfg.hidden_skin_tolerance)  # fmt: skip
     dev = surface.means.device
-    closed = np.zeros(grid.shape, bool) if beyond is None else beyond.copy()
+    closed = beyond.copy()
     if plane is not None:
         closed |= ~plane.above_voxels(grid)
     closed_t = torch.from_numpy(closed).to(dev)
@@ -449,8 +443,8 @@ class _Carving:
     excess: torch.Tensor
     unseen: np.ndarray
     extent_gaussians: int
-    hidden_removed: dict[str, int] | None = None
-    edges: list[np.ndarray] | None = None
+    hidden_removed: dict[str, int]
+    edges: list[np.ndarray]
     contact: Contact | None = None
 
 
@@ -502,7 +496,7 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
     grid = align_to_plane(_domain(g, selection.selected, cfg), selection.plane)
     depths = free_space_depths(g, views, cfg.backend)
     variants = _variants(cfg)
-    wider = cfg.extent_variant_voxels if cfg.variants and cfg.extent_pad_voxels is not None else None
+    wider = cfg.extent_variant_voxels if cfg.variants else None
     ext_idx = torch.nonzero(selection.selected).squeeze(1)
     # each selected Gaussian's smallest depth behind a view's rendered surface: the extent's, the material evidence's
     # and the skin's sets are those within their bands of it (one pass over the views)
@@ -540,16 +534,12 @@ def _carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], 
         plane = contact.plane
         solids, hull = _cut_below(grid, solids, hull, plane)
         solids = [seeded_components(grid, s, seeds) for s in solids]
-    removed, edges = None, None
-    if cfg.hidden_skin_voxels is not None:
-        solids, removed, edges = _without_hidden(g, selection, views, renders, excess, grid, solids, beyond, plane,
-                                                 cfg)  # fmt: skip
+    solids, removed, edges = _without_hidden(g, selection, views, renders, excess, grid, solids, beyond, plane, cfg)
     if not solids[0].any():
         raise GeometryError("carving left no solid voxel: the object masks and the views disagree (check poses and "
                             "masks, or raise --mass.geometry.carve.min-vote-fraction).")  # fmt: skip
     unseen = before_cuts & ~solids[0]  # kept by the views, removed by the plane's cut or as hidden open space
-    if beyond is not None:
-        unseen = unseen | _beyond_kept(raw_nominal, beyond)
+    unseen = unseen | _beyond_kept(raw_nominal, beyond)
     names = [n for n, _ in variants] + ([f"extent+{wider:g}vox"] if wider is not None else [])
     cfgs = [cc for _, cc in variants] + [variants[0][1]] * (len(solids) - len(variants))  # the extent variant's
     return _Carving(grid, names, cfgs, solids, hull, views, depths, excess, unseen, len(ext_idx), removed, edges,
@@ -662,17 +652,14 @@ def _surfaces(cv: _Carving, pp: _Parts, cfg: GeometryConfig, pixel_voxels: float
         return list(pool.map(areas, cv.solids))
 
 
-def _volumes(cv: _Carving, pp: _Parts, fills: list[np.ndarray], geos: list[PartGeometry]
+def _volumes(cv: _Carving, pp: _Parts, fills: list[np.ndarray]
              ) -> tuple[np.ndarray, np.ndarray | None]:  # fmt: skip
     """[G, P] volume per variant and part (partial volume's shares, or whole voxels), less half of each voxel on the
     boundary with hidden open space; and that boundary's whole volume [G, P] (None: no such voxel)."""
     P, h3 = pp.count, cv.grid.voxel_size**3
-    if BOUNDARY_SUBSAMPLES > 1:
-        volumes = np.stack([part_volumes(f, np.where(s, pp.parts, -1), P, cv.grid.voxel_size)
-                            for f, s in zip(fills, cv.solids)])  # fmt: skip
-    else:
-        volumes = np.stack([gm.volume for gm in geos])
-    if cv.edges is None or not any(e.any() for e in cv.edges):
+    volumes = np.stack([part_volumes(f, np.where(s, pp.parts, -1), P, cv.grid.voxel_size)
+                        for f, s in zip(fills, cv.solids)])  # fmt: skip
+    if not any(e.any() for e in cv.edges):
         return volumes, None
     on = pp.parts >= 0  # the kept voxels on the boundary with the hidden open space: half a voxel each
     boundary = np.stack([np.bincount(pp.parts[e & on], f[e & on], minlength=P)[:P]
@@ -728,7 +715,7 @@ def reconstruct_object(
     structure = fuse_structure(cv.grid, nominal_parts, pp.count, views, observations,
                                [lib[k] for k in np.argmax(pp.pm, 1)], pp.pm, pp.names, cfg.structure,
                                shares=pp.shares)  # fmt: skip
-    volumes, boundary = _volumes(cv, pp, fills, geos)
+    volumes, boundary = _volumes(cv, pp, fills)
     sources: dict[str, int] = {}
     for v in obj_views:
         sources[v.mask_source] = sources.get(v.mask_source, 0) + 1
@@ -741,7 +728,7 @@ def reconstruct_object(
         curvatures=np.stack([gm.curvature for gm in geos]),
         seam_areas=seam_areas(nominal_parts, pp.count, cv.grid.voxel_size), hidden_removed=cv.hidden_removed,
         unseen_surface_share=unseen_face_share(cv.solids[0], cv.unseen), hidden_boundary=boundary,
-        hidden_edge=cv.edges[0] if cv.edges is not None and boundary is not None else None,
+        hidden_edge=cv.edges[0] if boundary is not None else None,
         stands_on=cv.contact.below if cv.contact else None, contact_gain=cv.contact.gain if cv.contact else 0.0,
-        extent_gaussians=cv.extent_gaussians, occupancy=fills[0] if BOUNDARY_SUBSAMPLES > 1 else None,
+        extent_gaussians=cv.extent_gaussians, occupancy=fills[0],
     )  # fmt: skip
