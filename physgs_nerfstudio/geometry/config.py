@@ -84,9 +84,6 @@ class GeometryConfig:
     object_mask_dilate_px: int = 2
     """the object's own silhouette (its Gaussians rendered alone) is dilated by this many pixels before it cuts the
     foreground masks, so that other objects in the views do not count as this one"""
-    complete_min_share: float = 0.02
-    """a view's mask gets back each piece of the object's rendered silhouette (the views' consensus) that it misses
-    and that covers at least this share of it; smaller ones are the silhouette's blur; documented range 0.01-0.05"""
     min_mask_agreement: float = 0.5
     """a view whose object mask agrees with the rendered silhouette at IoU below this takes the silhouette instead
     (for the masks' visual hull)"""

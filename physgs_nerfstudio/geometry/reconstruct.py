@@ -199,7 +199,7 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
             fg &= core | ~on_plane
         union = (fg | core).sum()
         iou = (fg & core).sum() / union if union else 1.0
-        cut.append(replace(v, mask=torch.from_numpy(_complete(fg, core, kernel, cfg))))
+        cut.append(replace(v, mask=torch.from_numpy(fg)))
         if iou < cfg.min_mask_agreement:  # this view's segmentation lost the object: use the splat's consensus
             replaced += 1
             out.append(replace(v, mask=torch.from_numpy(sil), mask_source="silhouette"))
@@ -229,24 +229,6 @@ def _within_hull(g: Any, selection: ObjectSelection, views: Sequence[CaptureView
     selection.outside_hull = int(drop.sum())
     logger.info("object: %d selected Gaussians outside the masks' hull dropped, %d left", selection.outside_hull,
                 selection.num_selected)  # fmt: skip
-
-
-def _complete(fg: np.ndarray, core: np.ndarray, kernel: np.ndarray, cfg: GeometryConfig) -> np.ndarray:
-    """``fg`` with the connected pieces of the silhouette ``core`` that it misses (beyond its dilation by
-    ``kernel``, which absorbs boundary disagreement) and that cover ``complete_min_share`` of ``core``: the
-    segmentation dropped a part there (the built-in segmenter at 512 px lost the chair's seat in a quarter of the
-    views) and the consensus of the other views has it."""
-    import cv2
-
-    miss = core & ~cv2.dilate(fg.astype(np.uint8), kernel).astype(bool)
-    if not miss.any():
-        return fg
-    _n, lab, stats, _ = cv2.connectedComponentsWithStats(miss.astype(np.uint8), connectivity=8)
-    big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= cfg.complete_min_share * max(int(core.sum()), 1))
-    big = big[big > 0]
-    if not len(big):
-        return fg
-    return fg | np.isin(lab, big)
 
 
 @dataclass
@@ -464,14 +446,6 @@ class _Parts:
     @property
     def count(self) -> int:
         return int(self.parts.max()) + 1
-
-
-def _views_used(views: Sequence[CaptureView], cfg: GeometryConfig) -> list[CaptureView]:
-    """The views that carve: all of them."""
-    views = list(views)
-    if not views:
-        raise GeometryError("no views to carve the object from: the run has no training cameras.")
-    return views
 
 
 def _refit(grid: VoxelGrid, solids: list[np.ndarray], cfg: GeometryConfig) -> VoxelGrid | None:
@@ -692,7 +666,9 @@ def reconstruct_object(
     observations (None: (1, 4), the fusion's defaults). ``progress(stage: str)`` is called as stages start."""
     cfg = cfg or GeometryConfig()
     step = progress or (lambda _s: None)
-    views = _views_used(views, cfg)
+    views = list(views)
+    if not views:
+        raise GeometryError("no views to carve the object from: the run has no training cameras.")
     step("selecting the object")
     selection = select_object(g, views, cfg.select, backend=cfg.backend)
     _within_hull(g, selection, views, cfg)
