@@ -754,3 +754,10 @@ def test_seams_move_mass_only_between_parts_of_unlike_weight(box):
     assert on.interval_kg[1] - on.interval_kg[0] > off.interval_kg[1] - off.interval_kg[0]
     with pytest.raises(ValueError, match="seam_offset_voxels"):
         MassConfig(seam_offset_voxels=float("nan"))
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0])
+def test_a_voxel_evidence_threshold_of_zero_is_refused(value):
+    """0 would let a voxel with no evidence divide its mixture by zero (NaN masses): one line at the config."""
+    with pytest.raises(ValueError, match="min_voxel_evidence"):
+        GeometryConfig(min_voxel_evidence=value)

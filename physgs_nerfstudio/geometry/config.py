@@ -107,5 +107,7 @@ class GeometryConfig:
         if not 1 <= self.hidden_min_open_half <= 9:
             raise ValueError("GeometryConfig.hidden_min_open_half must be in 1-9, got "
                              f"{self.hidden_min_open_half}.")
+        if not self.min_voxel_evidence > 0:  # a voxel with none would divide its mixture by zero
+            raise ValueError(f"GeometryConfig.min_voxel_evidence must be > 0, got {self.min_voxel_evidence}.")
         if not self.evidence_surface_voxels >= 0:
             raise ValueError(f"GeometryConfig.evidence_surface_voxels must be >= 0, got {self.evidence_surface_voxels}.")
