@@ -84,9 +84,6 @@ class GeometryConfig:
     object_mask_dilate_px: int = 2
     """the object's own silhouette (its Gaussians rendered alone) is dilated by this many pixels before it cuts the
     foreground masks, so that other objects in the views do not count as this one"""
-    min_mask_agreement: float = 0.5
-    """a view whose object mask agrees with the rendered silhouette at IoU below this takes the silhouette instead
-    (for the masks' visual hull)"""
     backend: str = "auto"
 
     def __post_init__(self) -> None:

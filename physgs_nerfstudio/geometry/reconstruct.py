@@ -82,7 +82,7 @@ class ObjectGeometry:
     selection: ObjectSelection
     views_used: int
     mask_sources: dict[str, int]
-    """views per mask source, after the silhouette replacements of :func:`_object_views`"""
+    """views per mask source (:func:`.capture.load_capture`: labels, whole masks or both)"""
     surface_areas: np.ndarray
     """[G, P] whole surface area per variant and part, scene units^2 (every face once: the mass's surface
     offset)"""
@@ -172,14 +172,11 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
                   ) -> tuple[list[CaptureView], list[ViewRender]]:  # fmt: skip
     """The object's own depth and alpha (its Gaussians rendered alone: which of them lie on its seen surface,
     :func:`.gaussians.surface_excess`), and the foreground masks cut down to this object (foreground AND the dilated
-    silhouette of its Gaussians), for the masks' visual hull (the concavities; the masks do not carve,
-    :mod:`.free_space`). A view whose cut mask agrees with the silhouette at IoU below ``min_mask_agreement`` (its
-    segmentation merged the object into the background, or found nothing) takes the dilated silhouette instead: the
-    consensus of every view's masks, lifted onto the Gaussians (:mod:`.select`) and rendered back."""
+    silhouette of its Gaussians, less the support plane's pixels outside its own silhouette), for the masks' visual
+    hull (the concavities; the masks do not carve, :mod:`.free_space`)."""
     import cv2
 
-    sub = _Subset(g, selection.selected)
-    renders = render_depth(sub, views, backend=cfg.backend)
+    renders = render_depth(_Subset(g, selection.selected), views, backend=cfg.backend)
     k = 2 * cfg.object_mask_dilate_px + 1
     kernel = np.ones((k, k), np.uint8)
     ground: list[np.ndarray | None] = [None] * len(views)
@@ -189,32 +186,12 @@ def _object_views(g: Any, selection: ObjectSelection, views: Sequence[CaptureVie
         plane = render_depth(_Subset(g, selection.support), views, backend=cfg.backend, surface=False)
         ground = [p.alpha.cpu().numpy() > 0.5 for p in plane]
     out = []
-    replaced = 0
-    cut: list[CaptureView] = []
     for v, r, on_plane in zip(views, renders, ground):
         core = r.alpha.cpu().numpy() > 0.5
-        sil = cv2.dilate(core.astype(np.uint8), kernel).astype(bool) if cfg.object_mask_dilate_px > 0 else core
-        fg = v.mask.cpu().numpy() & sil
+        fg = v.mask.cpu().numpy() & cv2.dilate(core.astype(np.uint8), kernel).astype(bool)
         if on_plane is not None:
             fg &= core | ~on_plane
-        union = (fg | core).sum()
-        iou = (fg & core).sum() / union if union else 1.0
-        cut.append(replace(v, mask=torch.from_numpy(fg)))
-        if iou < cfg.min_mask_agreement:  # this view's segmentation lost the object: use the splat's consensus
-            replaced += 1
-            out.append(replace(v, mask=torch.from_numpy(sil), mask_source="silhouette"))
-        else:
-            out.append(cut[-1])
-    if replaced > len(views) / 2:  # most views disagree with the selection: it is the selection that failed
-        logger.warning("object masks: %d of %d views disagree with the selected Gaussians' silhouette (IoU < %.2g): "
-                       "the selection holds more than the object (floaters, background); the masks' hull keeps the "
-                       "views' own masks (cut to the silhouette)", replaced, len(views),
-                       cfg.min_mask_agreement)  # fmt: skip
-        return [replace(c, mask_source=c.mask_source + "_kept") for c in cut], renders
-    if replaced:
-        logger.info("object masks: %d of %d views disagree with the object's rendered silhouette (IoU < %.2g) and "
-                    "take the silhouette instead (the masks' hull)", replaced, len(views),
-                    cfg.min_mask_agreement)  # fmt: skip
+        out.append(replace(v, mask=torch.from_numpy(fg)))
     return out, renders
 
 
