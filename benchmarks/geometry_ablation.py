@@ -44,7 +44,6 @@ RULES: dict[str, tuple[str, str]] = {
     "concave5": ("--mass.geometry.concavity-px 5", "concavities from 5 px inside the masks' hull (default 3)"),
     "noevid": ("--mass.geometry.evidence-surface-voxels 1e6", "every selected Gaussian's labels are evidence"),
     "nodilate": ("--mass.geometry.object-mask-dilate-px 0", "the object's silhouette cuts the masks undilated"),
-    "noagree": ("--mass.geometry.min-mask-agreement 0", "no view's mask is replaced by the silhouette"),
     "nohulldrop": ("--mass.geometry.select.hull-vote-fraction 1.0 --mass.geometry.select.hull-min-framed-fraction 0",
                    "no selected Gaussian dropped outside the masks' hull"),
     "nofillcav": ("--mass.geometry.carve.no-fill-cavities", "enclosed empty pockets stay empty"),
@@ -53,7 +52,7 @@ RULES: dict[str, tuple[str, str]] = {
     "nocband": ("--mass.geometry.select.contact-band 0", "no contact band over the support in the clusters"),
     "nominpart": ("--mass.geometry.min-part-fraction 0 --mass.geometry.min-part-observation 0",
                   "no pooling of small or unobserved parts"),
-    "novoxevid": ("--mass.geometry.min-voxel-evidence 0", "every voxel with any evidence has its own mixture"),
+    "novoxevid": ("--mass.geometry.min-voxel-evidence 1e-3", "almost every voxel with evidence has its own mixture"),
     "novariants": ("--mass.geometry.no-variants", "the nominal carving only (the interval without geometry)"),
     "seam0": ("--mass.seam-offset-voxels 0", "no seam offset between parts"),
 }
@@ -92,14 +91,14 @@ def row_summary(rows: dict[str, dict], default: dict[str, dict]) -> dict:
             "moved_5pct": moved, "ratios": ratio}  # fmt: skip
 
 
-def table(summary: dict[str, dict]) -> str:
+def table(summary: dict[str, dict], rules: dict[str, tuple[str, str]] = RULES) -> str:
     def f(x, fmt):
         return "-" if x is None else format(x, fmt)
 
     lines = ["| row | switched off or moved | objects | median APE | mean abs log | median volume error | coverage "
              "| off by 2x | support counted | moved > 5% |", "|---" * 10 + "|"]
     for name, s in summary.items():
-        what = "the defaults" if name == "default" else RULES[name][1]
+        what = "the defaults" if name == "default" else rules[name][1]
         lines.append(f"| {name} | {what} | {s['objects']} | {f(s['median_ape'], '.3f')} | {f(s['mean_abs_log'], '.3f')}"
                      f" | {f(s['median_volume_error'], '.3f')} | {f(s['coverage'], '.0%')} | {s['off_2x']} | "
                      f"{s['support_counted']} | {len(s['moved_5pct'])} |")
