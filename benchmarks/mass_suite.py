@@ -318,7 +318,6 @@ def selection_share(run_dir: Path, family: str, seed: int, mesh_dir: Path | None
     polytope, so what the selection lacks is not carved."""
     from physgs_nerfstudio.export.run import load_run
     from physgs_nerfstudio.geometry.config import GeometryConfig
-    from physgs_nerfstudio.geometry.reconstruct import _views_used
     from physgs_nerfstudio.geometry.select import select_object
     from physgs_nerfstudio.synth.support import suite_layout
 
@@ -326,7 +325,7 @@ def selection_share(run_dir: Path, family: str, seed: int, mesh_dir: Path | None
     dp = json.loads(next((run_dir / "runs").glob("**/dataparser_transforms.json")).read_text())
     cfg = GeometryConfig()
     g = run.field
-    sel = select_object(g, _views_used(run.views, cfg), cfg.select, backend=cfg.backend)
+    sel = select_object(g, list(run.views), cfg.select, backend=cfg.backend)
     world = _to_world(g.means.double().cpu().numpy(), np.asarray(dp["transform"], float), float(dp["scale"]))
     meshes = {"mesh_dir": mesh_dir} if mesh_dir is not None else {}
     inside = np.zeros(len(world), bool)
