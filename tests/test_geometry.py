@@ -436,7 +436,7 @@ def test_a_failed_selection_neither_replaces_the_masks_nor_coarsens_the_grid(box
 
     monkeypatch.setattr(rec, "select_object", everything)
     assert geometry_of(both, views).selection.outside_hull == 300  # the masks' hull drops the far ones; without it:
-    monkeypatch.setattr(rec, "_within_hull", lambda *a: None)
+    monkeypatch.setattr(rec, "drop_outside_hull", lambda *a: None)
     geo = geometry_of(both, views)
     assert geo.selection.num_selected == both.num_gaussians
     assert 0.93 * 0.024 <= geo.volumes[0].sum() <= 1.12 * 0.024
@@ -464,7 +464,7 @@ def test_the_masks_hull_drops_gaussians_outside_the_masks_whatever_their_probabi
     monkeypatch.setattr(sel, "lift_masks", lambda g, vs, **kw: (torch.full((n,), 5.0, dtype=torch.float64),
                                                                  torch.zeros(n, dtype=torch.float64)))  # fmt: skip
     with monkeypatch.context() as m:  # without the masks' hull
-        m.setattr(rec, "_within_hull", lambda *a: None)
+        m.setattr(rec, "drop_outside_hull", lambda *a: None)
         without = geometry_of(both, views).selection
     with pytest.raises(ValueError, match="hull_vote_fraction"):
         _select(hull_vote_fraction=2.0)

@@ -265,10 +265,11 @@ def test_carve_votes_of_views_together_equal_one_view_at_a_time(seed):
     of the one-view-at-a-time loop, under the reconstruction's variants and the other options, for any batch size
     and chunk."""
     from physgs_nerfstudio.geometry.carve import CarveConfig, carve_votes_many
-    from physgs_nerfstudio.geometry.reconstruct import GeometryConfig, _variants
+    from physgs_nerfstudio.geometry.config import GeometryConfig
+    from physgs_nerfstudio.geometry.solid import carving_variants
 
     grid, views, depths = _carving_scene(seed)
-    variants = [c for _, c in _variants(GeometryConfig())]
+    variants = [c for _, c in carving_variants(GeometryConfig())]
     settings = [
         variants,
         [CarveConfig(depth_slope_margin=0.0), CarveConfig(depth_margin_voxels=0.5, near_band_voxels=2.0)],

@@ -365,13 +365,13 @@ def test_a_table_shot_from_above_loses_the_space_under_its_top(monkeypatch):
     views = ring_views(pf, (0, 0, 0.3), 2.2, n=18, elevations=(35.0, 55.0, 75.0), mask_pf=only_obj)
     truth = 0.8 * 0.5 * 0.04 + 4 * 0.04 * 0.04 * 0.5
     geo = geometry_of(pf, views, resolution=64)
-    from physgs_nerfstudio.geometry import reconstruct
+    from physgs_nerfstudio.geometry import solid
 
     def carving_alone(*args, **_kw):
         solids = args[6]
         return solids, {"majority": 0, "open_half": 0}, [np.zeros_like(s) for s in solids]
 
-    monkeypatch.setattr(reconstruct, "_without_hidden", carving_alone)
+    monkeypatch.setattr(solid, "_without_hidden", carving_alone)
     kept = geometry_of(pf, views, resolution=64).volumes[0].sum()
     v = geo.volumes[0].sum()
     print("truth", truth, "carving alone", kept, "without hidden space", v, geo.hidden_removed,

@@ -176,9 +176,9 @@ def _replay_rasterization() -> None:
 
 _FUNCTIONS = {
     "select": ["lift_masks", "band_labels", "split_close", "support_plane_or_reason"],
-    "reconstruct": ["_within_hull", "_object_views", "mask_hull", "carve_votes_many", "solid_from_votes",
-                    "support_excess", "voxel_mixture", "part_labels", "observation_shares", "concavities",
-                    "pooled_part_alpha", "material_quantiles", "part_areas", "fuse_structure"],
+    "reconstruct": ["drop_outside_hull", "_object_views", "voxel_mixture", "part_labels", "observation_shares",
+                    "concavities", "pooled_part_alpha", "material_quantiles", "part_areas", "fuse_structure"],
+    "solid": ["mask_hull", "carve_votes_many", "solid_from_votes", "support_excess"],
 }  # fmt: skip
 _FUNC_TIMES: dict[str, list[float]] = {}
 
@@ -186,10 +186,11 @@ _FUNC_TIMES: dict[str, list[float]] = {}
 def _time_functions(device: str) -> None:
     """Time the geometry's functions (--functions): each call wrapped with a device sync on both sides; the
     variants' areas run on a thread pool, so their times overlap and add up to more than the stage's."""
-    from physgs_nerfstudio.geometry import reconstruct, select
+    from physgs_nerfstudio.geometry import reconstruct, select, solid
 
     sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
-    for mod, names in ((select, _FUNCTIONS["select"]), (reconstruct, _FUNCTIONS["reconstruct"])):
+    for mod, names in ((select, _FUNCTIONS["select"]), (reconstruct, _FUNCTIONS["reconstruct"]),
+                       (solid, _FUNCTIONS["solid"])):
         for name in names:
             f = getattr(mod, name)
 

@@ -27,6 +27,7 @@ from .grid import VoxelGrid
 
 __all__ = [
     "SURFACE_TRANSMITTANCE",
+    "Subset",
     "ViewRender",
     "lift_masks",
     "render_depth",
@@ -39,6 +40,17 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 _T = TypeVar("_T")
+
+
+@dataclass
+class Subset:
+    """The Gaussians ``g`` at rows ``idx``: every attribute of ``g`` (``means``, ``scales``, ...) indexed by them."""
+
+    g: Any
+    idx: Tensor
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.g, name)[self.idx]
 
 
 SURFACE_TRANSMITTANCE = 0.8

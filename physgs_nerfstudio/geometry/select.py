@@ -20,18 +20,16 @@
    camera's optical axis (an object-centric capture looks at its object). A user's ``point`` (e.g. a click in
    the viewer, scene units) replaces the capture centre, and a ``bbox`` (viewer crop box, scene units)
    restricts the candidates first.
-4. **Inside the masks' hull** (:func:`outside_mask_hull`, applied by :func:`.reconstruct.reconstruct_object`). A
+4. **Inside the masks' hull** (:func:`outside_mask_hull`, applied by :func:`drop_outside_hull`). A
    selected Gaussian is dropped when its centre projects outside the views' foreground masks (by more than
    ``hull_margin_px``) in at least ``hull_min_votes`` views and ``hull_vote_fraction`` (a majority) of the views
    whose frame holds it, or when fewer than ``hull_min_framed_fraction`` of the views frame it at all (the
    carving's rule for space out of frame). It counts every view that frames the centre, seen or hidden, whereas
    the probability of step 1 counts only the views that see a Gaussian: floaters and background that few views
    see, over masks that bled, can get a high probability and join the object's cluster. On a 60-view 512 px GPU
-   run of the generated chair 81% of the selected Gaussians can be such; kept, they stretch the voxel domain
-   and make the selection's silhouette disagree with every view's mask, so that no view's failed mask can be
-   replaced by it (:func:`.reconstruct._object_views`). The vote is a majority, not
-   the carving's 15%: the built-in segmenter's masks miss a part of the object in a quarter of the views or more
-   (the chair's seat at 512 px), and the carving's replacement of those masks needs the object's Gaussians kept.
+   run of the generated chair 81% of the selected Gaussians can be such; kept, they stretch the voxel domain and
+   the seen Gaussians' polytope (:mod:`.solid`). The vote is a majority, not the carving's 15%: the built-in
+   segmenter's masks miss a part of the object in a quarter of the views or more (the chair's seat at 512 px).
    Each view's vote is weighed by its mask's *recall* (:func:`hull_view_weights`): the share of the centres that
    the views' majority holds inside the masks which this view holds inside too. A plain count trusts every mask
    alike, and when a third of the views lose a table's top, a vote fraction of 0.35 drops the top (half the
@@ -55,7 +53,14 @@ from .carve import mask_view_votes, signed_mask_distances
 from .clusters import band_labels, split_close
 from .gaussians import lift_masks
 from .grid import GeometryError
-from .support import SupportConfig, SupportPlane, support_plane_or_reason, views_up
+from .support import (
+    SupportConfig,
+    SupportPlane,
+    find_support,
+    support_gaussians,
+    support_plane_or_reason,
+    views_up,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -63,9 +68,11 @@ __all__ = [
     "ObjectSelection",
     "SelectConfig",
     "capture_centre",
+    "drop_outside_hull",
     "hull_view_weights",
     "nearest_cluster",
     "select_object",
+    "support_under",
 ]
 
 
@@ -296,3 +303,47 @@ def select_object(g: Any, views: Sequence[CaptureView], cfg: SelectConfig | None
     return ObjectSelection(prob, selected, centre, len(ids), on_support=on_support, support=support,
                            plane=plane if support is not None else None, plane_in_masks=support is not None,
                            split_from=split_from)  # fmt: skip
+
+
+def drop_outside_hull(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: SelectConfig) -> None:
+    """Drop the selected Gaussians outside the masks' hull (module doc, step 4; :func:`outside_mask_hull`), in place."""
+    idx = torch.nonzero(selection.selected).squeeze(1)
+    drop = outside_mask_hull(g.means[idx], views, cfg)
+    if not bool(drop.any()) or bool(drop.all()):  # all: the masks and the selection disagree; the carving says so
+        return
+    selection.selected[idx[drop]] = False
+    selection.outside_hull = int(drop.sum())
+    logger.info("object: %d selected Gaussians outside the masks' hull dropped, %d left", selection.outside_hull,
+                selection.num_selected)  # fmt: skip
+
+
+def support_under(g: Any, selection: ObjectSelection, views: Sequence[CaptureView], cfg: SelectConfig) -> None:
+    """Where the selection found no support plane among the foreground, find the support under the object among all
+    the Gaussians (:func:`.support.find_support`) and, in place, drop the object's Gaussians on or under it, set
+    ``selection.plane`` and ``selection.support`` (its Gaussians around the object, whose pixels the masks lose)."""
+    sc = cfg.support
+    if selection.plane is not None or not sc.enabled or not bool(selection.selected.any()):
+        return
+    keep = (g.opacities.reshape(-1) >= cfg.min_opacity) | selection.selected
+    idx = torch.nonzero(keep).squeeze(1)
+    means = g.means[idx].double().cpu().numpy()
+    sel = selection.selected[idx].cpu().numpy()
+    cams = np.stack([v.centre.double().cpu().numpy() for v in views])
+    plane, why = find_support(means, sel, cams, views_up(views), sc)
+    selection.support_found = why
+    if plane is None:
+        logger.info("object: no support under it (%s)", why)
+        return
+    drop = sel & plane.drops(means)
+    if int(sel.sum() - drop.sum()) < 50:  # nothing of the object would be left above it: no support
+        selection.support_found = f"no support: the level layer around its base holds {drop[sel].mean():.0%} of it"
+        logger.info("object: %s", selection.support_found)
+        return
+    dev = selection.selected.device
+    selection.selected[idx[torch.from_numpy(drop).to(dev)]] = False
+    selection.on_support += int(drop.sum())
+    selection.support = torch.zeros_like(selection.selected)
+    selection.support[idx[torch.from_numpy(support_gaussians(means, sel & ~drop, plane)).to(dev)]] = True
+    selection.plane = plane
+    logger.info("object: standing on a support (%s); %d of its Gaussians on or under it dropped", why,
+                int(drop.sum()))  # fmt: skip
