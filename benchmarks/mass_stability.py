@@ -7,12 +7,30 @@ option set to each end of its documented range (one option at a time, the rest a
 the mean mass relative to the default export. Target: every change within 20%.
 Writes one summary JSON (``--out``: every setting's mass per run) and prints one table (per run its largest change
 and the setting that made it).
+
+**Ablation** (``--ablation OUT [OUT ...]``): each rule of the mass geometry switched off (or moved), one at a time,
+on finished `mass_suite.py` runs, scored against the truth. Each row re-exports every run of OUT
+(`mass_suite.py --export-args ... --alt-name NAME`: the trained splat and its perception are the same, only the
+geometry's settings change) and scores it beside the runs' own export (``default``): median APE, mean
+|log(predicted / true)| (every object's error counts, not only the middle one), median volume error, 90% coverage,
+objects off by 2x, the support counted, and the objects whose mass moved by more than 5% against the default. A rule
+is worth keeping when switching it off makes the suite worse, not when it helps one object. Run it on the
+development families only (`synth.families.DEVELOPMENT`); defaults are never chosen on the held-out ones. About a
+minute and a half a row for 16 CPU runs on 2 cores. Writes ``--out`` (the rows and per-object ratios) and prints a
+Markdown table.
+
+    python benchmarks/mass_suite.py --renderers mitsuba --seeds 71001 --jobs 2 --out OUT --families mug chair \
+        hammer bottle shoe table pan lamp crate stool dumbbell vase bowl bucket book plank
+    python benchmarks/mass_stability.py --ablation OUT --jobs 2 --out geometry_ablation.json
+    python benchmarks/mass_stability.py --ablation OUT1 OUT2 --only noslope concave2   # two seeds as one suite
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import statistics
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -87,14 +105,128 @@ def sweep(run: Path, chosen: dict[str, list[str]], jobs: int) -> dict:
     return {"default_kg": base, "largest_change": worst, "largest_change_setting": at, "failed": failed, "rows": rows}
 
 
+# name -> (flags of `physgs export`, what the row switches off or moves)
+RULES: dict[str, tuple[str, str]] = {
+    "noextent": ("--mass.geometry.extent-pad-voxels 1e6", "no cut to the seen Gaussians' polytope"),
+    "noconsensus": ("--mass.geometry.carve.depth-consensus 0", "no depth consensus in the free-space vote"),
+    "noslope": ("--mass.geometry.carve.depth-slope-margin 0", "no depth-lookup slack in the margin"),
+    "noseen": ("--mass.geometry.hidden-skin-seen 1e6", "every axis end samples the hidden-space skin"),
+    "norefit": ("--mass.geometry.refit-fraction 0", "no second carving on a grid fitted to the solid"),
+    "up1": ("--mass.geometry.interior-up-weight 1", "interior materials by Euclidean nearest voxel"),
+    "nosupport": ("--mass.geometry.select.support.no-enabled", "no support plane (the contact cut only)"),
+    "noconcave": ("--mass.geometry.concavity-px 1e6", "no concavities: a wall's inner face counts as wall"),
+    "concave2": ("--mass.geometry.concavity-px 2", "concavities from 2 px inside the masks' hull (default 3)"),
+    "concave5": ("--mass.geometry.concavity-px 5", "concavities from 5 px inside the masks' hull (default 3)"),
+    "noevid": ("--mass.geometry.evidence-surface-voxels 1e6", "every selected Gaussian's labels are evidence"),
+    "nodilate": ("--mass.geometry.object-mask-dilate-px 0", "the object's silhouette cuts the masks undilated"),
+    "nohulldrop": ("--mass.geometry.select.hull-vote-fraction 1.0 --mass.geometry.select.hull-min-framed-fraction 0",
+                   "no selected Gaussian dropped outside the masks' hull"),
+    "nofillcav": ("--mass.geometry.carve.no-fill-cavities", "enclosed empty pockets stay empty"),
+    "nominseen": ("--mass.geometry.carve.min-seen-fraction 0", "space out of frame in most views stays"),
+    "nooutlier": ("--mass.geometry.extent-outlier-fraction 0", "the polytope's outermost Gaussians all count"),
+    "nocband": ("--mass.geometry.select.contact-band 0", "no contact band over the support in the clusters"),
+    "nominpart": ("--mass.geometry.min-part-fraction 0 --mass.geometry.min-part-observation 0",
+                  "no pooling of small or unobserved parts"),
+    "novoxevid": ("--mass.geometry.min-voxel-evidence 1e-3", "almost every voxel with evidence has its own mixture"),
+    "novariants": ("--mass.geometry.no-variants", "the nominal carving only (the interval without geometry)"),
+    "seam0": ("--mass.seam-offset-voxels 0", "no seam offset between parts"),
+}
+
+
+def _rows(outs: list[Path], name: str) -> dict[str, dict] | None:
+    """Every OUT's rows of one re-export (``default``: the runs' own), keyed by run; None where an OUT lacks it."""
+    rows: dict[str, dict] = {}
+    for out in outs:
+        f = out / ("mass_suite.json" if name == "default" else f"mass_suite_{name}.json")
+        if not f.is_file():
+            return None
+        rows.update({f"{r['family']}_s{r['seed']}_{r['renderer']}": r for r in json.loads(f.read_text())["rows"]})
+    return rows
+
+
+def _ok(r: dict) -> bool:
+    return not r.get("failed") and r.get("pred_kg") is not None
+
+
+def row_summary(rows: dict[str, dict], default: dict[str, dict]) -> dict:
+    """One row of the table (module doc); ``default``: the runs' own export, for the objects that moved."""
+    ok = [r for r in rows.values() if _ok(r)]
+    ratio = {k: r["pred_kg"] / r["truth_kg"] for k, r in rows.items() if _ok(r)}
+    vol = [abs(r["error"]["volume"] - 1) for r in ok if r.get("error", {}).get("volume") is not None]
+    moved = sorted(k for k, r in rows.items()
+                   if _ok(r) and k in default and _ok(default[k])
+                   and abs(r["pred_kg"] / default[k]["pred_kg"] - 1) > 0.05)  # fmt: skip
+    return {"objects": len(ok), "failed": len(rows) - len(ok),
+            "median_ape": statistics.median(r["ape"] for r in ok) if ok else None,
+            "mean_abs_log": statistics.fmean(abs(math.log(x)) for x in ratio.values() if x > 0) if ratio else None,
+            "median_volume_error": statistics.median(vol) if vol else None,
+            "coverage": sum(bool(r["covered"]) for r in ok) / len(ok) if ok else None,
+            "off_2x": sum(not 0.5 <= x <= 2 for x in ratio.values()),
+            "support_counted": sum(bool(r.get("support_kg", 0) > 0.05 * r["truth_kg"]) for r in ok),
+            "moved_5pct": moved, "ratios": ratio}  # fmt: skip
+
+
+def ablation_table(summary: dict[str, dict], rules: dict[str, tuple[str, str]] = RULES) -> str:
+    def f(x, fmt):
+        return "-" if x is None else format(x, fmt)
+
+    head = ("| row | switched off or moved | objects | median APE | mean abs log | median volume error | coverage "
+            "| off by 2x | support counted | moved > 5% |")
+    lines = [head, "|---" * 10 + "|"]
+    for name, s in summary.items():
+        what = "the defaults" if name == "default" else rules[name][1]
+        lines.append(f"| {name} | {what} | {s['objects']} | {f(s['median_ape'], '.3f')} | {f(s['mean_abs_log'], '.3f')}"
+                     f" | {f(s['median_volume_error'], '.3f')} | {f(s['coverage'], '.0%')} | {s['off_2x']} | "
+                     f"{s['support_counted']} | {len(s['moved_5pct'])} |")
+    return "\n".join(lines)
+
+
+def ablation(outs: list[Path], only: list[str] | None, jobs: int, summarize: bool, out: Path) -> None:
+    """``--ablation`` (module doc): re-export OUT's runs once per rule (unless ``summarize``), then score every row."""
+    default = _rows(outs, "default")
+    if default is None:
+        sys.exit(f"mass_stability: mass_suite.json not found in every one of {[str(o) for o in outs]}: run "
+                 "benchmarks/mass_suite.py first.")  # fmt: skip
+    names = only if only is not None else list(RULES)
+    suite = Path(__file__).resolve().with_name("mass_suite.py")
+    for name in names if not summarize else []:
+        print(f"== {name}: {RULES[name][1]}", file=sys.stderr, flush=True)
+        for o in outs:
+            runs = json.loads((o / "mass_suite.json").read_text())["rows"]
+            cmd = [sys.executable, str(suite), "--out", str(o), "--seeds", *sorted({str(r["seed"]) for r in runs}),
+                   "--renderers", *sorted({r["renderer"] for r in runs}), "--families",
+                   *sorted({r["family"] for r in runs}), "--jobs", str(jobs), "--alt-name", name,
+                   f"--export-args={RULES[name][0]}"]  # fmt: skip
+            subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    summary = {"default": row_summary(default, default)}
+    for name in names:
+        rows = _rows(outs, name)
+        if rows is not None:
+            summary[name] = row_summary(rows, default)
+    write_summary(out, {"seeds": sorted({r["seed"] for r in default.values()}),
+                        "renderers": sorted({r["renderer"] for r in default.values()}),
+                        "rules": {n: RULES[n] for n in summary if n in RULES}, "summary": summary})  # fmt: skip
+    print(ablation_table(summary))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("runs", nargs="+", type=Path, help="physgs demo output folders")
+    ap.add_argument("runs", nargs="*", type=Path, help="physgs demo output folders")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--settings", nargs="+", default=None, choices=list(SETTINGS), metavar="S",
                     help="only these settings (the default export always runs first)")
-    ap.add_argument("--out", type=Path, default=Path("mass_stability.json"), help="the summary JSON")
+    ap.add_argument("--out", type=Path, default=None, help="the summary JSON (default: mass_stability.json, or "
+                    "geometry_ablation.json with --ablation)")
+    ap.add_argument("--ablation", type=Path, nargs="+", default=None, metavar="OUT",
+                    help="finished mass_suite.py output folders: each geometry rule switched off (module doc)")
+    ap.add_argument("--only", nargs="+", default=None, choices=sorted(RULES), help="--ablation: these rows only")
+    ap.add_argument("--summarize", action="store_true", help="--ablation: score the re-exports already there")
     a = ap.parse_args()
+    if a.ablation is not None:
+        return ablation(a.ablation, a.only, a.jobs, a.summarize, a.out or Path("geometry_ablation.json"))
+    if not a.runs:
+        ap.error("give physgs demo output folders, or --ablation with mass_suite.py output folders")
+    a.out = a.out or Path("mass_stability.json")
     chosen = {k: SETTINGS[k] for k in SETTINGS if a.settings is None or k == "default" or k in a.settings}
     runs = {}
     for run in a.runs:
