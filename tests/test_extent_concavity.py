@@ -20,7 +20,7 @@ from physgs_nerfstudio.geometry.gaussians import (
     within_support,
 )
 from physgs_nerfstudio.geometry.grid import VoxelGrid
-from physgs_nerfstudio.geometry.parts import concavities, part_areas
+from physgs_nerfstudio.geometry.walls import concavities, part_areas
 from physgs_nerfstudio.render.projection import quat_to_rotmat
 
 

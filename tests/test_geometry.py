@@ -665,7 +665,7 @@ def test_a_parts_whole_surface_is_reported(box):
 def test_seam_areas_count_the_faces_between_parts():
     """seam_areas against a brute-force loop over voxel pairs on random labels, and the contact of two stacked
     blocks: their shared face, exactly."""
-    from physgs_nerfstudio.geometry.parts import seam_areas
+    from physgs_nerfstudio.geometry.walls import seam_areas
 
     rng = np.random.default_rng(4)
     lab = rng.integers(-1, 4, size=(5, 6, 4))
@@ -705,7 +705,7 @@ def _split_in_two(geo):
     import dataclasses
 
     from physgs_nerfstudio.bayes.nig import NIG
-    from physgs_nerfstudio.geometry.parts import seam_areas
+    from physgs_nerfstudio.geometry.walls import seam_areas
     from physgs_nerfstudio.geometry.structure import PartStructure
 
     z = np.argwhere(geo.solid)[:, 2]

@@ -13,8 +13,9 @@ from scipy import ndimage
 from skimage.measure import marching_cubes
 
 from physgs_nerfstudio.geometry import parts as parts_mod
+from physgs_nerfstudio.geometry import walls as walls_mod
 from physgs_nerfstudio.geometry.grid import VoxelGrid
-from physgs_nerfstudio.geometry.parts import _nearest_solid, part_areas
+from physgs_nerfstudio.geometry.walls import _nearest_solid, part_areas
 
 
 def _direct(grid, solid, parts, num_parts, sheet_voxels, area_sigma=0.5):
@@ -33,7 +34,7 @@ def _direct(grid, solid, parts, num_parts, sheet_voxels, area_sigma=0.5):
     # the plate test on the whole grid (test_plate_test_by_summed_tables_equals_each_window_directly checks it)
     idx = np.flatnonzero(sheet)
     half = 2 * int(np.ceil(2 * sheet_voxels)) + 1
-    sheet[idx] = parts_mod._plate_like(solid, tuple(a[idx] for a in nv), half, parts_mod.MIN_PLATE)
+    sheet[idx] = walls_mod._plate_like(solid, tuple(a[idx] for a in nv), half, walls_mod.MIN_PLATE)
     ok = pid >= 0
     np.add.at(area, pid[ok], (fa * np.where(sheet, 0.5, 1.0))[ok])
     np.add.at(sheet_area, pid[ok], (fa * sheet)[ok])
@@ -66,7 +67,7 @@ def test_part_areas_equal_the_direct_computation(seed, sheet_voxels, monkeypatch
         np.testing.assert_allclose(got.volume, np.bincount(parts[solid], minlength=2) * grid.voxel_size**3)
         # ... so with the transform's choice of voxel, everything else is the same computation, to the last bit
         with monkeypatch.context() as m:
-            m.setattr(parts_mod, "_nearest_solid", _transform_nearest)
+            m.setattr(walls_mod, "_nearest_solid", _transform_nearest)
             got = part_areas(grid, solid, parts, 2, sheet_voxels=sheet_voxels)
         np.testing.assert_allclose(got.area, area, rtol=1e-12)
         np.testing.assert_allclose(got.sheet_share, np.divide(sheet_area, total, out=np.zeros(2), where=total > 0),
@@ -514,7 +515,7 @@ def test_sum_rows_is_add_at_bit_for_bit():
 
 @pytest.mark.parametrize("s", [1.0, 1.5, 2.0, 2.5])
 def test_erosion_by_shifts_is_scipys(s):
-    from physgs_nerfstudio.geometry.parts import _erode
+    from physgs_nerfstudio.geometry.walls import _erode
 
     rng = np.random.default_rng(int(10 * s))
     solid = ndimage.binary_closing(rng.random((23, 17, 30)) > 0.35)
@@ -528,7 +529,7 @@ def test_erosion_by_shifts_is_scipys(s):
 
 
 def test_face_dilation_by_shifts_is_scipys():
-    from physgs_nerfstudio.geometry.parts import _dilate_faces
+    from physgs_nerfstudio.geometry.walls import _dilate_faces
 
     mask = np.random.default_rng(4).random((19, 24, 13)) > 0.93
     mask[0, 0, 0] = mask[-1, -1, -1] = True  # at the corners: nothing wraps around
@@ -631,7 +632,7 @@ def test_closed_form_eigenvalues_are_lapacks():
     v = rng.normal(size=(10, 3))
     m[20:30] = v[:, :, None] * v[:, None, :]
     m[30:40] = np.diag([1.0, 1.0, 4.0])
-    got = parts_mod.sym3_eigvalsh(torch.from_numpy(m)).numpy()
+    got = walls_mod.sym3_eigvalsh(torch.from_numpy(m)).numpy()
     want = np.linalg.eigvalsh(m)
     assert np.all(np.diff(got, axis=1) >= 0)
     # near a repeated eigenvalue the arccos loses half the digits: 1e-7 of the matrix's scale, far below what the
@@ -650,7 +651,7 @@ def test_plate_test_by_summed_tables_equals_each_window_directly(seed):
     solid[7, 5, 1:16] = True  # a rod
     at = tuple(a[::3] for a in np.nonzero(solid))
     half, min_plate = 3, 0.25
-    got = parts_mod._plate_like(solid, at, half, min_plate)
+    got = walls_mod._plate_like(solid, at, half, min_plate)
     want = []
     for c in np.stack(at, -1):
         lo, hi = np.maximum(c - half, 0), np.minimum(c + half + 1, solid.shape)

@@ -240,7 +240,7 @@ def test_an_object_too_small_for_a_surface_is_one_line():
 
     from physgs_nerfstudio.geometry import GeometryError
     from physgs_nerfstudio.geometry.grid import VoxelGrid
-    from physgs_nerfstudio.geometry.parts import part_areas
+    from physgs_nerfstudio.geometry.walls import part_areas
 
     grid = VoxelGrid((0.0, 0.0, 0.0), 0.1, (9, 9, 9))
     solid = np.zeros(grid.shape, bool)

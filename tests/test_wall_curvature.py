@@ -15,7 +15,7 @@ from scipy import ndimage
 from skimage.measure import marching_cubes
 
 from physgs_nerfstudio.geometry.grid import VoxelGrid
-from physgs_nerfstudio.geometry.parts import face_mean_curvature, part_areas
+from physgs_nerfstudio.geometry.walls import face_mean_curvature, part_areas
 from physgs_nerfstudio.mass.integrate import wall_volume
 
 

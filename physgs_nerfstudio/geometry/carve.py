@@ -13,7 +13,7 @@ image, in front of the camera.
 * **The silhouette vote** (:func:`mask_hull`): a view votes ``x`` empty when ``x`` projects outside its object mask
   (the mask's signed distance there is positive). The voxels that the same counts leave are the masks' *visual
   hull*; its empty voxels outside the solid are the object's concavities, which only depth carves (a cup's inside):
-  :func:`.parts.part_areas` does not count the walls that face them twice.
+  :func:`.walls.part_areas` does not count the walls that face them twice.
 
 In both, a voxel that fewer than ``min_seen_fraction`` of the views have in their image at all is empty (an
 object-centric capture frames its object in every view). Otherwise it is solid, so space that no view sees through

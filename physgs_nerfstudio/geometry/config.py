@@ -64,7 +64,7 @@ class GeometryConfig:
     concavity_px: float = 3.0
     """a wall face that is no sheet and faces a concavity (empty space that only depth carved, this many pixels and
     at least 2 voxels inside the visual hull: a cup's inside) is not counted in a hollow part's area (its outer face
-    is; :func:`.parts.part_areas`); in pixels because the hull is wider than the solid by the masks' blur"""
+    is; :func:`.walls.part_areas`); in pixels because the hull is wider than the solid by the masks' blur"""
     min_part_fraction: float = 2e-3
     """parts smaller than this share of the solid are pooled into one last part (:func:`.parts.part_labels`)"""
     min_part_observation: float = 0.5

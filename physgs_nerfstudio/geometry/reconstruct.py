@@ -31,13 +31,9 @@ from .grid import GeometryError, VoxelGrid
 from .part_evidence import absorb_unobserved, fuse_part_materials, merge_same_material, observation_shares
 from .partial import BOUNDARY_SUBSAMPLES, boundary_fill, part_volumes
 from .parts import (
-    PartGeometry,
-    concavities,
     material_quantiles,
-    part_areas,
     part_labels,
     pooled_part_alpha,
-    seam_areas,
     sum_rows,
     voxel_mixture,
 )
@@ -45,6 +41,7 @@ from .select import ObjectSelection, drop_outside_hull, select_object, support_u
 from .solid import Carving, carve_object, unseen_face_share
 from .structure import PartStructure, fuse_structure
 from .support import views_up
+from .walls import PartGeometry, concavities, part_areas, seam_areas
 
 logger = logging.getLogger(__name__)
 
@@ -86,11 +83,11 @@ class ObjectGeometry:
     """[G, P] area of the fully counted wall faces per variant and part, scene units^2 (the rest of ``areas`` is
     sheet faces at half weight)"""
     curvatures: np.ndarray | None = None
-    """[G, P] integrated mean curvature of those faces, scene units (:mod:`physgs_nerfstudio.geometry.parts`,
+    """[G, P] integrated mean curvature of those faces, scene units (:mod:`physgs_nerfstudio.geometry.walls`,
     "Wall curvature"); None: walls of area x thickness"""
     seam_areas: np.ndarray | None = None
     """[P, P] area between each two parts inside the nominal solid, scene units^2
-    (:func:`physgs_nerfstudio.geometry.parts.seam_areas`); None: no seams (the mass moves none)"""
+    (:func:`physgs_nerfstudio.geometry.walls.seam_areas`); None: no seams (the mass moves none)"""
     unseen_surface_share: float = 0.0
     """the share of the nominal solid's voxel faces that no view placed: faces onto space the views kept (no
     view saw past it) that the support plane's cut, the Gaussians' polytope or the hidden open space rule
@@ -296,7 +293,7 @@ def _part_materials(g: Any, pi: Any, selection: ObjectSelection, views: Sequence
 
 def _surfaces(cv: Carving, pp: _Parts, cfg: GeometryConfig, pixel_voxels: float, device: Any
               ) -> list[PartGeometry]:  # fmt: skip
-    """Every variant's per-part wall areas, surfaces and curvatures (:func:`.parts.part_areas`)."""
+    """Every variant's per-part wall areas, surfaces and curvatures (:func:`.walls.part_areas`)."""
     # a face is one side of a sheet where the solid's inscribed half-thickness is at most the nominal depth margin
     # + 2 voxels (the surface depth keeps both surfaces of a wall, in front of their Gaussians)
     sheet = cfg.carve.depth_margin_voxels + 2.0

@@ -18,7 +18,7 @@ Per sample (``n_samples``, ``seed``-ed numpy Generator), all draws from one join
   leather upper, a hammer's steel head on its oak handle), no view sees the boundary: each inside voxel takes the
   material of the nearest surface evidence (:func:`physgs_nerfstudio.geometry.parts.voxel_mixture`), so the seam is
   the seen one carried inwards, placed to about the carving's resolution ``u``. Each seam between parts ``i`` and
-  ``j``, of area ``a_ij`` (:func:`physgs_nerfstudio.geometry.parts.seam_areas`), moves by its own offset
+  ``j``, of area ``a_ij`` (:func:`physgs_nerfstudio.geometry.walls.seam_areas`), moves by its own offset
   ``e ~ N(0, (s_seam u)^2)`` per sample: ``a_ij e`` of volume passes from ``j`` to ``i`` (or back), the object's
   volume unchanged (no part below 0). Which side of a seam holds the volume decides its density and whether it
   weighs at all (the inside of a hollow part does not), so this moves the mass where parts of unlike weight meet
@@ -162,7 +162,7 @@ def _density_draws(pf: Any, cfg: MassConfig, rng: np.random.Generator) -> np.nda
 def wall_volume(area: np.ndarray, full_area: np.ndarray, curvature: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Volume of a wall of thickness ``t`` (arrays broadcast; any consistent length unit). ``area``: the part's wall
     area (sheet faces at half weight); ``full_area`` of it lies on fully counted faces, whose wall lies inside them,
-    with integrated mean curvature ``curvature`` (:mod:`physgs_nerfstudio.geometry.parts`). Under those faces the
+    with integrated mean curvature ``curvature`` (:mod:`physgs_nerfstudio.geometry.walls`). Under those faces the
     area at depth ``s`` is taken as ``A (1 - s / R)^2`` with ``R = A / M``, which gives ``A t - M t^2 + ...``, the
     first two terms of the wall's exact volume for any surface, and is exact for a sphere:
     ``A t (1 - x + x^2 / 3)`` with ``x = t M / A``, and ``A^2 / (3 M)`` (the whole inside) once ``x >= 1``. Where
