@@ -228,7 +228,7 @@ def carve_object(g: Any, selection: ObjectSelection, views: list[CaptureView], r
     ext = {"scales": g.scales[ext_idx], "quats": g.quats[ext_idx],
            "extent_skip": int(cfg.extent_outlier_fraction * selection.num_selected)}  # fmt: skip
 
-    def carve(on: VoxelGrid) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None, np.ndarray]:
+    def carve(on: VoxelGrid) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
         # the masks' visual hull: the empty space inside it, outside the solid, is the object's concavities
         hull = mask_hull(on, views, variants[0][1], device=g.means.device)
         return _carve_variants(on, views, depths, hull, variants, g.means.device, g.means[ext_idx],
