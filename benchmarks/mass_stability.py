@@ -23,6 +23,14 @@ Markdown table.
         hammer bottle shoe table pan lamp crate stool dumbbell vase bowl bucket book plank
     python benchmarks/mass_stability.py --ablation OUT --jobs 2 --out geometry_ablation.json
     python benchmarks/mass_stability.py --ablation OUT1 OUT2 --only noslope concave2   # two seeds as one suite
+
+**Surface offset** (``--surface-offset OUT [OUT ...]``): how far the carved surface lies off the true one, over the
+finished runs' objects whose every part is solid: ``z = (V - V_true) / (S u)``, the volume error in resolution units
+of surface (``S`` the carved surface area, ``u`` the carving's resolution). Its robust spread is the spread of
+the surface placement that the mass's interval draws (``MassConfig.surface_offset_voxels``). Writes ``--out`` and
+prints each object's offset.
+
+    python benchmarks/mass_stability.py --surface-offset OUT1 OUT2 --out surface_offset_cpu.json
 """
 
 from __future__ import annotations
@@ -130,6 +138,7 @@ RULES: dict[str, tuple[str, str]] = {
     "novoxevid": ("--mass.geometry.min-voxel-evidence 1e-3", "almost every voxel with evidence has its own mixture"),
     "novariants": ("--mass.geometry.no-variants", "the nominal carving only (the interval without geometry)"),
     "seam0": ("--mass.seam-offset-voxels 0", "no seam offset between parts"),
+    "surface0": ("--mass.surface-offset-voxels 0", "no surface offset (the surface where the carving put it)"),
 }
 
 
@@ -209,6 +218,34 @@ def ablation(outs: list[Path], only: list[str] | None, jobs: int, summarize: boo
     print(ablation_table(summary))
 
 
+def surface_offsets(outs: list[Path], out: Path) -> None:
+    """``--surface-offset`` (module doc): the carved surface's offset ``z = (V - V_true) / (S u)`` in resolution
+    units, over the objects whose every true part is solid (a hollow part's envelope is not its mass), from each
+    run's own export; its robust spread (1.4826 x the median of |z|) is what ``MassConfig.surface_offset_voxels``
+    draws."""
+    rows = _rows(outs, "default")
+    if rows is None:
+        sys.exit(f"mass_stability: mass_suite.json not found in every one of {[str(o) for o in outs]}: run "
+                 "benchmarks/mass_suite.py first.")  # fmt: skip
+    z: dict[str, float] = {}
+    for key, r in sorted(rows.items()):
+        obj = [p for p in r.get("true_parts", []) if p.get("role", "object") == "object"]
+        if not _ok(r) or not obj or any(p["volume_model"] != "solid" for p in obj):
+            continue
+        report = next(o / key / "export" / "report.json" for o in outs if (o / key).is_dir())
+        rep = json.loads(report.read_text())["mass"]
+        S = sum(p["surface_area_m2"] for p in rep["parts"])
+        V = sum(p["volume_m3"] for p in rep["parts"])
+        z[key] = (V - sum(p["volume_m3"] for p in obj)) / (S * rep["geometry"]["resolution_unit_m"])
+    if not z:
+        sys.exit("mass_stability: no finished run of an all-solid object in the given folders.")
+    spread = 1.4826 * statistics.median(abs(v) for v in z.values())
+    write_summary(out, {"objects": len(z), "robust_spread_voxels": spread, "median_voxels": statistics.median(z.values()),
+                        "offsets_voxels": z})  # fmt: skip
+    print(format_table(("run", "offset (resolution units)"), sorted(z.items())))
+    print(f"{len(z)} all-solid objects: robust spread {spread:.2f}, median {statistics.median(z.values()):+.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="*", type=Path, help="physgs demo output folders")
@@ -221,7 +258,11 @@ def main() -> None:
                     help="finished mass_suite.py output folders: each geometry rule switched off (module doc)")
     ap.add_argument("--only", nargs="+", default=None, choices=sorted(RULES), help="--ablation: these rows only")
     ap.add_argument("--summarize", action="store_true", help="--ablation: score the re-exports already there")
+    ap.add_argument("--surface-offset", type=Path, nargs="+", default=None, metavar="OUT",
+                    help="finished mass_suite.py output folders: the carved surface's offset (module doc)")
     a = ap.parse_args()
+    if a.surface_offset is not None:
+        return surface_offsets(a.surface_offset, a.out or Path("surface_offset.json"))
     if a.ablation is not None:
         return ablation(a.ablation, a.only, a.jobs, a.summarize, a.out or Path("geometry_ablation.json"))
     if not a.runs:

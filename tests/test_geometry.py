@@ -24,7 +24,7 @@ from physgs_nerfstudio.geometry import GeometryConfig, MaskObservation, reconstr
 from physgs_nerfstudio.geometry.carve import mask_hull
 from physgs_nerfstudio.geometry.gaussians import render_depth
 from physgs_nerfstudio.geometry.select import capture_centre
-from physgs_nerfstudio.mass import MassConfig, integrate_mass
+from physgs_nerfstudio.mass import MassConfig, integrate_mass, mass_draws
 
 
 def cup_surface(radius, height, spacing):
@@ -736,7 +736,7 @@ def test_seams_move_mass_only_between_parts_of_unlike_weight(box):
     area = float(geo.seam_areas[0, 1])
     assert area == pytest.approx(0.4 * 0.3, rel=0.15)  # the box's horizontal section
     unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)
-    kw = {"n_samples": 20000, "seed": 5, "structure": "solid"}
+    kw = {"n_samples": 20000, "seed": 5, "structure": "solid", "surface_offset_voxels": 0.0}
     off = integrate_mass(pf, geo, MassConfig(**kw, seam_offset_voxels=0.0), keep_samples=True)
     on = integrate_mass(pf, geo, MassConfig(**kw), keep_samples=True)  # the default, 1.0
     np.testing.assert_allclose(on.samples, off.samples, rtol=1e-9)
@@ -754,6 +754,37 @@ def test_seams_move_mass_only_between_parts_of_unlike_weight(box):
     assert on.interval_kg[1] - on.interval_kg[0] > off.interval_kg[1] - off.interval_kg[0]
     with pytest.raises(ValueError, match="seam_offset_voxels"):
         MassConfig(seam_offset_voxels=float("nan"))
+
+
+def test_the_surface_offset_is_one_normal_draw_for_the_whole_object(box):
+    """The solid box, every other draw the same (the offset is drawn last): each sample's mass over its mass without
+    the offset is ``g(a z) / E[g(a z)]``, ``g(x) = 1 + x`` outwards and ``exp(x)`` inwards, ``a = S s u / V``. With
+    the mean growth from numerical integration (scipy's quad, not the module's closed form), the offsets ``z``
+    recovered from those ratios are standard normal by a Kolmogorov-Smirnov test; the mean mass stays (within 4
+    Monte Carlo standard errors) and the interval widens. A negative or NaN spread is refused."""
+    from scipy import integrate, stats
+
+    pf, views = box
+    geo = geometry_of(pf, views)
+    kw = {"n_samples": 4000, "seed": 3, "structure": "solid", "seam_offset_voxels": 0.0}
+    off = integrate_mass(pf, geo, MassConfig(**kw, surface_offset_voxels=0.0), keep_samples=True)
+    on = integrate_mass(pf, geo, MassConfig(**kw, surface_offset_voxels=3.0), keep_samples=True)
+    gi = mass_draws(pf, geo, MassConfig(**kw, surface_offset_voxels=0.0)).variant
+    unit = geo.grid.voxel_size * max(1.0, geo.pixel_voxels)
+    a = geo.surface_areas[gi, 0] * 3.0 * unit / geo.volumes[gi, 0]
+    g = lambda x: 1.0 + x if x >= 0 else math.exp(x)
+    mean_g = {v: integrate.quad(lambda z, v=v: g(v * z) * stats.norm.pdf(z), -40, 40, points=[0.0])[0]
+              for v in np.unique(a)}  # fmt: skip
+    grown = on.samples / off.samples * np.array([mean_g[v] for v in a])
+    z = np.where(grown >= 1, (grown - 1) / a, np.log(grown) / a)
+    assert stats.kstest(z, "norm").pvalue > 0.01
+    assert abs(on.mean_kg - off.mean_kg) < 4 * float(np.std(on.samples)) / math.sqrt(len(on.samples))
+    assert on.geometry["surface_offset_voxels"] == 3.0
+    assert on.interval_kg[1] - on.interval_kg[0] > 1.2 * (off.interval_kg[1] - off.interval_kg[0])
+    assert (on.samples > 0).all()
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ValueError, match="surface_offset_voxels"):
+            MassConfig(surface_offset_voxels=bad)
 
 
 @pytest.mark.parametrize("value", [0.0, -1.0])

@@ -118,7 +118,7 @@ def test_the_mass_draws_the_boundary_occupancy(table_geometries):
 
     pf, half, whole = table_geometries
     n = 40000
-    cfg = {"n_samples": n, "seed": 5, "structure": "solid", "seam_offset_voxels": 0.0}
+    cfg = {"n_samples": n, "seed": 5, "structure": "solid", "seam_offset_voxels": 0.0, "surface_offset_voxels": 0.0}
     rep = integrate_mass(pf, half, MassConfig(**cfg), keep_samples=True)
     V, B = half.volumes[:, 0], half.hidden_boundary[:, 0]
     mpu3 = float(pf.metres_per_unit) ** 3
