@@ -74,8 +74,8 @@ __all__ = ["MassConfig", "MassDraws", "MassReport", "MaterialMass", "integrate_m
 
 SURFACE_OFFSET_VOXELS = 0.6
 """How far off the carved surface lies, one standard deviation in resolution units (module doc, "Surface
-placement"). Over the objects of the development families whose every part is solid, in CPU demo runs (path traced
-at seeds 71001 and 71002, the project's renderer at 71001: 18 objects), ``z = (V - V_true) / (S u)``, the volume
+placement"). Over the objects of the development families whose every part is solid, in CPU demo runs (three run
+sets: path traced at two seeds, the project's renderer at one; 18 objects), ``z = (V - V_true) / (S u)``, the volume
 error in units of one resolution unit of surface, has a robust spread (1.4826 x its median absolute value) of 0.60
 and a median near 0 (path traced alone: 0.81 and -0.12; the project's renderer alone: 0.31 and +0.16):
 ``benchmarks/mass_stability.py --surface-offset``, ``benchmarks/results/surface_offset_cpu.json``."""
